@@ -1,0 +1,1 @@
+"""OvertakeZoo benchmark: suites, runner, metrics, results, leaderboard, archives, datasets, CLI."""

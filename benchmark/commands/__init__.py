@@ -1,0 +1,1 @@
+"""Subcommands of the overtakezoo CLI; each module exposes register(subparsers)."""

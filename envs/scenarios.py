@@ -1,0 +1,291 @@
+"""Scenarios: one row of arrays per scenario, drawn deterministically from a distribution + seed.
+
+Coordinates are Frenet on a straight road (s along the road, d lateral, metres): the ego lane's
+centre is d = 0 and the opposite lane's centre is d = +lane_width (right-hand traffic, the ego drives
+towards +s). NPC slots are padded: ``npc_present`` says which slots hold a vehicle. Slot order from a
+distribution is: the lead (NPC1), the oncoming vehicles (NPC2, ...), then the followers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .config import ConfigError
+
+EGO_LANE, OPPOSITE_LANE = 0, 1
+IDM, SPEEDUP_WHEN_PASSED = 0, 1
+BEHAVIOURS = {"idm": IDM, "speedup": SPEEDUP_WHEN_PASSED}
+KMH = 1.0 / 3.6
+
+
+@dataclass
+class Scenarios:
+    """A batch of N scenarios with M NPC slots, as a structure of arrays."""
+
+    lane_width: np.ndarray  # (N,)
+    speed_limit: np.ndarray  # (N,) ego speed cap, m/s
+    goal_s: np.ndarray  # (N,) the ego's front must pass this, in its lane, ahead of NPC1
+    road_length: np.ndarray  # (N,)
+    sensor_range: np.ndarray  # (N,)
+    time_limit: np.ndarray  # (N,) s
+    ego_s: np.ndarray  # (N,) centre position
+    ego_d: np.ndarray  # (N,)
+    ego_v: np.ndarray  # (N,)
+    ego_length: np.ndarray  # (N,)
+    ego_width: np.ndarray  # (N,)
+    npc_present: np.ndarray  # (N, M) bool
+    npc_lane: np.ndarray  # (N, M) int8: 0 ego lane (same direction), 1 opposite lane (oncoming)
+    npc_s: np.ndarray  # (N, M) centre position
+    npc_v: np.ndarray  # (N, M) speed along its own direction of travel (>= 0)
+    npc_v_des: np.ndarray  # (N, M) IDM desired speed
+    npc_behaviour: np.ndarray  # (N, M) int8, see BEHAVIOURS
+    npc_boost: np.ndarray  # (N, M) desired-speed increase of a speed-up lead once passed
+    npc_length: np.ndarray  # (N, M)
+    npc_width: np.ndarray  # (N, M)
+    npc_reaction: np.ndarray  # (N, M) s before an NPC reacts to the ego entering its lane
+    npc_reveal: np.ndarray  # (N, M) m: the vehicle is perceived only this close (occlusion); inf = always
+    npc_must_pass: np.ndarray  # (N, M) bool: success requires the ego ahead of these (NPC1)
+
+    @property
+    def num(self) -> int:
+        return int(self.lane_width.shape[0])
+
+    @property
+    def num_npcs(self) -> int:
+        return int(self.npc_s.shape[1])
+
+    def take(self, index: Any) -> "Scenarios":
+        """Rows ``index`` (an int array, slice or mask) as a new batch."""
+        return Scenarios(**{f.name: np.asarray(getattr(self, f.name))[index] for f in dataclasses.fields(self)})
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, Any]) -> "Scenarios":
+        return cls(**{f.name: np.asarray(arrays[f.name]) for f in dataclasses.fields(cls)})
+
+    @classmethod
+    def concat(cls, batches: list["Scenarios"]) -> "Scenarios":
+        """Stack batches, padding NPC slots to the widest batch."""
+        width = max(b.num_npcs for b in batches)
+        padded = [b.pad_npcs(width) for b in batches]
+        return cls(**{f.name: np.concatenate([getattr(b, f.name) for b in padded])
+                      for f in dataclasses.fields(cls)})
+
+    def pad_npcs(self, width: int) -> "Scenarios":
+        extra = width - self.num_npcs
+        if extra <= 0:
+            return self
+        out = {}
+        for f in dataclasses.fields(self):
+            a = getattr(self, f.name)
+            if f.name.startswith("npc_"):
+                fill = np.inf if f.name == "npc_reveal" else 0
+                pad = np.full((a.shape[0], extra), fill, dtype=a.dtype)
+                if f.name in ("npc_length", "npc_width"):
+                    pad[:] = 1.0
+                a = np.concatenate([a, pad], axis=1)
+            out[f.name] = a
+        return Scenarios(**out)
+
+
+Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class ScenarioDistribution:
+    """The paper's distribution and its scale-ups. Ranges are uniform [lo, hi].
+
+    Defaults are the paper's setting where it gives one (NPC speeds 1-3 m/s, ego capped at
+    15 km/h); the suites in ``benchmark/suites`` choose and justify the values the paper leaves open.
+    """
+
+    speed_limit: float = 15.0 * KMH
+    lane_width: float = 3.5
+    goal: float = 100.0  # m from the ego's start to the goal line
+    road_extra: float = 150.0  # road beyond the goal (ends a follower's episode by truncation)
+    sensor_range: float = 60.0
+    time_limit: float = 60.0
+    ego_speed: Range = (15.0 * KMH, 15.0 * KMH)
+    ego_length: float = 4.54
+    ego_width: float = 1.82
+    vehicle_length: float = 4.54
+    vehicle_width: float = 1.82
+    lead_speed: Range = (1.0, 3.0)
+    lead_gap: Range = (8.0, 25.0)  # D1: bumper gap from the ego to NPC1
+    lead_behaviour: str = "idm"
+    lead_boost: Range = (0.0, 0.0)  # m/s added to a speed-up lead's desired speed once passed
+    oncoming_count: int = 1
+    oncoming_speed: Range = (1.0, 3.0)
+    oncoming_gap: Range = (20.0, 150.0)  # D2: from the ego's front to the first oncoming front
+    oncoming_headway: Range = (15.0, 60.0)  # bumper gaps between successive oncoming vehicles
+    oncoming_reveal: Range = (math.inf, math.inf)  # perceived only this close (a late-appearing car)
+    follower_count: int = 0
+    follower_speed: Range = (3.0, 4.0)
+    follower_gap: Range = (5.0, 20.0)  # bumper gaps behind the ego, then between followers
+    reaction_time: Range = (0.5, 1.0)  # s before an NPC reacts to the ego in its lane
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> "ScenarioDistribution":
+        data = dict(data or {})
+        names = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in names:
+                raise ConfigError(f"scenario.{key}: unknown key (known: {', '.join(sorted(names))})")
+            default = names[key].default
+            if isinstance(default, tuple):
+                if not (isinstance(value, (list, tuple)) and len(value) == 2):
+                    raise ConfigError(f"scenario.{key}: expected [low, high], got {value!r}")
+                value = (_num(key, value[0]), _num(key, value[1]))
+                if value[0] > value[1]:
+                    raise ConfigError(f"scenario.{key}: low {value[0]} is above high {value[1]}")
+            elif isinstance(default, str):
+                if value not in BEHAVIOURS:
+                    raise ConfigError(f"scenario.{key}: {value!r} is not one of {', '.join(BEHAVIOURS)}")
+            elif isinstance(default, int):
+                if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 64:
+                    raise ConfigError(f"scenario.{key}: expected an integer in [0, 64], got {value!r}")
+            else:
+                value = _num(key, value)
+            kwargs[key] = value
+        dist = cls(**kwargs)
+        dist.validate()
+        return dist
+
+    def validate(self) -> None:
+        positive = ("speed_limit", "lane_width", "goal", "sensor_range", "time_limit", "ego_length",
+                    "ego_width", "vehicle_length", "vehicle_width")
+        for key in positive:
+            if not getattr(self, key) > 0:
+                raise ConfigError(f"scenario.{key}: must be > 0, got {getattr(self, key)!r}")
+        for key in ("ego_speed", "lead_speed", "lead_gap", "oncoming_speed", "oncoming_gap",
+                    "oncoming_headway", "follower_speed", "follower_gap", "reaction_time", "lead_boost"):
+            if getattr(self, key)[0] < 0:
+                raise ConfigError(f"scenario.{key}: must be >= 0, got {getattr(self, key)!r}")
+        if self.oncoming_reveal[0] <= 0:
+            raise ConfigError(f"scenario.oncoming_reveal: must be > 0, got {self.oncoming_reveal!r}")
+        if self.road_extra < 0:
+            raise ConfigError(f"scenario.road_extra: must be >= 0, got {self.road_extra!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    def sample(self, n: int, seed: int | np.random.Generator) -> Scenarios:
+        """Draw ``n`` scenarios. The same seed gives the same batch, bit for bit."""
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        K, F = self.oncoming_count, self.follower_count
+        M = 1 + K + F
+
+        def u(r: Range, *shape: int) -> np.ndarray:
+            return rng.uniform(r[0], r[1], size=(n, *shape))
+
+        # Draw every quantity once, in a fixed order, so a batch depends only on (seed, n).
+        ego_v = u(self.ego_speed)
+        lead_v, lead_gap, lead_boost = u(self.lead_speed), u(self.lead_gap), u(self.lead_boost)
+        onc_v, onc_gap, onc_head = u(self.oncoming_speed, K), u(self.oncoming_gap), u(self.oncoming_headway, K)
+        onc_reveal = u(self.oncoming_reveal, K) if np.isfinite(self.oncoming_reveal[1]) else np.full((n, K), np.inf)
+        fol_v, fol_gap = u(self.follower_speed, F), u(self.follower_gap, F)
+        reaction = u(self.reaction_time, M)
+
+        Le, L = self.ego_length, self.vehicle_length
+        lane = np.zeros((n, M), np.int8)
+        s = np.zeros((n, M))
+        v = np.zeros((n, M))
+        behaviour = np.zeros((n, M), np.int8)
+        boost = np.zeros((n, M))
+        reveal = np.full((n, M), np.inf)
+        must_pass = np.zeros((n, M), bool)
+        # NPC1: the slow lead in the ego lane, D1 ahead (bumper to bumper).
+        s[:, 0] = lead_gap + (Le + L) / 2
+        v[:, 0] = lead_v
+        behaviour[:, 0] = BEHAVIOURS[self.lead_behaviour]
+        boost[:, 0] = lead_boost
+        must_pass[:, 0] = True
+        # Oncoming vehicles: the first D2 ahead of the ego's front, then random headways.
+        if K:
+            fronts = Le / 2 + onc_gap[:, None] + np.concatenate(
+                [np.zeros((n, 1)), np.cumsum(onc_head[:, 1:] + L, axis=1)], axis=1)
+            lane[:, 1:1 + K] = OPPOSITE_LANE
+            s[:, 1:1 + K] = fronts + L / 2  # an oncoming car's front faces -s
+            v[:, 1:1 + K] = onc_v
+            reveal[:, 1:1 + K] = onc_reveal
+        # Followers behind the ego, in the ego lane.
+        if F:
+            offsets = np.cumsum(fol_gap + L, axis=1) - L / 2 + Le / 2
+            s[:, 1 + K:] = -offsets
+            v[:, 1 + K:] = fol_v
+
+        full = lambda x: np.full(n, float(x))  # noqa: E731
+        return Scenarios(
+            lane_width=full(self.lane_width), speed_limit=full(self.speed_limit), goal_s=full(self.goal),
+            road_length=full(self.goal + self.road_extra), sensor_range=full(self.sensor_range),
+            time_limit=full(self.time_limit), ego_s=np.zeros(n), ego_d=np.zeros(n),
+            ego_v=np.minimum(ego_v, self.speed_limit), ego_length=full(Le), ego_width=full(self.ego_width),
+            npc_present=np.ones((n, M), bool), npc_lane=lane, npc_s=s, npc_v=v, npc_v_des=v.copy(),
+            npc_behaviour=behaviour, npc_boost=boost, npc_length=np.full((n, M), L),
+            npc_width=np.full((n, M), self.vehicle_width), npc_reaction=reaction, npc_reveal=reveal,
+            npc_must_pass=must_pass,
+        )
+
+
+def _num(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"scenario.{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def make_scenario(
+    *,
+    lead: tuple[float, float] | None = (15.0, 2.0),
+    oncoming: list[tuple[float, float]] = (),
+    followers: list[tuple[float, float]] = (),
+    ego_speed: float = 15.0 * KMH,
+    lead_behaviour: str = "idm",
+    lead_boost: float = 0.0,
+    reaction_time: float = 0.7,
+    reveal: float = math.inf,
+    **road: Any,
+) -> Scenarios:
+    """One hand-built scenario: ``lead=(gap, speed)``, ``oncoming=[(gap, speed), ...]`` with gaps from
+    the ego's front to each oncoming front, ``followers=[(gap, speed), ...]`` bumper gaps behind the ego.
+    Road keys are those of :class:`ScenarioDistribution` (``goal``, ``sensor_range``, ...)."""
+    dist = ScenarioDistribution.from_dict(road)
+    Le, L = dist.ego_length, dist.vehicle_length
+    rows = []  # (lane, s, v, behaviour, boost, must_pass, reveal)
+    if lead is not None:
+        rows.append((EGO_LANE, lead[0] + (Le + L) / 2, lead[1], BEHAVIOURS[lead_behaviour], lead_boost, True, math.inf))
+    for gap, speed in oncoming:
+        rows.append((OPPOSITE_LANE, Le / 2 + gap + L / 2, speed, IDM, 0.0, False, reveal))
+    for gap, speed in followers:
+        rows.append((EGO_LANE, -(Le / 2 + gap + L / 2), speed, IDM, 0.0, False, math.inf))
+    M = max(len(rows), 1)
+    cols = list(zip(*rows)) if rows else [[0]] * 7
+    present = np.zeros((1, M), bool)
+    present[0, :len(rows)] = True
+
+    def col(i: int, dtype: Any, fill: Any) -> np.ndarray:
+        a = np.full((1, M), fill, dtype=dtype)
+        if rows:
+            a[0, :len(rows)] = cols[i]
+        return a
+
+    v = col(2, float, 0.0)
+    return Scenarios(
+        lane_width=np.array([dist.lane_width]), speed_limit=np.array([dist.speed_limit]),
+        goal_s=np.array([dist.goal]), road_length=np.array([dist.goal + dist.road_extra]),
+        sensor_range=np.array([dist.sensor_range]), time_limit=np.array([dist.time_limit]),
+        ego_s=np.zeros(1), ego_d=np.zeros(1), ego_v=np.array([min(ego_speed, dist.speed_limit)]),
+        ego_length=np.array([Le]), ego_width=np.array([dist.ego_width]),
+        npc_present=present, npc_lane=col(0, np.int8, 0), npc_s=col(1, float, 0.0), npc_v=v,
+        npc_v_des=v.copy(), npc_behaviour=col(3, np.int8, 0), npc_boost=col(4, float, 0.0),
+        npc_length=np.full((1, M), L), npc_width=np.full((1, M), dist.vehicle_width),
+        npc_reaction=np.full((1, M), reaction_time), npc_reveal=col(6, float, math.inf),
+        npc_must_pass=col(5, bool, False),
+    )

@@ -1,0 +1,104 @@
+"""The decider interface and the registry every face of the project resolves names through."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig
+
+
+class Decider:
+    """Maps a batch of observations (N, D) to a batch of modes (N,): 0 follow, 1 overtake, 2 abort.
+
+    Subclasses set ``name`` and ``version`` and implement :meth:`act`. ``reset(mask)`` is called with
+    the rows whose episodes (re)start, so stateful deciders can clear them. Privileged deciders (the
+    oracle) set ``privileged = True`` and receive the simulation core through :meth:`bind` before
+    the first step; every other decider sees observations only.
+    """
+
+    name: str = "decider"
+    version: str = "1"
+    privileged: bool = False
+    weights_sha256: str | None = None
+
+    def __init__(self, config: EnvConfig | None = None) -> None:
+        self.config = config or EnvConfig()
+
+    def bind(self, core: Any) -> None:  # only privileged deciders use the core
+        self.core = core
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        """Forget any per-row state for rows in ``mask`` (all rows when None)."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def card(self) -> str:
+        """A one-paragraph model card."""
+        return (self.__doc__ or self.name).strip().splitlines()[0]
+
+
+class ConstantDecider(Decider):
+    """Always the same mode (a baseline and a runner test fixture)."""
+
+    def __init__(self, mode: int, name: str, config: EnvConfig | None = None) -> None:
+        super().__init__(config)
+        self.mode, self.name = mode, name
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.full(obs.shape[0], self.mode, dtype=np.int64)
+
+    def card(self) -> str:
+        return f"Always {('follow', 'overtake', 'abort')[self.mode]}: a fixed-mode baseline."
+
+
+class UnknownDecider(KeyError):
+    def __str__(self) -> str:  # KeyError quotes its message; keep it readable
+        return str(self.args[0])
+
+
+_REGISTRY: dict[str, Callable[..., Decider]] = {}
+
+
+def register(name: str, factory: Callable[..., Decider]) -> None:
+    """Register ``factory(config=None, **kwargs) -> Decider`` under ``name``."""
+    _REGISTRY[name] = factory
+
+
+def names() -> list[str]:
+    _load_members()
+    return sorted(_REGISTRY)
+
+
+def load(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Decider:
+    """A ready decider by registry name (pretrained weights included, checked by sha256)."""
+    _load_members()
+    if name not in _REGISTRY:
+        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(sorted(_REGISTRY))})")
+    return _REGISTRY[name](config=config, **kwargs)
+
+
+register("always-follow", lambda config=None: ConstantDecider(FOLLOW, "always-follow", config))
+register("always-overtake", lambda config=None: ConstantDecider(OVERTAKE, "always-overtake", config))
+register("always-abort", lambda config=None: ConstantDecider(ABORT, "always-abort", config))
+
+_MEMBERS = ("rule_fsm", "fuzzy", "oracle", "dqn", "ppo")
+_loaded = False
+
+
+def _load_members() -> None:
+    """Import the zoo members (each registers itself); members not built yet are skipped."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True
+    import importlib
+
+    for mod in _MEMBERS:
+        try:
+            importlib.import_module(f"overtakezoo.zoo.{mod}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"overtakezoo.zoo.{mod}":
+                raise
