@@ -176,6 +176,7 @@ class OvertakeCore:
         jerk = np.abs(a_new - self.a) / cfg.dt
         self.a = a_new
         v_new = np.clip(self.v + self.a * dt, 0.0, sc.speed_limit)
+        self.a = np.where(v_new <= 0.0, np.maximum(self.a, 0.0), self.a)  # at standstill the brake holds
         # Ego lateral: pure pursuit on the chosen rollout, steering angle and rate limited.
         lookahead = np.maximum(pc.lookahead_min, pc.lookahead_gain * self.v)
         roll_in = pc.roll_in_speed_factor * self.v + pc.roll_in_margin
