@@ -94,7 +94,6 @@ class OvertakeCore:
         }
         self.episode_return = np.zeros(n)
         self.episode_steps = np.zeros(n, np.int64)
-        self._geometry_cache = None
         return self.observe()
 
     def _replace_rows(self, rows: np.ndarray, fresh: Scenarios) -> None:
@@ -123,6 +122,21 @@ class OvertakeCore:
         self.episode_steps[rows] = 0
         for key, arr in self.stats.items():
             arr[rows] = {"completion_time": np.nan, "min_ttc": np.inf}.get(key, 0)
+
+    _STATE = ("x", "y", "psi", "v", "a", "steer", "yaw_rate", "npc_s", "npc_v", "npc_a", "npc_aware",
+              "npc_boosted", "mode", "rollout", "t", "done", "outcome", "crash_npc", "crash_lane",
+              "episode_return", "episode_steps")
+
+    def clone(self, rows: np.ndarray | None = None) -> "OvertakeCore":
+        """An independent copy of ``rows`` (all rows when None), e.g. for look-ahead search."""
+        idx = np.arange(self.num) if rows is None else np.asarray(rows)
+        other = OvertakeCore(self.cfg, auto_reset=False)
+        other.scen = self.scen.take(idx)
+        for name in self._STATE:
+            setattr(other, name, getattr(self, name)[idx].copy())
+        other.stats = {k: v[idx].copy() for k, v in self.stats.items()}
+        other.last_plan = None
+        return other
 
     # ------------------------------------------------------------- geometry
     def geometry(self) -> dict[str, np.ndarray]:
