@@ -18,7 +18,7 @@ import numpy as np
 
 from .config import ABORT, OVERTAKE, EnvConfig
 from .observation import observe, observation_size
-from .planner import ModeTable, Plan, lateral_profile, plan
+from .planner import ModeTable, Plan, clip, lateral_profile, plan
 from .scenarios import OPPOSITE_LANE, SPEEDUP_WHEN_PASSED, Scenarios
 
 RUNNING, SUCCESS, CRASH, TIMEOUT, OFFROAD = 0, 1, 2, 3, 4
@@ -186,10 +186,10 @@ class OvertakeCore:
 
         # Ego longitudinal: jerk-limited acceleration, speed in [0, limit].
         jerk_step = pc.max_jerk * dt
-        a_new = self.a + np.clip(p.accel - self.a, -jerk_step, jerk_step)
+        a_new = self.a + clip(p.accel - self.a, -jerk_step, jerk_step)
         jerk = np.abs(a_new - self.a) / cfg.dt
         self.a = a_new
-        v_new = np.clip(self.v + self.a * dt, 0.0, sc.speed_limit)
+        v_new = clip(self.v + self.a * dt, 0.0, sc.speed_limit)
         self.a = np.where(v_new <= 0.0, np.maximum(self.a, 0.0), self.a)  # at standstill the brake holds
         # Ego lateral: pure pursuit on the chosen rollout, steering angle and rate limited.
         lookahead = np.maximum(pc.lookahead_min, pc.lookahead_gain * self.v)
@@ -197,9 +197,9 @@ class OvertakeCore:
         target_y = lateral_profile(self.y, p.target_d, lookahead, sc.lane_width, roll_in, pc.car_tip_margin)
         alpha = np.arctan2(target_y - self.y, lookahead) - self.psi
         steer_cmd = np.arctan(2.0 * pc.wheelbase * np.sin(alpha) / lookahead)
-        steer_cmd = np.clip(steer_cmd, -pc.max_steer, pc.max_steer)
+        steer_cmd = clip(steer_cmd, -pc.max_steer, pc.max_steer)
         rate = pc.max_steer_rate * dt
-        self.steer = self.steer + np.clip(steer_cmd - self.steer, -rate, rate)
+        self.steer = self.steer + clip(steer_cmd - self.steer, -rate, rate)
         self.yaw_rate = v_new * np.tan(self.steer) / pc.wheelbase
         self.x = self.x + v_new * np.cos(self.psi) * dt
         self.y = self.y + v_new * np.sin(self.psi) * dt
@@ -237,9 +237,9 @@ class OvertakeCore:
         ahead = direction[:, :, None] * (self.npc_s[:, None, :] - self.npc_s[:, :, None])
         pair_gap = ahead - (sc.npc_length[:, :, None] + sc.npc_length[:, None, :]) / 2
         pair_gap = np.where(same_lane & (ahead > 0), pair_gap, np.inf)
-        lead_idx = np.argmin(pair_gap, axis=2)
-        gap = np.take_along_axis(pair_gap, lead_idx[:, :, None], axis=2)[:, :, 0]
-        lead_v = np.take_along_axis(self.npc_v, lead_idx, axis=1)
+        lead_idx = pair_gap.argmin(axis=2)
+        gap = pair_gap.min(axis=2)
+        lead_v = self.npc_v[np.arange(sc.num)[:, None], lead_idx]
         # The ego counts once it occupies this lane ahead and the reaction delay has passed.
         ego_gap = -direction * geo["dx"] - geo["half_len"]
         ego_in_lane = (np.abs(geo["dy"]) < half_wid) & (ego_gap > -2 * geo["half_len"])
@@ -260,7 +260,7 @@ class OvertakeCore:
         acc = nc.max_acceleration * (1.0 - (v / np.maximum(v_des, 1e-3)) ** 4 - interaction)
         if npc_accel is not None:
             acc = np.where(np.isfinite(npc_accel), npc_accel, acc)
-        acc = np.clip(acc, -nc.max_braking, nc.max_acceleration)
+        acc = clip(acc, -nc.max_braking, nc.max_acceleration)
         self.npc_a = acc
         self.npc_v = np.maximum(v + acc * dt[:, None], 0.0) * sc.npc_present
         self.npc_s = self.npc_s + direction * self.npc_v * dt[:, None]
@@ -286,17 +286,19 @@ class OvertakeCore:
         offroad = active & ~crash & ((self.y - sc.ego_width / 2 < -half_w - 0.5)
                                      | (self.y + sc.ego_width / 2 > 3 * half_w + 0.5))
         front, rear = self.x + sc.ego_length / 2, self.x - sc.ego_length / 2
-        passed = np.all(~sc.npc_must_pass | (rear[:, None] >= self.npc_s + sc.npc_length / 2), axis=1)
+        passed = np.logical_and.reduce(~sc.npc_must_pass | (rear[:, None] >= self.npc_s + sc.npc_length / 2), axis=1)
         in_lane = self.y + sc.ego_width / 2 <= half_w
         success = active & ~crash & ~offroad & (front >= sc.goal_s) & in_lane & passed
         # Out of time, or out of road (a follower stuck behind the lead past the goal): truncation.
         timeout = active & ~crash & ~offroad & ~success & (
             (self.t >= sc.time_limit - 1e-9) | (self.x > sc.road_length))
-        hit_idx = np.argmax(hit, axis=1)
+        hit_idx = hit.argmax(axis=1)
         self.crash_npc = np.where(crash, hit_idx, self.crash_npc)
-        self.crash_lane = np.where(crash, np.take_along_axis(sc.npc_lane, hit_idx[:, None], 1)[:, 0], self.crash_lane)
-        self.outcome = np.select([crash, offroad, success, timeout],
-                                 [CRASH, OFFROAD, SUCCESS, TIMEOUT], self.outcome).astype(np.int8)
+        self.crash_lane = np.where(crash, sc.npc_lane[np.arange(sc.num), hit_idx], self.crash_lane)
+        outcome = np.where(timeout, TIMEOUT, self.outcome)
+        outcome = np.where(success, SUCCESS, outcome)
+        outcome = np.where(offroad, OFFROAD, outcome)
+        self.outcome = np.where(crash, CRASH, outcome).astype(np.int8)
         self.stats["completion_time"] = np.where(success, self.t, self.stats["completion_time"])
         terminated = crash | offroad | success
         self.done |= terminated | timeout
@@ -310,7 +312,7 @@ class OvertakeCore:
         gap = geo["dx"] - geo["half_len"]
         closing = self.v[:, None] - geo["v_along"]
         in_path = sc.npc_present & (np.abs(geo["dy"]) < geo["half_wid"]) & (gap > 0) & (closing > 1e-6)
-        ttc = np.min(np.where(in_path, gap / np.where(in_path, closing, 1.0), np.inf), axis=1)
+        ttc = np.minimum.reduce(np.where(in_path, gap / np.where(in_path, closing, 1.0), np.inf), axis=1)
         st["min_ttc"] = np.where(active, np.minimum(st["min_ttc"], ttc), st["min_ttc"])
         lat_acc = np.abs(self.v * self.yaw_rate)
         st["peak_lat_accel"] = np.where(active, np.maximum(st["peak_lat_accel"], lat_acc), st["peak_lat_accel"])
@@ -322,9 +324,8 @@ class OvertakeCore:
         dist = np.maximum(sc.goal_s - (self.x + sc.ego_length / 2), 0.0)
         r = rc.progress / (1.0 + dist / rc.progress_scale) * active
         r = r + rc.switch * switched
-        r = r + np.select([self.outcome == SUCCESS, self.outcome == CRASH, self.outcome == OFFROAD,
-                           self.outcome == TIMEOUT], [rc.success, rc.crash, rc.offroad, rc.timeout], 0.0) * (
-            terminated | truncated)
+        terminal = np.array([0.0, rc.success, rc.crash, rc.timeout, rc.offroad])[self.outcome]
+        r = r + terminal * (terminated | truncated)
         return r
 
     def info(self) -> dict[str, np.ndarray]:

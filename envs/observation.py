@@ -68,8 +68,9 @@ def observe(core: "OvertakeCore", geo: dict[str, np.ndarray]) -> np.ndarray:
     for lane in (0, 1):  # two lanes: a fixed, tiny loop, not over scenarios or vehicles
         key = np.where(geo["visible"] & (sc.npc_lane == lane), np.abs(dx), np.inf)
         order = np.argsort(key, axis=1, kind="stable")[:, :k]
-        picked = np.take_along_axis(feats, order[:, :, None], axis=1)
-        valid = np.isfinite(np.take_along_axis(key, order, axis=1))[:, :, None]
+        rows = np.arange(n)[:, None]
+        picked = feats[rows, order]
+        valid = np.isfinite(key[rows, order])[:, :, None]
         picked = np.where(valid, picked, 0.0)
         if m < k:
             picked = np.concatenate([picked, np.zeros((n, k - m, SLOT_FEATURES))], axis=1)

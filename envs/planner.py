@@ -37,6 +37,11 @@ import numpy as np
 from .config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
 
 
+def clip(x, lo, hi):
+    """``np.clip`` without its Python-level dispatch (it dominates at N = 1)."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 @dataclass
 class ModeTable:
     """The three parameter sets as arrays indexed by mode, for gathering per row."""
@@ -78,7 +83,7 @@ def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_w
     ``tip``, then a straight roll-in with the slope of a full lane change over ``roll_in`` metres,
     then the end offset. Arrays broadcast; used by the evaluator and by the tracking controller."""
     reach = lane_width / roll_in * np.maximum(ahead - tip, 0.0)
-    return y + np.clip(target - y, -reach, reach)
+    return y + clip(target - y, -reach, reach)
 
 
 def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout: np.ndarray,
@@ -100,7 +105,7 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     avoid = table.avoiding_distance[mode]
     lat_end = np.abs(offsets[:, :, None] - dj[:, None, :])  # (N, R, M)
     inside = lat_end < lat_margin[:, None, :]
-    lead_block = np.any(inside & (ahead_same & (gap < avoid[:, None]))[:, None, :], axis=2)
+    lead_block = np.logical_or.reduce(inside & (ahead_same & (gap < avoid[:, None]))[:, None, :], axis=2)
 
     # (b) predicted overlap with every other perceived vehicle within the horizon.
     t = cfg.horizon_time * np.arange(cfg.horizon_samples + 1) / cfg.horizon_samples  # (T,)
@@ -112,7 +117,7 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     watch = visible & ~ahead_same
     lon &= watch[:, :, None]  # (N, M, T)
     lat = np.abs(d_ego[:, :, None, :] - dj[:, None, :, None]) < lat_margin[:, None, :, None]  # (N,R,M,T)
-    pred_block = np.any(lat & lon[:, None, :, :], axis=(2, 3))
+    pred_block = np.logical_or.reduce(lat & lon[:, None, :, :], axis=(2, 3))
     blocked = lead_block | pred_block
 
     # Costs, normalized over the allowed rollouts.
@@ -121,12 +126,12 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     priority = offsets / w[:, None]
     transition = np.abs(k[None, :] - current_rollout[:, None]) / n
     lat_cost = np.where(inside, 2.0, 1.0 / np.maximum(lat_end, 1e-3))
-    lateral = np.sum(np.where(ahead[:, None, :], lat_cost, 0.0), axis=2)
-    longitudinal = np.sum(np.where((ahead[:, None, :] & inside), 1.0 / np.maximum(gap, 1.0)[:, None, :], 0.0), axis=2)
+    lateral = np.add.reduce(np.where(ahead[:, None, :], lat_cost, 0.0), axis=2)
+    longitudinal = np.add.reduce(np.where((ahead[:, None, :] & inside), 1.0 / np.maximum(gap, 1.0)[:, None, :], 0.0), axis=2)
     cost = np.zeros_like(offsets)
     for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
                          (cfg.weight_lateral, lateral), (cfg.weight_longitudinal, longitudinal)):
-        total = np.sum(np.where(allowed, term, 0.0), axis=1, keepdims=True)
+        total = np.add.reduce(np.where(allowed, term, 0.0), axis=1, keepdims=True)
         cost += weight * term / np.maximum(total, 1e-9)
     cost = np.where(allowed, cost, np.inf)
 
@@ -136,7 +141,7 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     cur_cost = cost[rows, current_rollout]
     keep = free[rows, current_rollout] & (cur_cost <= cost[rows, best] + cfg.keep_margin)
     choice = np.where(keep, current_rollout, best)
-    none_free = ~np.any(free, axis=1)
+    none_free = ~np.logical_or.reduce(free, axis=1)
     fallback = np.where(mode == OVERTAKE, current_rollout, 0)
     choice = np.where(none_free, fallback, choice)
     forced = table.rollout_id[mode]
@@ -146,16 +151,16 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     # ABORT: merge back only where the ego lane beside the ego is clear; until then hold the offset
     # and drop back below the speed of the vehicle alongside (or keep going if it is behind us).
     beside = visible & same_dir & (np.abs(dx) < half_len + cfg.abort_clearance)
-    waiting = (mode == ABORT) & np.any(beside, axis=1)
+    waiting = (mode == ABORT) & np.logical_or.reduce(beside, axis=1)
     target_d = np.where(waiting, y, target_d)
     beside_ahead = beside & (dx > 0.0)
-    lead_v = np.min(np.where(beside_ahead, npc["v_along"], np.inf), axis=1)
+    lead_v = np.minimum.reduce(np.where(beside_ahead, npc["v_along"], np.inf), axis=1)
     speed_cap = np.where(waiting & np.isfinite(lead_v), np.maximum(lead_v - cfg.abort_drop_back, 0.0), np.inf)
 
     # Speed: IDM behind the nearest same-direction vehicle on the chosen path.
     d_path = lateral_profile(y[:, None], target_d[:, None], dx, w[:, None], roll_in[:, None], cfg.car_tip_margin)
     on_path = ahead_same & ((np.abs(d_path - dj) < half_wid) | (np.abs(y[:, None] - dj) < half_wid))
-    leader_gap = np.min(np.where(on_path, gap, np.inf), axis=1)
+    leader_gap = np.minimum.reduce(np.where(on_path, gap, np.inf), axis=1)
     leader_idx = np.argmin(np.where(on_path, gap, np.inf), axis=1)
     leader_v = npc["v_along"][rows, leader_idx]
     v0 = np.minimum(np.minimum(table.velocity[mode], ego["speed_limit"]), speed_cap)
@@ -164,6 +169,6 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     s_star = table.following_distance[mode] + np.maximum(
         0.0, v * cfg.time_headway + v * (v - leader_v) / (2.0 * np.sqrt(a_max * cfg.comfortable_braking) + 1e-9))
     interaction = np.where(np.isfinite(leader_gap), (s_star / np.maximum(leader_gap, 0.1)) ** 2, 0.0)
-    accel = np.clip(a_max * (free_term - interaction), -cfg.max_braking, a_max)
+    accel = clip(a_max * (free_term - interaction), -cfg.max_braking, a_max)
     return Plan(offsets=offsets, blocked=blocked, cost=cost, rollout=choice, target_d=target_d,
                 accel=accel, leader_gap=leader_gap)
