@@ -68,7 +68,6 @@ class PlannerConfig:
 
     num_rollouts: int = 4  # n: rollouts 0..n end at offsets k * lane_width / n (0 = ego-lane centre)
     horizon_time: float = 4.0  # s; collision check against predicted paths of perceived vehicles
-    horizon_samples: int = 8  # time samples over the horizon
     enable_prediction: bool = True  # constant-velocity prediction of perceived vehicles
     car_tip_margin: float = 1.0  # m the current offset is held before the roll-in starts
     roll_in_speed_factor: float = 1.0  # roll-in length = factor * v + margin (m)
@@ -101,7 +100,6 @@ class PlannerConfig:
     def validate(self) -> None:
         _check("planner.num_rollouts", self.num_rollouts, 1, 16)
         _check("planner.horizon_time", self.horizon_time, 0.1, 60.0)
-        _check("planner.horizon_samples", self.horizon_samples, 1, 64)
         for key in ("car_tip_margin", "roll_in_margin", "horizontal_safety", "vertical_safety",
                     "keep_margin", "abort_clearance", "abort_drop_back"):
             _check(f"planner.{key}", getattr(self, key), 0.0, 100.0)

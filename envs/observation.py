@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .config import EnvConfig
+from .planner import first_argmin
 
 if TYPE_CHECKING:
     from .core import OvertakeCore
@@ -42,37 +43,38 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
 
 
 def observe(core: "OvertakeCore", geo: dict[str, np.ndarray]) -> np.ndarray:
+    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N))."""
     cfg, sc = core.cfg, core.scen
     oc = cfg.observation
-    n = sc.num
-    k = oc.vehicles_per_lane
-    goal_dist = (sc.goal_s - core.x - sc.ego_length / 2) / oc.position_scale
-    ego = np.stack([core.v / oc.speed_scale, core.yaw_rate, core.y / sc.lane_width, goal_dist], axis=1)
-    mode = np.zeros((n, 3))
-    mode[np.arange(n), core.mode] = 1.0
+    n, k = sc.num, oc.vehicles_per_lane
+    out = np.zeros((n, observation_size(cfg)), np.float32)
+    out[:, 0] = core.v / oc.speed_scale
+    out[:, 1] = core.yaw_rate
+    out[:, 2] = core.y / sc.lane_width
+    out[:, 3] = (sc.goal_s - core.x - sc.ego_length / 2) / oc.position_scale
+    out[np.arange(n), EGO_FEATURES + core.mode] = 1.0
+    r = cfg.planner.num_rollouts + 1
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == n:
-        blocked = core.last_plan.blocked.astype(float)
-    else:
-        blocked = np.zeros((n, cfg.planner.num_rollouts + 1))
+        out[:, EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked
 
-    # Relative position and velocity in the ego frame.
-    c, s = np.cos(core.psi)[:, None], np.sin(core.psi)[:, None]
+    # Relative position and velocity in the ego frame, (5, M, N).
+    c, s = np.cos(core.psi), np.sin(core.psi)
     dx, dy = geo["dx"], geo["dy"]
-    rvx = geo["v_along"] - (core.v * np.cos(core.psi))[:, None]
-    rvy = -(core.v * np.sin(core.psi))[:, None] * np.ones_like(dx)
-    feats = np.stack([np.ones_like(dx), (dx * c + dy * s) / oc.position_scale,
-                      (-dx * s + dy * c) / sc.lane_width[:, None],
-                      (rvx * c + rvy * s) / oc.speed_scale, (-rvx * s + rvy * c) / oc.speed_scale], axis=2)
-    lanes = []
-    m = dx.shape[1]
-    for lane in (0, 1):  # two lanes: a fixed, tiny loop, not over scenarios or vehicles
-        key = np.where(geo["visible"] & (sc.npc_lane == lane), np.abs(dx), np.inf)
-        order = np.argsort(key, axis=1, kind="stable")[:, :k]
-        rows = np.arange(n)[:, None]
-        picked = feats[rows, order]
-        valid = np.isfinite(key[rows, order])[:, :, None]
-        picked = np.where(valid, picked, 0.0)
-        if m < k:
-            picked = np.concatenate([picked, np.zeros((n, k - m, SLOT_FEATURES))], axis=1)
-        lanes.append(picked.reshape(n, k * SLOT_FEATURES))
-    return np.concatenate([ego, mode, blocked] + lanes, axis=1).astype(np.float32)
+    rvx = geo["v_along"] - core.v * c
+    rvy = -core.v * s
+    feats = np.stack([np.ones_like(dx), (dx * c + dy * s) / oc.position_scale, (-dx * s + dy * c) / sc.lane_width,
+                      (rvx * c + rvy * s) / oc.speed_scale, (-rvx * s + rvy * c) / oc.speed_scale])
+    cols = np.arange(n)
+    base = EGO_FEATURES + 3 + r
+    lanes = core._sc["lane"]
+    for lane in (0, 1):  # two lanes x k slots: fixed, tiny loops, not over scenarios or vehicles
+        key = np.where(geo["visible"] & (lanes == lane), np.abs(dx), np.inf)
+        for slot in range(k):
+            if key.shape[0] == 0:
+                break
+            idx = first_argmin(key)  # nearest remaining vehicle of this lane, lowest slot on ties
+            valid = np.isfinite(key[idx, cols])
+            at = base + (lane * k + slot) * SLOT_FEATURES
+            out[:, at:at + SLOT_FEATURES] = np.where(valid, feats[:, idx, cols], 0.0).T
+            key[idx, cols] = np.inf
+    return out
