@@ -1,0 +1,96 @@
+"""The rsl-rl ``VecEnv`` face of the core: a thin adapter for ``rsl_rl.runners.OnPolicyRunner``.
+
+One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios; finished rows are
+refilled from ``source``. The action is one column holding the mode index as a float (what a
+categorical action distribution samples); observations are a TensorDict with one group,
+``"policy"``, which the runner's ``obs_groups`` route to both actor and critic.
+
+rsl-rl and torch are optional dependencies (the ``train`` extra); nothing else in ``envs`` needs
+them, so this module is imported explicitly, never from ``overtakezoo.envs``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Callable
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
+from rsl_rl.env import VecEnv  # noqa: E402
+
+from .config import EnvConfig  # noqa: E402
+from .core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
+from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
+
+Source = Callable[[int, np.random.Generator], Scenarios]
+
+
+def pool_source(pool: Scenarios) -> Source:
+    """A scenario source drawing rows uniformly (with replacement) from a fixed pool, e.g. a suite."""
+    if pool.num == 0:
+        raise ValueError("scenario pool is empty")
+
+    def draw(n: int, rng: np.random.Generator) -> Scenarios:
+        return pool.take(rng.integers(0, pool.num, n))
+
+    return draw
+
+
+class OvertakeRslRlEnv(VecEnv):
+    """``num_envs`` scenarios stepped as one batch; ``source`` is a pool of scenarios or a
+    ``source(n, rng) -> Scenarios`` callable that refills finished rows."""
+
+    def __init__(self, num_envs: int, config: EnvConfig | None = None, source: Scenarios | Source | None = None,
+                 seed: int | None = None, device: str | torch.device = "cpu") -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.cfg = config or EnvConfig()  # the runner's logger reads env.cfg
+        if source is None:
+            source = ScenarioDistribution.from_dict(self.cfg.scenario).sample(1000, seed=seed)
+        self.source = pool_source(source) if isinstance(source, Scenarios) else source
+        self.num_envs = num_envs
+        self.num_actions = 1
+        self.device = torch.device(device)
+        self.core = OvertakeCore(self.cfg, auto_reset=True, source=self.source, seed=seed)
+        self._obs = self.core.reset(self.source(num_envs, self.core.rng))
+        # Longest episode any row can have; the runner only uses it for random initial lengths.
+        self.max_episode_length = int(math.ceil(float(np.max(self.core.scen.time_limit)) / self.cfg.dt))
+        self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=self.device)
+        self.episode_counts: dict[str, int] = {"episodes": 0}  # running totals, e.g. for a progress bar
+
+    def _tensordict(self, obs: np.ndarray) -> TensorDict:
+        return TensorDict({"policy": torch.as_tensor(obs, dtype=torch.float32, device=self.device)},
+                          batch_size=[self.num_envs], device=self.device)
+
+    def get_observations(self) -> TensorDict:
+        return self._tensordict(self._obs)
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        modes = actions.detach().reshape(self.num_envs, -1)[:, 0].round().clamp(0, 2)
+        res = self.core.step(modes.to("cpu", torch.int64).numpy())
+        self._obs = res.obs
+        finished = res.info["_finished"]
+        self.episode_length_buf += 1
+        self.episode_length_buf[torch.as_tensor(finished, device=self.device)] = 0
+        dev = self.device
+        extras: dict = {"time_outs": torch.as_tensor(res.truncated, dtype=torch.float32, device=dev)}
+        if finished.any():
+            # Per finished episode indicators: the runner's logger averages them over an iteration.
+            out = res.info["outcome"][finished]
+            lane = res.info["crash_lane"][finished]
+            crash = out == CRASH
+            rates = {"success": out == SUCCESS, "crash": crash, "crash_ego_lane": crash & (lane != OPPOSITE_LANE),
+                     "crash_opposite_lane": crash & (lane == OPPOSITE_LANE), "timeout": out == TIMEOUT,
+                     "offroad": out == OFFROAD}
+            self.episode_counts["episodes"] += int(finished.sum())
+            for k, v in rates.items():
+                self.episode_counts[k] = self.episode_counts.get(k, 0) + int(v.sum())
+            extras["log"] = {f"Episode/{k}": torch.as_tensor(v, dtype=torch.float32, device=dev)
+                             for k, v in rates.items()}
+        rewards = torch.as_tensor(res.reward, dtype=torch.float32, device=dev)
+        dones = torch.as_tensor(finished, dtype=torch.long, device=dev)
+        return self._tensordict(res.obs), rewards, dones, extras
