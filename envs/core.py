@@ -23,7 +23,7 @@ import numpy as np
 
 from .config import ABORT, OVERTAKE, EnvConfig
 from .observation import observe, observation_size
-from .planner import ModeTable, Plan, clip, first_argmin, first_true, lateral_profile, plan
+from .planner import ModeTable, Plan, clip, first_argmin, first_true, lateral_profile, plan, rollout_geometry
 from .scenarios import OPPOSITE_LANE, SPEEDUP_WHEN_PASSED, Scenarios
 
 RUNNING, SUCCESS, CRASH, TIMEOUT, OFFROAD = 0, 1, 2, 3, 4
@@ -102,6 +102,7 @@ class OvertakeCore:
         T["half_len"] = (sc.ego_length + T["length"]) / 2
         T["half_wid"] = (sc.ego_width + T["width"]) / 2
         T["reach"] = np.minimum(sc.sensor_range, T["reveal"])
+        T.update(rollout_geometry(self.cfg.planner, sc.lane_width, T["d"], T["half_wid"]))
         self._sc = T
 
     def _start_rows(self, rows: np.ndarray, fresh: Scenarios) -> None:
@@ -166,10 +167,16 @@ class OvertakeCore:
             "visible": T["present"] & (np.abs(dx) <= T["reach"]),
         }
 
+    def _plan_inputs(self, geo: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        T = self._sc
+        return {**geo, "offsets": T["offsets"], "lat_margin": T["lat_margin"], "inside": T["inside"],
+                "lat_cost": T["lat_cost"]}
+
     def geometry(self) -> dict[str, np.ndarray]:
         """The same geometry as (N, M) arrays: dx, dy, d, same_dir, direction, v_along, half_len,
         half_wid, visible."""
-        return {key: value.T for key, value in self._geometry().items()}
+        return {key: np.swapaxes(value, 0, 1) if np.ndim(value) == 2 else value
+                for key, value in self._geometry().items()}
 
     def observe(self, geo: dict[str, np.ndarray] | None = None) -> np.ndarray:
         return observe(self, geo if geo is not None else self._geometry())
@@ -195,7 +202,7 @@ class OvertakeCore:
 
         geo = self._geometry()
         ego = {"y": self.y, "v": self.v, "lane_width": sc.lane_width, "speed_limit": sc.speed_limit}
-        p = plan(pc, self.table, modes, self.rollout, ego, geo)
+        p = plan(pc, self.table, modes, self.rollout, ego, self._plan_inputs(geo))
         self.last_plan = p
         self.rollout = np.where(active, p.rollout, self.rollout)
 

@@ -131,6 +131,19 @@ def _longitudinal_window(dx, rel_v, reach):
     return t0, t1
 
 
+def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray) -> dict:
+    """What the evaluator needs that is fixed for an episode (NPCs keep their lanes): rollout end
+    offsets (R, N) and, per rollout and vehicle (R, M, N), the lateral distance, whether it is inside
+    the safety width, and its lateral cost. The core caches this at reset."""
+    k = np.arange(cfg.num_rollouts + 1)[:, None]
+    offsets = (k / cfg.num_rollouts) * lane_width
+    lat_margin = half_wid + cfg.horizontal_safety
+    lat_end = np.abs(offsets[:, None, :] - d)
+    inside = lat_end < lat_margin
+    return {"offsets": offsets, "lat_margin": lat_margin, "lat_end": lat_end, "inside": inside,
+            "lat_cost": np.where(inside, 2.0, 1.0 / np.maximum(lat_end, 1e-3))}
+
+
 def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout: np.ndarray,
          ego: dict[str, np.ndarray], npc: dict[str, np.ndarray]) -> Plan:
     """One planning cycle for every row. ``ego`` holds (N,) arrays; ``npc`` the core's geometry in
@@ -145,13 +158,10 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     ahead_same = visible & same_dir & (gap > 0.0)
 
     k = np.arange(n + 1)[:, None]  # (R, 1)
-    offsets = (k / n) * w  # (R, N)
-    lat_margin = half_wid + cfg.horizontal_safety  # (M, N)
+    offsets, lat_margin, inside = npc["offsets"], npc["lat_margin"], npc["inside"]  # see rollout_geometry
 
     # (a) blocked by a leader within the avoiding distance.
     avoid = table.avoiding_distance[mode]
-    lat_end = np.abs(offsets[:, None, :] - dj)  # (R, M, N)
-    inside = lat_end < lat_margin
     lead_block = np.logical_or.reduce(inside & (ahead_same & (gap < avoid)), axis=1)
 
     # (b) predicted overlap with every other perceived vehicle within the horizon, solved in closed
@@ -172,8 +182,7 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     ahead = visible & (gap > 0.0)
     priority = offsets / w
     transition = np.abs(k - current_rollout) / n
-    lat_cost = np.where(inside, 2.0, 1.0 / np.maximum(lat_end, 1e-3))
-    lateral = np.add.reduce(np.where(ahead, lat_cost, 0.0), axis=1)
+    lateral = np.add.reduce(np.where(ahead, npc["lat_cost"], 0.0), axis=1)
     longitudinal = np.add.reduce(np.where(ahead & inside, 1.0 / np.maximum(gap, 1.0), 0.0), axis=1)
     cost = np.zeros_like(offsets)
     for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
