@@ -14,7 +14,7 @@ Only vehicles within sensor range (and their own reveal distance) appear; empty 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,39 +42,42 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
             "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES)}
 
 
-def observe(core: "OvertakeCore", geo: dict[str, np.ndarray]) -> np.ndarray:
+def observe(core: "OvertakeCore", geo: dict) -> Any:
     """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N))."""
-    cfg, sc = core.cfg, core.scen
+    xp, cfg, E = core.xp, core.cfg, core._ego
     oc = cfg.observation
-    n, k = sc.num, oc.vehicles_per_lane
-    out = np.zeros((n, observation_size(cfg)), np.float32)
+    n, k = core.num, oc.vehicles_per_lane
+    cols = xp.arange(n)
+    out = xp.zeros((n, observation_size(cfg)), np.float32)
     out[:, 0] = core.v / oc.speed_scale
     out[:, 1] = core.yaw_rate
-    out[:, 2] = core.y / sc.lane_width
-    out[:, 3] = (sc.goal_s - core.x - sc.ego_length / 2) / oc.position_scale
-    out[np.arange(n), EGO_FEATURES + core.mode] = 1.0
+    out[:, 2] = core.y / E["lane_width"]
+    out[:, 3] = (E["goal_s"] - core.x - E["ego_length"] / 2) / oc.position_scale
+    out[cols, EGO_FEATURES + core.mode] = 1.0
     r = cfg.planner.num_rollouts + 1
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == n:
-        out[:, EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked
+        out[:, EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = xp.astype(core.last_plan.blocked, np.float32)
 
     # Relative position and velocity in the ego frame, (5, M, N).
-    c, s = np.cos(core.psi), np.sin(core.psi)
+    c, s = xp.cos(core.psi), xp.sin(core.psi)
     dx, dy = geo["dx"], geo["dy"]
     rvx = geo["v_along"] - core.v * c
     rvy = -core.v * s
-    feats = np.stack([np.ones_like(dx), (dx * c + dy * s) / oc.position_scale, (-dx * s + dy * c) / sc.lane_width,
+    feats = xp.stack([xp.ones_like(dx), (dx * c + dy * s) / oc.position_scale, (-dx * s + dy * c) / E["lane_width"],
                       (rvx * c + rvy * s) / oc.speed_scale, (-rvx * s + rvy * c) / oc.speed_scale])
-    cols = np.arange(n)
     base = EGO_FEATURES + 3 + r
     lanes = core._sc["lane"]
     for lane in (0, 1):  # two lanes x k slots: fixed, tiny loops, not over scenarios or vehicles
-        key = np.where(geo["visible"] & (lanes == lane), np.abs(dx), np.inf)
+        key = xp.where(geo["visible"] & (lanes == lane), xp.abs(dx), INF)
         for slot in range(k):
             if key.shape[0] == 0:
                 break
-            idx = first_argmin(key)  # nearest remaining vehicle of this lane, lowest slot on ties
-            valid = np.isfinite(key[idx, cols])
+            idx = first_argmin(key, 0, xp)  # nearest remaining vehicle of this lane, lowest slot on ties
+            valid = xp.isfinite(key[idx, cols])
             at = base + (lane * k + slot) * SLOT_FEATURES
-            out[:, at:at + SLOT_FEATURES] = np.where(valid, feats[:, idx, cols], 0.0).T
-            key[idx, cols] = np.inf
+            out[:, at:at + SLOT_FEATURES] = xp.astype(xp.where(valid, feats[:, idx, cols], 0.0).T, np.float32)
+            key[idx, cols] = INF
     return out
+
+
+INF = float("inf")

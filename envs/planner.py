@@ -32,14 +32,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+INF = float("inf")
+
 import numpy as np
 
+from .backend import NumpyBackend
 from .config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
 
+NP = NumpyBackend()
 
-def clip(x, lo, hi):
+
+def clip(x, lo, hi, xp=NP):
     """``np.clip`` without its Python-level dispatch (it dominates at N = 1)."""
-    return np.minimum(np.maximum(x, lo), hi)
+    return xp.minimum(xp.maximum(x, lo), hi)
 
 
 @dataclass
@@ -65,6 +70,10 @@ class ModeTable:
             rollout_id=np.array([m.rollout_id for m in modes]),
         )
 
+    def to(self, xp) -> "ModeTable":
+        """The same table as arrays of backend ``xp``."""
+        return ModeTable(**{k: xp.asarray(v) for k, v in self.__dict__.items()})
+
 
 @dataclass
 class Plan:
@@ -78,152 +87,152 @@ class Plan:
 
 
 def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_width: np.ndarray,
-                    roll_in: np.ndarray, tip: float) -> np.ndarray:
+                    roll_in: np.ndarray, tip: float, xp=NP) -> np.ndarray:
     """Lateral offset of a rollout ``ahead`` metres down the road: the current offset ``y`` held for
     ``tip``, then a straight roll-in with the slope of a full lane change over ``roll_in`` metres,
     then the end offset. Arrays broadcast; used by the evaluator and by the tracking controller."""
-    reach = lane_width / roll_in * np.maximum(ahead - tip, 0.0)
-    return y + clip(target - y, -reach, reach)
+    reach = lane_width / roll_in * xp.maximum(ahead - tip, 0.0)
+    return y + clip(target - y, -reach, reach, xp)
 
 
-def first_argmin(a: np.ndarray, axis: int = 0) -> np.ndarray:
+def first_argmin(a: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
     """Index of the first minimum along ``axis``, like ``argmin``. The core keeps the batch as the
     last (contiguous) axis; numpy's argmin over a leading axis copies a transpose and its reductions
     over a short trailing axis cost ~20 ns per row, so both are avoided with fast elementwise passes."""
-    low = np.minimum.reduce(a, axis=axis, keepdims=True)
-    return first_true(a == low, axis)
+    low = xp.amin(a, axis=axis, keepdims=True)
+    return first_true(a == low, axis, xp)
 
 
-def first_true(mask: np.ndarray, axis: int = 0) -> np.ndarray:
+def first_true(mask: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
     """Index of the first True along ``axis`` (the axis length where there is none)."""
     length = mask.shape[axis]
-    index = np.arange(length).reshape((-1,) + (1,) * (mask.ndim - 1 - axis % mask.ndim))
-    return np.minimum.reduce(np.where(mask, index, length), axis=axis)
+    index = xp.arange(length).reshape((-1,) + (1,) * (mask.ndim - 1 - axis % mask.ndim))
+    return xp.amin(xp.where(mask, index, length), axis=axis)
 
 
-def _lateral_window(y, v, offsets, dj, margin, lane_width, roll_in, tip):
+def _lateral_window(y, v, offsets, dj, margin, lane_width, roll_in, tip, xp):
     """Times [t0, t1] (R, M, N) during which the ego, driven at speed ``v`` along each rollout's
     lateral profile (see :func:`lateral_profile`), is within ``margin`` of lateral position ``dj``."""
     delta = offsets - y  # (R, N) lateral travel to each end offset
-    sign = np.where(delta >= 0.0, 1.0, -1.0)
-    span = np.abs(delta)[:, None, :]
+    sign = xp.where(delta >= 0.0, 1.0, -1.0)
+    span = xp.abs(delta)[:, None, :]
     lat_speed = lane_width * v / roll_in  # (N,) m/s sideways once the roll-in starts
     slow = lat_speed <= 1e-9
-    t_start = np.where(slow, np.inf, tip / np.where(slow, 1.0, v))  # the roll-in starts after the tip
-    rate = np.where(slow, 1.0, lat_speed)
+    t_start = xp.where(slow, INF, tip / xp.where(slow, 1.0, v))  # the roll-in starts after the tip
+    rate = xp.where(slow, 1.0, lat_speed)
     # Sideways progress p in [0, span] with |y + sign p - dj| < margin  <=>  p in (lo, hi).
     rel = (dj - y)[None, :, :] * sign[:, None, :]
     lo, hi = rel - margin, rel + margin
     hit = (hi > 0.0) & (lo < span)
-    t0 = np.where(lo <= 0.0, 0.0, t_start + lo / rate)
-    t1 = np.where(hi >= span, np.inf, t_start + hi / rate)
-    return np.where(hit, t0, np.inf), np.where(hit, t1, -np.inf)
+    t0 = xp.where(lo <= 0.0, 0.0, t_start + lo / rate)
+    t1 = xp.where(hi >= span, INF, t_start + hi / rate)
+    return xp.where(hit, t0, INF), xp.where(hit, t1, -INF)
 
 
-def _longitudinal_window(dx, rel_v, reach):
+def _longitudinal_window(dx, rel_v, reach, xp):
     """Times [t0, t1] (M, N) during which |dx + rel_v t| < reach (constant relative speed)."""
-    still = np.abs(rel_v) < 1e-9
-    safe_v = np.where(still, 1.0, rel_v)
+    still = xp.abs(rel_v) < 1e-9
+    safe_v = xp.where(still, 1.0, rel_v)
     a, b = (-reach - dx) / safe_v, (reach - dx) / safe_v
-    inside_now = np.abs(dx) < reach
-    t0 = np.where(still, np.where(inside_now, -np.inf, np.inf), np.minimum(a, b))
-    t1 = np.where(still, np.where(inside_now, np.inf, -np.inf), np.maximum(a, b))
+    inside_now = xp.abs(dx) < reach
+    t0 = xp.where(still, xp.where(inside_now, -INF, INF), xp.minimum(a, b))
+    t1 = xp.where(still, xp.where(inside_now, INF, -INF), xp.maximum(a, b))
     return t0, t1
 
 
-def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray) -> dict:
+def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray, xp=NP) -> dict:
     """What the evaluator needs that is fixed for an episode (NPCs keep their lanes): rollout end
     offsets (R, N) and, per rollout and vehicle (R, M, N), the lateral distance, whether it is inside
     the safety width, and its lateral cost. The core caches this at reset."""
-    k = np.arange(cfg.num_rollouts + 1)[:, None]
+    k = xp.arange(cfg.num_rollouts + 1)[:, None]
     offsets = (k / cfg.num_rollouts) * lane_width
     lat_margin = half_wid + cfg.horizontal_safety
-    lat_end = np.abs(offsets[:, None, :] - d)
+    lat_end = xp.abs(offsets[:, None, :] - d)
     inside = lat_end < lat_margin
     return {"offsets": offsets, "lat_margin": lat_margin, "lat_end": lat_end, "inside": inside,
-            "lat_cost": np.where(inside, 2.0, 1.0 / np.maximum(lat_end, 1e-3))}
+            "lat_cost": xp.where(inside, 2.0, 1.0 / xp.maximum(lat_end, 1e-3))}
 
 
 def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout: np.ndarray,
-         ego: dict[str, np.ndarray], npc: dict[str, np.ndarray]) -> Plan:
+         ego: dict[str, np.ndarray], npc: dict[str, np.ndarray], xp=NP) -> Plan:
     """One planning cycle for every row. ``ego`` holds (N,) arrays; ``npc`` the core's geometry in
     batch-last layout, (M, N). Internal arrays are (R, N) and (R, M, N): the batch is the
     contiguous axis, so reductions over rollouts and vehicles are fast elementwise passes."""
     n = cfg.num_rollouts
     y, v, w = ego["y"], ego["v"], ego["lane_width"]
-    cols = np.arange(len(mode))
+    cols = xp.arange(len(mode))
     dx, dj, same_dir, visible = npc["dx"], npc["d"], npc["same_dir"], npc["visible"]  # (M, N)
     half_len, half_wid = npc["half_len"], npc["half_wid"]  # ego + NPC half sums
     gap = dx - half_len  # bumper gap ego front -> NPC rear for vehicles ahead
     ahead_same = visible & same_dir & (gap > 0.0)
 
-    k = np.arange(n + 1)[:, None]  # (R, 1)
+    k = xp.arange(n + 1)[:, None]  # (R, 1)
     offsets, lat_margin, inside = npc["offsets"], npc["lat_margin"], npc["inside"]  # see rollout_geometry
 
     # (a) blocked by a leader within the avoiding distance.
     avoid = table.avoiding_distance[mode]
-    lead_block = np.logical_or.reduce(inside & (ahead_same & (gap < avoid)), axis=1)
+    lead_block = xp.any(inside & (ahead_same & (gap < avoid)), axis=1)
 
     # (b) predicted overlap with every other perceived vehicle within the horizon, solved in closed
     # form: the lateral and the longitudinal overlap are each one time interval, so a conflict is
     # their intersection inside [0, horizon] (exact in continuous time, and O(R M N), not O(R M N T)).
     roll_in = cfg.roll_in_speed_factor * v + cfg.roll_in_margin
-    lat_t0, lat_t1 = _lateral_window(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin)
+    lat_t0, lat_t1 = _lateral_window(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, xp)
     rel_v = npc["v_along"] * cfg.enable_prediction - v  # (M, N) NPC speed relative to the ego
-    lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, half_len + cfg.vertical_safety)
-    start = np.maximum(np.maximum(lat_t0, lon_t0), 0.0)
-    end = np.minimum(np.minimum(lat_t1, lon_t1), cfg.horizon_time)
+    lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, half_len + cfg.vertical_safety, xp)
+    start = xp.maximum(xp.maximum(lat_t0, lon_t0), 0.0)
+    end = xp.minimum(xp.minimum(lat_t1, lon_t1), cfg.horizon_time)
     watch = visible & ~ahead_same
-    pred_block = np.logical_or.reduce((start <= end) & watch, axis=1)
+    pred_block = xp.any((start <= end) & watch, axis=1)
     blocked = lead_block | pred_block  # (R, N)
 
     # Costs, normalized over the allowed rollouts.
     allowed = k <= table.rollout_number[mode]  # (R, N)
     ahead = visible & (gap > 0.0)
     priority = offsets / w
-    transition = np.abs(k - current_rollout) / n
-    lateral = np.add.reduce(np.where(ahead, npc["lat_cost"], 0.0), axis=1)
-    longitudinal = np.add.reduce(np.where(ahead & inside, 1.0 / np.maximum(gap, 1.0), 0.0), axis=1)
-    cost = np.zeros_like(offsets)
+    transition = xp.abs(k - current_rollout) / n
+    lateral = xp.sum(xp.where(ahead, npc["lat_cost"], 0.0), axis=1)
+    longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
+    cost = 0.0
     for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
                          (cfg.weight_lateral, lateral), (cfg.weight_longitudinal, longitudinal)):
-        total = np.add.reduce(np.where(allowed, term, 0.0), axis=0)
-        cost += weight * term / np.maximum(total, 1e-9)
-    cost = np.where(allowed, cost, np.inf)
+        total = xp.sum(xp.where(allowed, term, 0.0), axis=0)
+        cost += weight * term / xp.maximum(total, 1e-9)
+    cost = xp.where(allowed, cost, INF)
 
     free = allowed & ~blocked
-    free_cost = np.where(free, cost, np.inf)
-    best = first_argmin(free_cost)
+    free_cost = xp.where(free, cost, INF)
+    best = first_argmin(free_cost, xp=xp)
     keep = free[current_rollout, cols] & (cost[current_rollout, cols] <= free_cost[best, cols] + cfg.keep_margin)
-    choice = np.where(keep, current_rollout, best)
-    none_free = ~np.logical_or.reduce(free, axis=0)
-    fallback = np.where(mode == OVERTAKE, current_rollout, 0)
-    choice = np.where(none_free, fallback, choice)
+    choice = xp.where(keep, current_rollout, best)
+    none_free = ~xp.any(free, axis=0)
+    fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
+    choice = xp.where(none_free, fallback, choice)
     forced = table.rollout_id[mode]
-    choice = np.where(forced >= 0, forced, choice)
+    choice = xp.where(forced >= 0, forced, choice)
     target_d = offsets[choice, cols]
 
     # ABORT: merge back only where the ego lane beside the ego is clear; until then hold the offset
     # and drop back below the speed of the vehicle alongside (or keep going if it is behind us).
-    beside = visible & same_dir & (np.abs(dx) < half_len + cfg.abort_clearance)
-    waiting = (mode == ABORT) & np.logical_or.reduce(beside, axis=0)
-    target_d = np.where(waiting, y, target_d)
-    lead_v = np.minimum.reduce(np.where(beside & (dx > 0.0), npc["v_along"], np.inf), axis=0)
-    speed_cap = np.where(waiting & np.isfinite(lead_v), np.maximum(lead_v - cfg.abort_drop_back, 0.0), np.inf)
+    beside = visible & same_dir & (xp.abs(dx) < half_len + cfg.abort_clearance)
+    waiting = (mode == ABORT) & xp.any(beside, axis=0)
+    target_d = xp.where(waiting, y, target_d)
+    lead_v = xp.amin(xp.where(beside & (dx > 0.0), npc["v_along"], INF), axis=0)
+    speed_cap = xp.where(waiting & xp.isfinite(lead_v), xp.maximum(lead_v - cfg.abort_drop_back, 0.0), INF)
 
     # Speed: IDM behind the nearest same-direction vehicle on the chosen path.
-    d_path = lateral_profile(y, target_d, dx, w, roll_in, cfg.car_tip_margin)  # (M, N)
-    on_path = ahead_same & ((np.abs(d_path - dj) < half_wid) | (np.abs(y - dj) < half_wid))
-    path_gap = np.where(on_path, gap, np.inf)
-    leader_gap = np.minimum.reduce(path_gap, axis=0)
-    leader_v = npc["v_along"][first_argmin(path_gap), cols]
-    v0 = np.minimum(np.minimum(table.velocity[mode], ego["speed_limit"]), speed_cap)
+    d_path = lateral_profile(y, target_d, dx, w, roll_in, cfg.car_tip_margin, xp)  # (M, N)
+    on_path = ahead_same & ((xp.abs(d_path - dj) < half_wid) | (xp.abs(y - dj) < half_wid))
+    path_gap = xp.where(on_path, gap, INF)
+    leader_gap = xp.amin(path_gap, axis=0)
+    leader_v = npc["v_along"][first_argmin(path_gap, xp=xp), cols]
+    v0 = xp.minimum(xp.minimum(table.velocity[mode], ego["speed_limit"]), speed_cap)
     a_max = table.acceleration[mode]
-    free_term = 1.0 - (v / np.maximum(v0, 1e-3)) ** 4
-    s_star = table.following_distance[mode] + np.maximum(
-        0.0, v * cfg.time_headway + v * (v - leader_v) / (2.0 * np.sqrt(a_max * cfg.comfortable_braking) + 1e-9))
-    interaction = np.where(np.isfinite(leader_gap), (s_star / np.maximum(leader_gap, 0.1)) ** 2, 0.0)
-    accel = clip(a_max * (free_term - interaction), -cfg.max_braking, a_max)
+    free_term = 1.0 - (v / xp.maximum(v0, 1e-3)) ** 4
+    s_star = table.following_distance[mode] + xp.maximum(
+        0.0, v * cfg.time_headway + v * (v - leader_v) / (2.0 * xp.sqrt(a_max * cfg.comfortable_braking) + 1e-9))
+    interaction = xp.where(xp.isfinite(leader_gap), (s_star / xp.maximum(leader_gap, 0.1)) ** 2, 0.0)
+    accel = clip(a_max * (free_term - interaction), -cfg.max_braking, a_max, xp)
     # Plan fields are (N, R) views, batch first like every public array.
     return Plan(offsets=offsets.T, blocked=blocked.T, cost=cost.T, rollout=choice, target_d=target_d,
                 accel=accel, leader_gap=leader_gap)

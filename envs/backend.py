@@ -1,0 +1,173 @@
+"""Array backends for the core: numpy on the CPU (the default) or torch (CPU or CUDA).
+
+The simulation model is written once against the small namespace below; each backend maps it to
+its library. Reductions take one axis and are applied to batch-last arrays, so on numpy they are
+fast elementwise passes (see core.py). The numpy backend returns numpy arrays everywhere; the torch
+backend keeps every state array a tensor on its device.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class NumpyBackend:
+    name = "numpy"
+    float = np.float64
+    int = np.int64
+    int8 = np.int8
+    bool = np.bool_
+
+    where = staticmethod(np.where)
+    minimum = staticmethod(np.minimum)
+    maximum = staticmethod(np.maximum)
+    abs = staticmethod(np.abs)
+    cos, sin, tan = staticmethod(np.cos), staticmethod(np.sin), staticmethod(np.tan)
+    arctan, arctan2, sqrt = staticmethod(np.arctan), staticmethod(np.arctan2), staticmethod(np.sqrt)
+    isfinite = staticmethod(np.isfinite)
+    stack = staticmethod(np.stack)
+    ones_like = staticmethod(np.ones_like)
+    # ufunc reductions skip numpy's Python-level wrappers, which dominate at N = 1.
+    amin = staticmethod(np.minimum.reduce)
+    any = staticmethod(np.logical_or.reduce)
+    all = staticmethod(np.logical_and.reduce)
+    sum = staticmethod(np.add.reduce)
+
+    def __init__(self, device: Any = None, dtype: Any = None) -> None:
+        self.float = np.dtype(dtype or np.float64).type
+
+    def zeros(self, shape: Any, dtype: Any = None) -> np.ndarray:
+        return np.zeros(shape, dtype or self.float)
+
+    def full(self, shape: Any, value: Any, dtype: Any = None) -> np.ndarray:
+        return np.full(shape, value, dtype or self.float)
+
+    def arange(self, n: int) -> np.ndarray:
+        return np.arange(n)
+
+    def asarray(self, x: Any, dtype: Any = None) -> np.ndarray:
+        return np.asarray(x, dtype=dtype)
+
+    def batch_last(self, x: Any, dtype: Any = None) -> np.ndarray:
+        """(N, M) -> a contiguous (M, N) array."""
+        return np.ascontiguousarray(np.asarray(x, dtype=dtype).T)
+
+    def astype(self, x: np.ndarray, dtype: Any) -> np.ndarray:
+        return x.astype(dtype)
+
+    def copy(self, x: np.ndarray) -> np.ndarray:
+        return x.copy()
+
+    def nonzero(self, mask: np.ndarray) -> np.ndarray:
+        return np.flatnonzero(mask)
+
+    def to_numpy(self, x: Any) -> np.ndarray:
+        return x
+
+
+class TorchBackend:
+    """The same namespace over torch tensors on ``device`` (float64 by default, so results match
+    numpy to rounding; float32 trades that for GPU speed)."""
+
+    name = "torch"
+
+    def __init__(self, device: Any = None, dtype: Any = None) -> None:
+        import torch
+
+        self.torch = torch
+        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.float = dtype or torch.float64
+        self.int, self.int8, self.bool = torch.int64, torch.int8, torch.bool
+        self.cos, self.sin, self.tan, self.arctan = torch.cos, torch.sin, torch.tan, torch.atan
+        self.arctan2, self.sqrt, self.isfinite, self.abs = torch.atan2, torch.sqrt, torch.isfinite, torch.abs
+        self.ones_like = torch.ones_like
+
+    def _t(self, x: Any) -> Any:
+        if isinstance(x, self.torch.Tensor):
+            return x
+        # Python floats follow the backend's float dtype (torch would make them float32).
+        dtype = self.float if isinstance(x, float) else None
+        return self.torch.as_tensor(x, dtype=dtype, device=self.device)
+
+    def where(self, cond: Any, a: Any, b: Any) -> Any:
+        a, b = self._t(a), self._t(b)
+        if a.dtype != b.dtype and a.is_floating_point() != b.is_floating_point():
+            dtype = a.dtype if a.is_floating_point() else b.dtype
+            a, b = a.to(dtype), b.to(dtype)
+        return self.torch.where(self._t(cond), a, b)
+
+    def minimum(self, a: Any, b: Any) -> Any:
+        if not isinstance(b, self.torch.Tensor):
+            return self.torch.clamp(self._t(a), max=b)
+        if not isinstance(a, self.torch.Tensor):
+            return self.torch.clamp(b, max=a)
+        return self.torch.minimum(a, b)
+
+    def maximum(self, a: Any, b: Any) -> Any:
+        if not isinstance(b, self.torch.Tensor):
+            return self.torch.clamp(self._t(a), min=b)
+        if not isinstance(a, self.torch.Tensor):
+            return self.torch.clamp(b, min=a)
+        return self.torch.maximum(a, b)
+
+    def amin(self, a: Any, axis: int = 0, keepdims: bool = False) -> Any:
+        return self.torch.amin(a, dim=axis, keepdim=keepdims)
+
+    def any(self, a: Any, axis: int = 0) -> Any:
+        return self.torch.any(a, dim=axis)
+
+    def all(self, a: Any, axis: int = 0) -> Any:
+        return self.torch.all(a, dim=axis)
+
+    def sum(self, a: Any, axis: int = 0) -> Any:
+        return self.torch.sum(a, dim=axis)
+
+    def stack(self, xs: Any, axis: int = 0) -> Any:
+        return self.torch.stack(list(xs), dim=axis)
+
+    def zeros(self, shape: Any, dtype: Any = None) -> Any:
+        return self.torch.zeros(shape, dtype=self._dtype(dtype or self.float), device=self.device)
+
+    def full(self, shape: Any, value: Any, dtype: Any = None) -> Any:
+        return self.torch.full(shape if isinstance(shape, tuple) else (shape,), value, dtype=self._dtype(dtype or self.float), device=self.device)
+
+    def arange(self, n: int) -> Any:
+        return self.torch.arange(n, device=self.device)
+
+    def asarray(self, x: Any, dtype: Any = None) -> Any:
+        dtype = self._dtype(dtype) if dtype is not None else None
+        if isinstance(x, np.ndarray) and dtype is None and x.dtype.kind == "f":
+            dtype = self.float
+        return self.torch.as_tensor(np.asarray(x) if not isinstance(x, self.torch.Tensor) else x,
+                                    dtype=dtype, device=self.device)
+
+    def batch_last(self, x: Any, dtype: Any = None) -> Any:
+        return self.asarray(np.ascontiguousarray(np.asarray(x).T), dtype)
+
+    def astype(self, x: Any, dtype: Any) -> Any:
+        return x.to(self._dtype(dtype))
+
+    def copy(self, x: Any) -> Any:
+        return x.clone()
+
+    def nonzero(self, mask: Any) -> Any:
+        return self.torch.nonzero(mask).flatten()
+
+    def to_numpy(self, x: Any) -> np.ndarray:
+        return x.detach().cpu().numpy() if isinstance(x, self.torch.Tensor) else np.asarray(x)
+
+    def _dtype(self, dtype: Any) -> Any:
+        t = self.torch
+        mapping = {np.float64: t.float64, np.float32: t.float32, np.int64: t.int64, np.int8: t.int8,
+                   np.bool_: t.bool, float: self.float, int: t.int64, bool: t.bool}
+        return mapping.get(dtype, dtype)
+
+
+def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None) -> NumpyBackend | TorchBackend:
+    if name == "numpy":
+        return NumpyBackend(device, dtype)
+    if name == "torch":
+        return TorchBackend(device, dtype)
+    raise ValueError(f"backend: {name!r} is not 'numpy' or 'torch'")
