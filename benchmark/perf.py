@@ -1,17 +1,21 @@
-"""Throughput of the batched core and of one PettingZoo env (a benchmark script, not a test).
+"""Performance report: throughput of the core, one PettingZoo env, whole suites, memory, and
+highway-env's ``two-way-v0`` measured side by side on the same machine.
 
-    python -m overtakezoo.benchmark.perf [--sizes 1 256 4096] [--seconds 3] [--json out.json]
+    overtakezoo perf [--sizes 1 256 4096 16384] [--seconds 3] [--out docs/perf]
 
-Env-steps/s count scenario-steps: N rows stepped once = N env-steps. The planner runs every step.
-Rows are auto-reset so the batch stays full of live scenarios.
+Env-steps/s count scenario-steps (N rows stepped once = N env-steps, the planner included; rows
+are auto-reset so the batch stays full). Simulated seconds per wall second = env-steps/s x dt.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
+import os
 import platform
+import subprocess
+import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -27,9 +31,9 @@ def core_steps_per_second(n: int, seconds: float = 3.0, seed: int = 0) -> float:
         core.step(modes)
     steps, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        for _ in range(10):
+        for _ in range(5):
             core.step(modes)
-        steps += 10
+        steps += 5
     return n * steps / (time.perf_counter() - start)
 
 
@@ -47,34 +51,145 @@ def pettingzoo_steps_per_second(seconds: float = 3.0, seed: int = 0) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def machine() -> str:
-    import os
+def suite_wall_time(suite: str, decider: str) -> dict[str, Any]:
+    """Wall time of a whole suite run, end to end (scenario generation and decider included)."""
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.runner import run_suite
+    from overtakezoo.benchmark.suites import load_suite
 
-    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    s = load_suite(suite)
+    d = zoo.load(decider, config=s.config)
+    start = time.perf_counter()
+    result = run_suite(s, d, progress=False)
+    wall = time.perf_counter() - start
+    sim = float(np.sum(result.per_scenario_array("episode_time"))) if hasattr(result, "per_scenario_array") else None
+    return {"suite": suite, "decider": decider, "scenarios": s.count, "wall_time_s": round(wall, 2),
+            "success_rate": round(float(result.summary["success_rate"]["value"]), 4) if hasattr(result, "summary") else None,
+            "simulated_s": sim}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1, 256, 4096])
-    parser.add_argument("--seconds", type=float, default=3.0)
-    parser.add_argument("--json", help="also write the figures to this JSON file")
-    args = parser.parse_args(argv)
-    report = {"machine": machine(), "core_env_steps_per_s": {}}
-    for n in args.sizes:
-        rate = core_steps_per_second(n, args.seconds)
-        report["core_env_steps_per_s"][str(n)] = round(rate)
-        print(f"core N={n:>6}: {rate:>12,.0f} env-steps/s")
+_RSS_SCRIPT = """
+import resource, sys
+from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.benchmark.runner import run_suite
+from overtakezoo import zoo
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+if sys.argv[1] != "0":
+    s = load_suite("table1")
+    run_suite(s, zoo.load("always-overtake", config=s.config), progress=False)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base)
+"""
+
+
+def peak_rss_per_1000_scenarios() -> float:
+    """Extra peak RSS (MiB) of a table1 run over the imports alone, per 1000 scenarios."""
+    def run(flag: str) -> int:
+        out = subprocess.run([sys.executable, "-c", _RSS_SCRIPT, flag], capture_output=True, text=True, check=True)
+        return int(out.stdout.strip().splitlines()[-1])
+
+    extra_kib = run("1") - run("0")
+    return round(max(extra_kib, 0) / 1024 / 3.0, 1)
+
+
+def highway_env_sim_seconds_per_second(seconds: float = 5.0) -> dict[str, Any] | None:
+    """highway-env's ``two-way-v0`` (the only packaged overtaking-with-oncoming-traffic env), stepped
+    with the IDLE action on one core; None when the ``[compare]`` extra is not installed."""
     try:
-        rate = pettingzoo_steps_per_second(args.seconds)
-        report["pettingzoo_steps_per_s"] = round(rate)
-        print(f"PettingZoo env: {rate:>12,.0f} steps/s")
+        import gymnasium as gym
+        import highway_env  # noqa: F401
     except ImportError:
-        print("PettingZoo face not available")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(report, f, indent=1)
-    return 0
+        return None
+    env = gym.make("two-way-v0")
+    env.reset(seed=0)
+    per_decision = 1.0 / env.unwrapped.config["policy_frequency"]
+    decisions, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        _, _, terminated, truncated, _ = env.step(1)
+        decisions += 1
+        if terminated or truncated:
+            env.reset()
+    elapsed = time.perf_counter() - start
+    import importlib.metadata as md
+
+    return {"version": md.version("highway-env"), "decisions_per_s": round(decisions / elapsed, 1),
+            "sim_seconds_per_wall_second": round(decisions * per_decision / elapsed, 1)}
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+
+
+def measure(sizes: list[int], seconds: float, suites: bool = True, progress=print) -> dict[str, Any]:
+    dt = EnvConfig().dt
+    report: dict[str, Any] = {"machine": machine(), "date": time.strftime("%Y-%m-%d"), "core": {}}
+    for n in sizes:
+        rate = core_steps_per_second(n, seconds)
+        report["core"][str(n)] = {"env_steps_per_s": round(rate), "sim_seconds_per_wall_second": round(rate * dt)}
+        progress(f"core N={n:>6}: {rate:>12,.0f} env-steps/s")
+    try:
+        report["pettingzoo_steps_per_s"] = round(pettingzoo_steps_per_second(seconds))
+        progress(f"PettingZoo env: {report['pettingzoo_steps_per_s']:,} steps/s")
+    except ImportError:
+        report["pettingzoo_steps_per_s"] = None
+    if suites:
+        report["suites"] = []
+        for decider in ("rule-fsm", "dqn"):
+            try:
+                row = suite_wall_time("table1", decider)
+            except Exception as exc:  # a member missing from this install is reported, not fatal
+                row = {"suite": "table1", "decider": decider, "error": str(exc).splitlines()[0]}
+            report["suites"].append(row)
+            progress(f"table1 / {decider}: {row.get('wall_time_s', row.get('error'))} s")
+        report["peak_rss_mib_per_1000_scenarios"] = peak_rss_per_1000_scenarios()
+        progress(f"peak RSS: {report['peak_rss_mib_per_1000_scenarios']} MiB per 1000 scenarios")
+    hw = highway_env_sim_seconds_per_second(seconds)
+    report["highway_env"] = hw
+    if hw:
+        best = max(v["sim_seconds_per_wall_second"] for v in report["core"].values())
+        single = report["core"].get("1", {}).get("sim_seconds_per_wall_second")
+        report["ratio_vs_highway_env"] = {"batched": round(best / hw["sim_seconds_per_wall_second"], 1),
+                                          "single_env": round(single / hw["sim_seconds_per_wall_second"], 1) if single else None}
+        progress(f"highway-env two-way-v0: {hw['sim_seconds_per_wall_second']} sim s / wall s; "
+                 f"ratio {report['ratio_vs_highway_env']}")
+    return report
+
+
+def to_markdown(report: dict[str, Any]) -> str:
+    lines = [f"# Performance report", "", f"Machine: {report['machine']} ({report['date']}).", "",
+             "| measurement | value |", "|---|---|"]
+    for n, row in report["core"].items():
+        lines.append(f"| core, N = {n} | {row['env_steps_per_s']:,} env-steps/s "
+                     f"({row['sim_seconds_per_wall_second']:,} simulated s per wall s) |")
+    if report.get("pettingzoo_steps_per_s"):
+        lines.append(f"| one PettingZoo env | {report['pettingzoo_steps_per_s']:,} steps/s |")
+    for row in report.get("suites", []):
+        value = f"{row['wall_time_s']} s" if "wall_time_s" in row else f"not measured: {row['error']}"
+        lines.append(f"| {row['suite']} ({row.get('scenarios', '?')} scenarios) with {row['decider']}, end to end | {value} |")
+    if report.get("peak_rss_mib_per_1000_scenarios") is not None:
+        lines.append(f"| peak RSS per 1000 scenarios | {report['peak_rss_mib_per_1000_scenarios']} MiB |")
+    hw = report.get("highway_env")
+    if hw:
+        lines.append(f"| highway-env {hw['version']} two-way-v0 | {hw['decisions_per_s']} decisions/s = "
+                     f"{hw['sim_seconds_per_wall_second']} simulated s per wall s |")
+        r = report["ratio_vs_highway_env"]
+        lines.append(f"| ratio to highway-env (simulated s per wall s) | {r['batched']}x batched, {r['single_env']}x one env |")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(report: dict[str, Any], out_prefix: str) -> None:
+    from .io import atomic_write_json, atomic_write_text
+
+    atomic_write_json(out_prefix + ".json", report)
+    atomic_write_text(out_prefix + ".md", to_markdown(report))
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from .cli import main
+
+    raise SystemExit(main(["perf", *sys.argv[1:]]))

@@ -1,0 +1,50 @@
+"""``overtakezoo eval``: run a decider on a suite, print Table I and write the results file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..cmdutil import add_parser, check_writable, load_decider
+
+
+def register(subparsers: Any) -> None:
+    p = add_parser(subparsers, "eval", "evaluate a decider on a suite",
+                   "Run a decider on every scenario of a suite (one batch, in chunks), print a Table I-style\n"
+                   "summary with 95 % CIs and write a results file (JSON).",
+                   ["overtakezoo eval --suite table1 --decider always-follow",
+                    "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
+                    "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
+                    "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards"])
+    p.add_argument("--suite", required=True, help="a suite name (see `overtakezoo suites`) or a .toml path")
+    p.add_argument("--decider", required=True, help="a decider name from the zoo registry")
+    p.add_argument("--out", help="results file (default: results/<suite>/<decider>[.shard-i-of-k].json)")
+    p.add_argument("--shard", metavar="I/K", help="run only the I-th (0-based) of K contiguous slices")
+    p.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once (bounds memory)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(handler=run)
+
+
+def run(args: Any) -> int:
+    from ..errors import UserError
+    from ..metrics import render_table
+    from ..runner import run_suite
+    from ..suites import load_suite, parse_shard, shard_bounds
+
+    suite = load_suite(args.suite)
+    shard = parse_shard(args.shard)
+    shard_bounds(suite.count, shard)  # validates the shard against the suite
+    if args.chunk_size < 1:
+        raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")
+    decider = load_decider(args.decider, suite.config)
+    suffix = f".shard-{shard[0]}-of-{shard[1]}" if shard else ""
+    out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
+    check_writable(out)
+    results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress)
+    results.save(out)
+    lo, hi = results.meta["range"]
+    print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
+          f"decider {decider.name} v{decider.version}")
+    print(render_table([(decider.name, results.summary)]), end="")
+    print(f"wall time {results.timing['wall_time_s']:.2f} s; wrote {out}")
+    return 0

@@ -1,0 +1,233 @@
+"""The leaderboard: submissions in, Markdown tables + a JSON index + PNG plots out, byte-identical.
+
+Layout under the root (``leaderboards/``): ``submissions/<suite>/<decider>.json`` (results files,
+the input), ``reference/paper.json`` (the paper's reported numbers, input), and the generated files
+``README.md``, ``index.json``, ``<suite>.md`` and ``<suite>.png``. Generated files are never edited by
+hand; ``leaderboard --check`` fails when they differ from what the submissions give.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+from .errors import UserError
+from .io import atomic_write_bytes
+from .metrics import TABLE, format_metric, render_table
+from .results import Results
+from .suites import load_suite, suite_names
+
+REFERENCE = Path("reference") / "paper.json"
+REFERENCE_NOTE = "reported in the paper, different simulator"
+_GENERATED_SUFFIXES = (".md", ".png", ".json")
+_RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
+                 ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
+                 ("crash_share_npc2", "rate", "%"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
+_LABELS = {k: label for k, label, _, _ in TABLE}
+
+
+# ------------------------------------------------------------------ submit
+def submit(results: Results, root: str | Path = "leaderboards", source: str = "results") -> Path:
+    """Validate ``results`` against the current built-in suite and file it; returns the path."""
+    suite = results.suite
+    if not results.complete:
+        raise UserError(f"{source}: range: covers scenarios {results.meta['range']} of {suite['count']}; "
+                        "submit every shard of the run together")
+    if suite["name"] not in suite_names():
+        raise UserError(f"{source}: suite.name: {suite['name']!r} is not a built-in suite "
+                        f"(leaderboards exist for: {', '.join(suite_names())})")
+    current = load_suite(suite["name"])
+    if suite["hash"] != current.hash:
+        raise UserError(f"{source}: suite.hash: measured on {suite['name']} v{suite['version']} "
+                        f"({suite['hash'][:12]}), the current suite file is v{current.version} "
+                        f"({current.hash[:12]}): re-run the evaluation")
+    path = Path(root) / "submissions" / suite["name"] / f"{results.decider['name']}.json"
+    atomic_write_bytes(path, results.to_json().encode())
+    return path
+
+
+# ------------------------------------------------------------------ generate
+def load_submissions(root: Path) -> dict[str, list[tuple[str, Results]]]:
+    out: dict[str, list[tuple[str, Results]]] = {}
+    base = root / "submissions"
+    for path in sorted(base.glob("*/*.json")) if base.is_dir() else []:
+        results = Results.load(path)
+        rel = path.relative_to(root).as_posix()
+        if results.suite["name"] != path.parent.name:
+            raise UserError(f"{rel}: suite.name: {results.suite['name']!r} filed under {path.parent.name!r}")
+        if results.decider["name"] != path.stem:
+            raise UserError(f"{rel}: decider.name: {results.decider['name']!r} filed as {path.stem!r}")
+        out.setdefault(path.parent.name, []).append((rel, results))
+    return out
+
+
+def load_reference(root: Path) -> dict[str, Any] | None:
+    path = root / REFERENCE
+    if not path.is_file():
+        return None
+    try:
+        ref = json.loads(path.read_text())
+        assert isinstance(ref["rows"], list) and all(isinstance(r["decider"], str) for r in ref["rows"])
+        assert isinstance(ref["suite"], str) and isinstance(ref["source"], str)
+    except (ValueError, KeyError, TypeError, AssertionError) as exc:
+        raise UserError(f"{path}: malformed reference file ({type(exc).__name__}: {exc})") from None
+    return ref
+
+
+def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
+    """Every generated file (relative path -> bytes), computed from the submissions."""
+    root = Path(root)
+    subs, ref = load_submissions(root), load_reference(root)
+    files: dict[str, bytes] = {}
+    index: dict[str, Any] = {"generated_by": "overtakezoo leaderboard", "suites": {}}
+    for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
+        builtin = name in suite_names()
+        suite = load_suite(name) if builtin else None
+        rows = subs.get(name, [])
+        live = [(p, r) for p, r in rows if suite is not None and r.suite["hash"] == suite.hash]
+        stale = [(p, r) for p, r in rows if (p, r) not in live]
+        live.sort(key=lambda pr: _rank_key(pr[1]))
+        suite_ref = ref if ref and ref["suite"] == name else None
+        files[f"{name}.md"] = _markdown(name, suite, live, stale, suite_ref).encode()
+        if live:
+            files[f"{name}.png"] = _plot(name, live)
+        index["suites"][name] = {
+            "version": suite.version if suite else None, "hash": suite.hash if suite else None,
+            "count": suite.count if suite else None, "table": f"{name}.md",
+            "plot": f"{name}.png" if live else None,
+            "entries": [{"decider": r.decider["name"], "version": r.decider["version"], "file": p,
+                         **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}} for p, r in live],
+            "stale": [p for p, _ in stale],
+            "reference": REFERENCE.as_posix() if suite_ref else None,
+        }
+    files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
+    files["README.md"] = _readme(index).encode()
+    return files
+
+
+def write(root: str | Path = "leaderboards") -> list[str]:
+    """Regenerate the files; removes generated files no longer produced. Returns changed paths."""
+    root = Path(root)
+    files = generate(root)
+    changed = stale_files(root, files)
+    for rel in changed:
+        if rel in files:
+            atomic_write_bytes(root / rel, files[rel])
+        else:
+            (root / rel).unlink()
+    return changed
+
+
+def stale_files(root: str | Path, files: dict[str, bytes] | None = None) -> list[str]:
+    """Generated files that are missing, different, or no longer produced."""
+    root = Path(root)
+    files = generate(root) if files is None else files
+    on_disk = {p.name for p in root.glob("*") if p.is_file() and p.suffix in _GENERATED_SUFFIXES}
+    out = [rel for rel, data in files.items() if not (root / rel).is_file() or (root / rel).read_bytes() != data]
+    return sorted(out + sorted(on_disk - set(files)))
+
+
+# ------------------------------------------------------------------ rendering
+def _rank_key(r: Results) -> tuple:
+    s = r.summary
+    return (-(s["success_rate"]["value"] or 0.0), s["crash_rate"]["value"] or 0.0, r.decider["name"])
+
+
+def _markdown(name: str, suite: Any, live: list, stale: list, ref: dict[str, Any] | None) -> str:
+    out = [f"# Leaderboard: {name}", "",
+           "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", ""]
+    if suite is not None:
+        out += [suite.description, "",
+                f"Suite `{name}` v{suite.version}, {suite.count} scenarios, seed {suite.seed}, "
+                f"sha256 `{suite.hash}`.", ""]
+    else:
+        out += [f"`{name}` is not a built-in suite.", ""]
+    out += ["## Measured", ""]
+    if live:
+        out.append("Sorted by success rate, then crash rate. Values with 95 % confidence intervals "
+                   "(Wilson for rates, seeded bootstrap for means).")
+        out.append("")
+        head = ["rank", "decider", "version", *[_LABELS[k] for k, _, _ in _RANK_COLUMNS], "commit"]
+        out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for i, (path, r) in enumerate(live, 1):
+            commit = (r.meta["git_commit"] or "-")[:10]
+            cells = [str(i), f"[{r.decider['name']}]({path})", r.decider["version"],
+                     *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS], commit]
+            out.append("| " + " | ".join(cells) + " |")
+        out += ["", f"![success vs crash rate]({name}.png)", "", "### Table I, every metric", ""]
+        out.append(render_table([(r.decider["name"], r.summary) for _, r in live], markdown=True).rstrip())
+        out.append("")
+    else:
+        out += ["No measured submissions yet.", ""]
+    if ref is not None:
+        out += [f"## Reference: {REFERENCE_NOTE}", "",
+                f"Not measured here. Source: {ref['source']}. These numbers come from another simulator "
+                "and are shown for orientation only; they are never ranked with the measured rows.", ""]
+        keys = [k for k, _, _, _ in TABLE if any(k in row for row in ref["rows"])]
+        kinds = {k: (kind, unit) for k, _, kind, unit in TABLE}
+        out += ["| decider | " + " | ".join(_LABELS[k] for k in keys) + " |", "|" + "---|" * (len(keys) + 1)]
+        for row in ref["rows"]:
+            cells = [_reported(row.get(k), *kinds[k]) for k in keys]
+            out.append(f"| {row['decider']} ({REFERENCE_NOTE}) | " + " | ".join(cells) + " |")
+        out.append("")
+    if stale:
+        out += ["## Stale submissions", "",
+                "Measured on an older version of this suite file (different hash); re-run to list them above.", ""]
+        out += [f"- [{r.decider['name']}]({p}): suite v{r.suite['version']} `{r.suite['hash'][:12]}`"
+                for p, r in stale]
+        out.append("")
+    return "\n".join(out)
+
+
+def _reported(value: Any, kind: str, unit: str) -> str:
+    """A number as the paper printed it (no CI: the paper gives none)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return "-"
+    return f"{value * 100:.3g} %" if kind == "rate" else f"{value:.1f} {unit}".strip()
+
+
+def _readme(index: dict[str, Any]) -> str:
+    out = ["# OvertakeZoo leaderboards", "",
+           "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", "",
+           "Submit with `overtakezoo submit results.json`, regenerate with `overtakezoo leaderboard`; "
+           "CI runs `overtakezoo leaderboard --check`.", "",
+           "| suite | version | scenarios | submissions | best success rate |", "|---|---|---|---|---|"]
+    for name, s in index["suites"].items():
+        best = s["entries"][0] if s["entries"] else None
+        best_txt = f"{best['success_rate'] * 100:.1f} % ({best['decider']})" if best else "-"
+        out.append(f"| [{name}]({s['table']}) | {s['version'] or '-'} | {s['count'] or '-'} | "
+                   f"{len(s['entries'])} | {best_txt} |")
+    return "\n".join(out) + "\n"
+
+
+def _plot(name: str, live: list) -> bytes:
+    """Success vs crash rate with Wilson CIs; Agg canvas, no pyplot state, no timestamps in the PNG."""
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    with matplotlib.rc_context({"svg.hashsalt": "overtakezoo", "font.family": "DejaVu Sans", "font.size": 9}):
+        fig = Figure(figsize=(6.0, 4.5), dpi=100)
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot(1, 1, 1)
+        for i, (_, r) in enumerate(live):
+            s, c = r.summary["success_rate"], r.summary["crash_rate"]
+            x, y = 100 * s["value"], 100 * c["value"]
+            xerr = [[x - 100 * s["lo"]], [100 * s["hi"] - x]]
+            yerr = [[y - 100 * c["lo"]], [100 * c["hi"] - y]]
+            ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="o", capsize=3, color=f"C{i % 10}",
+                        label=r.decider["name"])
+            ax.annotate(r.decider["name"], (x, y), textcoords="offset points", xytext=(5, 5))
+        ax.set_xlim(-5, 105)
+        ax.set_ylim(-5, 105)
+        ax.set_xlabel("success rate (%)")
+        ax.set_ylabel("crash rate (%)")
+        ax.set_title(f"{name}: success vs crash rate (95 % CI), measured")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()

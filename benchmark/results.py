@@ -1,0 +1,279 @@
+"""Results files: provenance, per-scenario arrays and a summary with CIs, as one JSON document.
+
+Everything but the ``timing`` field is a function of (suite file, decider, code), so running the
+same command twice gives byte-identical files apart from ``timing``. Loading validates against
+``schemas/results.schema.json`` and recomputes the summary from the arrays; any mismatch is a
+UserError naming the field.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import math
+import subprocess
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import numpy as np
+
+from .errors import UserError
+from .io import atomic_write_text
+from .metrics import summarize
+
+SCHEMA_ID = "overtakezoo-results/1"
+SCHEMA_PATH = Path(__file__).with_name("schemas") / "results.schema.json"
+DECIMALS = 4  # per-scenario floats: 0.1 mm / 0.1 ms resolution, and compact files
+
+# Per-scenario arrays: name -> (dtype, value a JSON null stands for).
+PER_SCENARIO: dict[str, tuple[type, float | None]] = {
+    "outcome": (np.int8, None), "crash_npc": (np.int64, None), "crash_lane": (np.int64, None),
+    "completion_time": (np.float64, math.nan), "episode_time": (np.float64, math.nan),
+    "aborts": (np.int64, None), "switches": (np.int64, None), "opposite_time": (np.float64, math.nan),
+    "min_ttc": (np.float64, math.inf),  # inf: never on a collision course
+    "peak_lat_accel": (np.float64, math.nan), "peak_jerk": (np.float64, math.nan),
+    "npc1_speed": (np.float64, math.nan), "npc2_speed": (np.float64, math.nan),
+}
+
+
+def round_per_scenario(per: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Cast and round once, so summaries are computed from exactly what the file stores."""
+    out = {}
+    for key, (dtype, _) in PER_SCENARIO.items():
+        a = np.asarray(per[key])
+        out[key] = np.round(a.astype(np.float64), DECIMALS) if dtype is np.float64 else a.astype(dtype)
+    return out
+
+
+@functools.cache
+def package_version() -> str:
+    try:
+        return metadata.version("overtakezoo")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@functools.cache
+def git_commit() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                             text=True, timeout=5, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = out.stdout.strip()
+    return commit if len(commit) == 40 else None
+
+
+def config_sha256(config: Any) -> str:
+    """Hash of the resolved settings: catches a change of library defaults the suite file does not name."""
+    text = json.dumps(config.to_dict(), sort_keys=True, default=repr)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@dataclass
+class Results:
+    meta: dict[str, Any]  # suite, decider, package, git_commit, seed, shard, range, config_sha256
+    per: dict[str, np.ndarray]
+    summary: dict[str, Any]
+    timing: dict[str, Any] = field(default_factory=dict)
+
+    # ------------------------------------------------------------ building
+    @classmethod
+    def create(cls, suite: Any, decider: Any, per: dict[str, np.ndarray], *, start: int, stop: int,
+               shard: tuple[int, int] | None, timing: dict[str, Any]) -> "Results":
+        meta = {
+            "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
+            "config_sha256": config_sha256(suite.config),
+            "decider": {"name": str(decider.name), "version": str(decider.version),
+                        "weights_sha256": getattr(decider, "weights_sha256", None),
+                        "privileged": bool(getattr(decider, "privileged", False))},
+            "package": {"name": "overtakezoo", "version": package_version()},
+            "git_commit": git_commit(),
+            "seed": suite.seed,
+            "shard": list(shard) if shard is not None else None,
+            "range": [start, stop],
+        }
+        per = round_per_scenario(per)
+        return cls(meta, per, summarize(per, suite.seed), timing)
+
+    @property
+    def suite(self) -> dict[str, Any]:
+        return self.meta["suite"]
+
+    @property
+    def decider(self) -> dict[str, Any]:
+        return self.meta["decider"]
+
+    @property
+    def complete(self) -> bool:
+        return self.meta["range"] == [0, self.suite["count"]]
+
+    def per_scenario_array(self, key: str) -> np.ndarray:
+        """One per-scenario array (``outcome``, ``completion_time``, ... see PER_SCENARIO)."""
+        return self.per[key]
+
+    def __getattr__(self, key: str) -> np.ndarray:
+        # ``results.outcome`` etc. as shorthands for the per-scenario arrays.
+        per = self.__dict__.get("per")
+        if per is not None and key in PER_SCENARIO:
+            return per[key]
+        raise AttributeError(key)
+
+    # ------------------------------------------------------------ JSON
+    def to_dict(self) -> dict[str, Any]:
+        return {"schema": SCHEMA_ID, **self.meta,
+                "scenarios": {k: _to_list(v) for k, v in self.per.items()},
+                "summary": self.summary, "timing": self.timing}
+
+    def to_json(self) -> str:
+        """Indented JSON with each per-scenario array on one line (compact, still diffable)."""
+        doc = self.to_dict()
+        arrays = doc.pop("scenarios")
+        doc["scenarios"] = {k: f"@@{k}@@" for k in arrays}
+        text = json.dumps(doc, indent=1, sort_keys=True, allow_nan=False)
+        for k, values in arrays.items():
+            text = text.replace(f'"@@{k}@@"', json.dumps(values, separators=(",", ":"), allow_nan=False))
+        return text + "\n"
+
+    def without_timing(self) -> str:
+        return Results(self.meta, self.per, self.summary, {}).to_json()
+
+    def save(self, path: str | Path) -> Path:
+        validate(self.to_dict(), str(path))  # never write a file that would not load
+        return atomic_write_text(path, self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Results":
+        path = Path(path)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise UserError(f"cannot read results file {path}: {exc.strerror or exc}") from None
+        return cls.from_json(data, str(path))
+
+    @classmethod
+    def from_json(cls, data: bytes | str, where: str = "results") -> "Results":
+        try:
+            doc = json.loads(data, parse_constant=_reject_constant)
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            raise UserError(f"{where}: not a valid JSON document: {str(exc).splitlines()[0][:200]}") from None
+        validate(doc, where)
+        meta = {k: doc[k] for k in ("suite", "config_sha256", "decider", "package", "git_commit", "seed",
+                                    "shard", "range")}
+        start, stop = meta["range"]
+        if not 0 <= start < stop <= meta["suite"]["count"]:
+            raise UserError(f"{where}: range: {meta['range']} is not inside [0, {meta['suite']['count']}]")
+        shard = meta["shard"]
+        if shard is not None:
+            from .suites import shard_bounds
+            if not 0 <= shard[0] < shard[1] <= meta["suite"]["count"] or \
+                    list(shard_bounds(meta["suite"]["count"], tuple(shard))) != [start, stop]:
+                raise UserError(f"{where}: shard: {shard} does not match range {meta['range']}")
+        per = {}
+        for key, (dtype, null) in PER_SCENARIO.items():
+            values = doc["scenarios"][key]
+            if len(values) != stop - start:
+                raise UserError(f"{where}: scenarios.{key}: expected {stop - start} values, got {len(values)}")
+            if dtype is np.float64:
+                per[key] = np.array([null if v is None else v for v in values], dtype=np.float64)
+            else:
+                per[key] = np.array(values, dtype=dtype)
+        per = round_per_scenario(per)
+        summary = summarize(per, meta["seed"])
+        if _canonical(summary) != _canonical(doc["summary"]):
+            raise UserError(f"{where}: summary: does not match the per-scenario arrays (edited by hand?)")
+        return cls(meta, per, summary, doc["timing"])
+
+
+def merge(parts: list[Results]) -> Results:
+    """Combine shard results into the result of one full run (equal to it apart from ``timing``)."""
+    if not parts:
+        raise UserError("merge: no results given")
+    first = parts[0]
+    for p in parts[1:]:
+        for key in ("suite", "config_sha256", "decider", "package", "git_commit", "seed"):
+            if p.meta[key] != first.meta[key]:
+                raise UserError(f"merge: {key}: shards differ ({first.meta[key]!r} vs {p.meta[key]!r})")
+    parts = sorted(parts, key=lambda p: p.meta["range"][0])
+    edge = 0
+    for p in parts:
+        start, stop = p.meta["range"]
+        if start != edge:
+            what = "overlap" if start < edge else "leave a gap"
+            raise UserError(f"merge: range: shards {what} at scenario {min(start, edge)}")
+        edge = stop
+    if edge != first.suite["count"]:
+        raise UserError(f"merge: range: shards cover {edge} of {first.suite['count']} scenarios")
+    per = {k: np.concatenate([p.per[k] for p in parts]) for k in PER_SCENARIO}
+    meta = {**first.meta, "shard": None, "range": [0, edge]}
+    timing = {"wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
+              "started": min(str(p.timing.get("started", "")) for p in parts),
+              "steps": sum(int(p.timing.get("steps", 0)) for p in parts), "shards": len(parts)}
+    return Results(meta, per, summarize(per, meta["seed"]), timing)
+
+
+@functools.cache
+def _validator() -> jsonschema.protocols.Validator:
+    schema = json.loads(SCHEMA_PATH.read_text())
+    cls = jsonschema.validators.validator_for(schema)
+    cls.check_schema(schema)
+    return cls(schema)
+
+
+def validate(doc: Any, where: str = "results") -> None:
+    """Raise a UserError naming the first field that does not match the schema.
+
+    The per-scenario arrays (tens of thousands of numbers) are checked against their ``items``
+    schema with numpy; jsonschema checks everything else (the arrays' shape included)."""
+    scen = doc.get("scenarios") if isinstance(doc, dict) else None
+    arrays = {}
+    if isinstance(scen, dict):
+        arrays = {k: v for k, v in scen.items() if isinstance(v, list) and k in PER_SCENARIO}
+        doc = {**doc, "scenarios": {**scen, **{k: [] for k in arrays}}}
+    error = next(iter(_validator().iter_errors(doc)), None)  # the first error: its path is the field to fix
+    if error is not None:
+        path = ".".join(str(p) for p in error.absolute_path) or "(top level)"
+        message = error.message if len(error.message) < 200 else error.message[:200] + "..."
+        raise UserError(f"{where}: {path}: {message}")
+    items = _validator().schema["properties"]["scenarios"]["properties"]
+    for key, values in arrays.items():
+        bad = _first_bad_item(values, items[key]["items"])
+        if bad is not None:
+            raise UserError(f"{where}: scenarios.{key}.{bad[0]}: {bad[1]}")
+
+
+def _first_bad_item(values: list[Any], spec: dict[str, Any]) -> tuple[int, str] | None:
+    """(index, reason) of the first value breaking ``spec`` (type / minimum / maximum), or None."""
+    types = spec["type"] if isinstance(spec["type"], list) else [spec["type"]]
+    allowed = (int,) if types == ["integer"] else (int, float, type(None))
+    for i, v in enumerate(values):
+        if type(v) not in allowed:  # bool is not an int here, as in JSON Schema
+            return i, f"{v!r} is not of type {', '.join(repr(t) for t in types)}"
+    try:
+        a = np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+    except OverflowError:
+        return next(i for i, v in enumerate(values) if isinstance(v, int) and abs(v) > 1e300), "too large"
+    with np.errstate(invalid="ignore"):
+        out = np.flatnonzero((a < spec["minimum"]) | (a > spec["maximum"]))
+    if out.size:
+        i = int(out[0])
+        return i, f"{values[i]!r} is outside [{spec['minimum']}, {spec['maximum']}]"
+    return None
+
+
+def _to_list(a: np.ndarray) -> list[Any]:
+    if a.dtype.kind == "f":
+        return [v if math.isfinite(v) else None for v in a.tolist()]
+    return a.tolist()
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not allowed (use null)")
+
+
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, allow_nan=True)

@@ -1,0 +1,146 @@
+"""Suites: versioned TOML files naming a scenario distribution, a count, a seed and simulator settings.
+
+A suite file has top-level ``name``, ``version`` (an integer), ``count``, ``seed``, an optional
+``description``, a ``[scenario]`` table (keys of :class:`~overtakezoo.envs.ScenarioDistribution`) and an
+optional ``[sim]`` table (keys of :class:`~overtakezoo.envs.EnvConfig`, nested tables allowed). The
+suite's hash is the sha256 of the file's bytes, so any edit gives results a different identity.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from overtakezoo.envs import ConfigError, EnvConfig, ScenarioDistribution, Scenarios
+
+from .errors import UserError
+
+SUITES_DIR = Path(__file__).with_name("suites")
+NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
+MAX_COUNT = 1_000_000
+_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim"}
+
+
+@dataclass(frozen=True)
+class Suite:
+    name: str
+    version: int
+    count: int
+    seed: int
+    description: str
+    hash: str
+    path: Path
+    config: EnvConfig
+    distribution: ScenarioDistribution
+
+    @property
+    def builtin(self) -> bool:
+        return self.path.parent == SUITES_DIR.resolve()
+
+    def scenarios(self, shard: tuple[int, int] | None = None) -> Scenarios:
+        """All ``count`` scenarios, or the contiguous slice ``shard = (i, k)`` (0 <= i < k)."""
+        start, stop = shard_bounds(self.count, shard)
+        # Draw the whole suite then slice: a shard's rows are bit-identical to the same rows of a full run.
+        return self.distribution.sample(self.count, self.seed).take(slice(start, stop))
+
+
+def shard_bounds(count: int, shard: tuple[int, int] | None) -> tuple[int, int]:
+    """[start, stop) of shard ``(i, k)``: the i-th (0-based) of k contiguous, near-equal slices."""
+    if shard is None:
+        return 0, count
+    i, k = shard
+    if not (isinstance(i, int) and isinstance(k, int)) or k < 1 or not 0 <= i < k:
+        raise UserError(f"shard {i}/{k}: expected i/k with 0 <= i < k")
+    if k > count:
+        raise UserError(f"shard {i}/{k}: more shards than the suite's {count} scenarios")
+    return i * count // k, (i + 1) * count // k
+
+
+def parse_shard(text: str | None) -> tuple[int, int] | None:
+    """``"i/k"`` -> (i, k); None stays None."""
+    if text is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", text)
+    if not m:
+        raise UserError(f"--shard {text!r}: expected i/k, e.g. 0/4 (the first of four slices)")
+    i, k = int(m.group(1)), int(m.group(2))
+    if k < 1 or i >= k:
+        raise UserError(f"--shard {text!r}: expected 0 <= i < k")
+    return i, k
+
+
+def suite_names() -> list[str]:
+    return sorted(p.stem for p in SUITES_DIR.glob("*.toml"))
+
+
+def list_suites() -> list[Suite]:
+    return [load_suite(n) for n in suite_names()]
+
+
+def load_suite(name_or_path: str | Path) -> Suite:
+    """A built-in suite by name (``table1``) or any suite file by path."""
+    text = str(name_or_path)
+    path = Path(text)
+    if not (text.endswith(".toml") or path.is_file()):
+        if not NAME_RE.match(text) or not (SUITES_DIR / f"{text}.toml").is_file():
+            raise UserError(f"unknown suite {text!r} (known: {', '.join(suite_names())}; or pass a .toml path)")
+        path = SUITES_DIR / f"{text}.toml"
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"cannot read suite file {path}: {exc.strerror or exc}") from None
+    return parse_suite(data, path)
+
+
+def parse_suite(data: bytes, path: Path) -> Suite:
+    """Validate the bytes of a suite file; every problem is a UserError naming the file and key."""
+    where = str(path)
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise UserError(f"{where}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise UserError(f"{where}: malformed TOML: {exc}") from None
+    unknown = sorted(set(doc) - _KEYS)
+    if unknown:
+        raise UserError(f"{where}: {unknown[0]}: unknown key (known: {', '.join(sorted(_KEYS))})")
+    for key in ("name", "version", "count", "seed", "scenario"):
+        if key not in doc:
+            raise UserError(f"{where}: {key}: missing")
+    name = doc["name"]
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise UserError(f"{where}: name: expected lowercase letters, digits, '.', '_' or '-', got {name!r}")
+    version = _int(where, "version", doc["version"], 1, 10**9)
+    count = _int(where, "count", doc["count"], 1, MAX_COUNT)
+    seed = _int(where, "seed", doc["seed"], 0, 2**63 - 1)
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise UserError(f"{where}: description: expected a string")
+    scenario, sim = doc["scenario"], doc.get("sim", {})
+    if not isinstance(scenario, dict):
+        raise UserError(f"{where}: scenario: expected a table")
+    if not isinstance(sim, dict):
+        raise UserError(f"{where}: sim: expected a table")
+    if "scenario" in sim:
+        raise UserError(f"{where}: sim.scenario: put scenario keys in the [scenario] table")
+    try:
+        config = EnvConfig.from_dict(sim, scenario=scenario)
+        distribution = ScenarioDistribution.from_dict(scenario)
+    except ConfigError as exc:
+        section = "" if str(exc).startswith("scenario.") else "sim."
+        raise UserError(f"{where}: {section}{exc}") from None
+    except (TypeError, ValueError) as exc:  # a value of the wrong type deep in a nested table
+        raise UserError(f"{where}: sim: {exc}") from None
+    return Suite(name=name, version=version, count=count, seed=seed, description=description,
+                 hash=hashlib.sha256(data).hexdigest(), path=path.resolve(), config=config,
+                 distribution=distribution)
+
+
+def _int(where: str, key: str, value: Any, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise UserError(f"{where}: {key}: expected an integer in [{lo}, {hi}], got {value!r}")
+    return value

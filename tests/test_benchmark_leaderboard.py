@@ -1,0 +1,84 @@
+"""Leaderboard: byte-identical regeneration, --check catches stale files, submit guards versions."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard import generate, stale_files, submit
+from overtakezoo.benchmark.metrics import summarize
+from overtakezoo.benchmark.results import Results
+
+from test_benchmark_results import fake_results
+
+REPO_LEADERBOARDS = Path(__file__).resolve().parents[1] / "leaderboards"
+
+
+@pytest.fixture
+def root(tmp_path):
+    root = tmp_path / "lb"
+    shutil.copytree(REPO_LEADERBOARDS / "reference", root / "reference")
+    for seed, name in ((1, "alpha"), (2, "beta")):
+        r = fake_results(seed=seed)
+        r.meta["decider"] = {**r.meta["decider"], "name": name}
+        submit(r, root)
+    return root
+
+
+def test_repo_leaderboard_is_current():
+    # The CI check: the committed generated files match the committed submissions.
+    assert stale_files(REPO_LEADERBOARDS) == []
+
+
+def test_regeneration_is_byte_identical_and_check_detects_mutation(root, capsys):
+    assert main(["leaderboard", "--root", str(root), "--check"]) == 1  # never generated
+    assert main(["leaderboard", "--root", str(root)]) == 0
+    first = {p.name: p.read_bytes() for p in root.iterdir() if p.is_file()}
+    assert {"README.md", "index.json", "table1.md", "table1.png"} <= set(first)
+    assert generate(root) == {k: v for k, v in first.items()}
+    assert main(["leaderboard", "--root", str(root), "--check"]) == 0
+    md = first["table1.md"].decode()
+    assert "reported in the paper, different simulator" in md
+    measured, reference = md.split("## Reference")
+    assert "alpha" in measured and "92.2 %" not in measured and "alpha" not in reference
+    capsys.readouterr()
+
+    # A consistent change to a submission (re-saved with new arrays) makes the tables stale.
+    sub = root / "submissions" / "table1" / "alpha.json"
+    r = Results.load(sub)
+    r.per["outcome"] = np.where(r.per["outcome"] == 3, 1, r.per["outcome"]).astype(np.int8)
+    r.per["completion_time"] = np.where(r.per["outcome"] == 1, np.nan_to_num(r.per["completion_time"], nan=30.0), np.nan)
+    r.summary = summarize(r.per, r.meta["seed"])
+    r.save(sub)
+    assert main(["leaderboard", "--root", str(root), "--check"]) == 1
+    assert "stale:" in capsys.readouterr().err
+
+    # A hand edit of a submission's summary is refused outright: one line, exit 2.
+    doc = json.loads(sub.read_text())
+    doc["summary"]["success_rate"]["value"] = 1.0
+    sub.write_text(json.dumps(doc))
+    assert main(["leaderboard", "--root", str(root), "--check"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "summary" in err and "\n" not in err
+
+
+def test_obsolete_generated_file_is_stale(root):
+    (root / "old-suite.md").write_text("x")
+    main(["leaderboard", "--root", str(root)])
+    assert not (root / "old-suite.md").exists() and stale_files(root) == []
+
+
+def test_submit_refuses_shards_and_other_suite_versions(tmp_path):
+    r = fake_results(n=3000)
+    r.meta["range"] = [0, 1500]
+    with pytest.raises(UserError, match="range"):
+        submit(r, tmp_path)
+    r = fake_results(n=3000)
+    r.meta["suite"] = {**r.meta["suite"], "hash": "0" * 64}
+    with pytest.raises(UserError, match="suite.hash"):
+        submit(r, tmp_path)
+    assert not any(tmp_path.iterdir())
