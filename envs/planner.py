@@ -221,8 +221,11 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     speed_cap = xp.where(waiting & xp.isfinite(lead_v), xp.maximum(lead_v - cfg.abort_drop_back, 0.0), INF)
 
     # Speed: IDM behind the nearest same-direction vehicle on the chosen path.
-    d_path = lateral_profile(y, target_d, dx, w, roll_in, cfg.car_tip_margin, xp)  # (M, N)
-    on_path = ahead_same & ((xp.abs(d_path - dj) < half_wid) | (xp.abs(y - dj) < half_wid))
+    # The path's offset where the ego would draw level with the vehicle's front: the closest it gets.
+    d_path = lateral_profile(y, target_d, dx + half_len, w, roll_in, cfg.car_tip_margin, xp)  # (M, N)
+    # A same-direction vehicle whose centre is ahead counts even while alongside (negative gap): a path
+    # that turns into it makes the ego brake hard and fall in behind, as OpenPlanner's follow does.
+    on_path = visible & same_dir & (dx > 0.0) & ((xp.abs(d_path - dj) < half_wid) | (xp.abs(y - dj) < half_wid))
     path_gap = xp.where(on_path, gap, INF)
     leader_gap = xp.amin(path_gap, axis=0)
     leader_v = npc["v_along"][first_argmin(path_gap, xp=xp), cols]
