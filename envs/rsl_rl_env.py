@@ -3,7 +3,8 @@
 One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios; finished rows are
 refilled from ``source``. The action is one column holding the mode index as a float (what a
 categorical action distribution samples); observations are a TensorDict with one group,
-``"policy"``, which the runner's ``obs_groups`` route to both actor and critic.
+``"policy"``, which the runner's ``obs_groups`` route to both actor and critic. With
+``action_repeat`` = k one env step holds the decision for k core steps (rewards summed).
 
 rsl-rl and torch are optional dependencies (the ``train`` extra); nothing else in ``envs`` needs
 them, so this module is imported explicitly, never from ``overtakezoo.envs``.
@@ -45,20 +46,27 @@ class OvertakeRslRlEnv(VecEnv):
     ``source(n, rng) -> Scenarios`` callable that refills finished rows."""
 
     def __init__(self, num_envs: int, config: EnvConfig | None = None, source: Scenarios | Source | None = None,
-                 seed: int | None = None, device: str | torch.device = "cpu") -> None:
+                 seed: int | None = None, device: str | torch.device = "cpu", bootstrap_timeouts: bool = True,
+                 action_repeat: int = 1) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.cfg = config or EnvConfig()  # the runner's logger reads env.cfg
         if source is None:
             source = ScenarioDistribution.from_dict(self.cfg.scenario).sample(1000, seed=seed)
         self.source = pool_source(source) if isinstance(source, Scenarios) else source
+        # True: a time limit is a truncation and PPO bootstraps its value (extras["time_outs"]); False:
+        # running out of time is a terminal failure of the task (the limit is part of the suite).
+        self.bootstrap_timeouts = bootstrap_timeouts
+        if action_repeat < 1:
+            raise ValueError(f"action_repeat must be >= 1, got {action_repeat}")
+        self.action_repeat = action_repeat  # a decision is held this many core steps (one env step)
         self.num_envs = num_envs
         self.num_actions = 1
         self.device = torch.device(device)
         self.core = OvertakeCore(self.cfg, auto_reset=True, source=self.source, seed=seed)
         self._obs = self.core.reset(self.source(num_envs, self.core.rng))
         # Longest episode any row can have; the runner only uses it for random initial lengths.
-        self.max_episode_length = int(math.ceil(float(np.max(self.core.scen.time_limit)) / self.cfg.dt))
+        self.max_episode_length = int(math.ceil(float(np.max(self.core.scen.time_limit)) / self.cfg.dt / action_repeat))
         self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self.episode_counts: dict[str, int] = {"episodes": 0}  # running totals, e.g. for a progress bar
 
@@ -70,18 +78,30 @@ class OvertakeRslRlEnv(VecEnv):
         return self._tensordict(self._obs)
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        modes = actions.detach().reshape(self.num_envs, -1)[:, 0].round().clamp(0, 2)
-        res = self.core.step(modes.to("cpu", torch.int64).numpy())
+        modes = actions.detach().reshape(self.num_envs, -1)[:, 0].round().clamp(0, 2).to("cpu", torch.int64).numpy()
+        n = self.num_envs
+        reward, finished = np.zeros(n), np.zeros(n, bool)
+        truncated, outcome, crash_lane = np.zeros(n, bool), np.zeros(n, np.int8), np.full(n, -1)
+        for _ in range(self.action_repeat):
+            # A row whose episode ended during the repeat has been refilled: it follows (the reset
+            # mode) until the next decision; those few steps' rewards belong to no decision and are dropped.
+            res = self.core.step(np.where(finished, 0, modes))
+            live = ~finished
+            reward += np.where(live, res.reward, 0.0)
+            ended = live & res.info["_finished"]
+            truncated |= ended & res.truncated
+            outcome = np.where(ended, res.info["outcome"], outcome)
+            crash_lane = np.where(ended, res.info["crash_lane"], crash_lane)
+            finished |= ended
         self._obs = res.obs
-        finished = res.info["_finished"]
-        self.episode_length_buf += 1
-        self.episode_length_buf[torch.as_tensor(finished, device=self.device)] = 0
         dev = self.device
-        extras: dict = {"time_outs": torch.as_tensor(res.truncated, dtype=torch.float32, device=dev)}
+        self.episode_length_buf += 1
+        self.episode_length_buf[torch.as_tensor(finished, device=dev)] = 0
+        time_outs = truncated if self.bootstrap_timeouts else np.zeros_like(truncated)
+        extras: dict = {"time_outs": torch.as_tensor(time_outs, dtype=torch.float32, device=dev)}
         if finished.any():
             # Per finished episode indicators: the runner's logger averages them over an iteration.
-            out = res.info["outcome"][finished]
-            lane = res.info["crash_lane"][finished]
+            out, lane = outcome[finished], crash_lane[finished]
             crash = out == CRASH
             rates = {"success": out == SUCCESS, "crash": crash, "crash_ego_lane": crash & (lane != OPPOSITE_LANE),
                      "crash_opposite_lane": crash & (lane == OPPOSITE_LANE), "timeout": out == TIMEOUT,
@@ -91,6 +111,6 @@ class OvertakeRslRlEnv(VecEnv):
                 self.episode_counts[k] = self.episode_counts.get(k, 0) + int(v.sum())
             extras["log"] = {f"Episode/{k}": torch.as_tensor(v, dtype=torch.float32, device=dev)
                              for k, v in rates.items()}
-        rewards = torch.as_tensor(res.reward, dtype=torch.float32, device=dev)
+        rewards = torch.as_tensor(reward, dtype=torch.float32, device=dev)
         dones = torch.as_tensor(finished, dtype=torch.long, device=dev)
-        return self._tensordict(res.obs), rewards, dones, extras
+        return self._tensordict(self._obs), rewards, dones, extras
