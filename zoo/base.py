@@ -68,15 +68,18 @@ def register(name: str, factory: Callable[..., Decider]) -> None:
 
 
 def names() -> list[str]:
-    _load_members()
-    return sorted(_REGISTRY)
+    return sorted(set(_REGISTRY) | {n for n, mod in _MEMBER_OF.items() if mod not in _UNAVAILABLE})
 
 
 def load(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Decider:
     """A ready decider by registry name (pretrained weights included, checked by sha256)."""
-    _load_members()
+    if name in _MEMBER_OF and name not in _REGISTRY:
+        _import_member(_MEMBER_OF[name])  # import only what is asked for: torch loads only for learned members
     if name not in _REGISTRY:
-        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(sorted(_REGISTRY))})")
+        _load_members()
+    if name not in _REGISTRY:
+        missing = "".join(f"; {mod} needs {dep!r} (pip install -e '.[train]')" for mod, dep in _UNAVAILABLE.items())
+        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(sorted(_REGISTRY))}{missing})")
     return _REGISTRY[name](config=config, **kwargs)
 
 
@@ -84,21 +87,31 @@ register("always-follow", lambda config=None: ConstantDecider(FOLLOW, "always-fo
 register("always-overtake", lambda config=None: ConstantDecider(OVERTAKE, "always-overtake", config))
 register("always-abort", lambda config=None: ConstantDecider(ABORT, "always-abort", config))
 
-_MEMBERS = ("rule_fsm", "fuzzy", "oracle", "dqn", "ppo")
+# Registry name -> the member module that registers it, so `load` imports one module, not all.
+_MEMBER_OF = {"rule-fsm": "rule_fsm", "fuzzy": "fuzzy", "oracle": "oracle", "dqn": "dqn", "double-dqn": "dqn",
+              "ppo": "ppo"}
+_MEMBERS = tuple(dict.fromkeys(_MEMBER_OF.values()))
+_UNAVAILABLE: dict[str, str] = {}  # member module -> the missing dependency (e.g. torch without [train])
 _loaded = False
 
 
 def _load_members() -> None:
-    """Import the zoo members (each registers itself); members not built yet are skipped."""
+    """Import the zoo members (each registers itself). A member whose optional dependency is not
+    installed (torch for dqn / ppo) is skipped and named in unknown-decider errors."""
     global _loaded
     if _loaded:
         return
     _loaded = True
+    for mod in _MEMBERS:
+        _import_member(mod)
+
+
+def _import_member(mod: str) -> None:
     import importlib
 
-    for mod in _MEMBERS:
-        try:
-            importlib.import_module(f"overtakezoo.zoo.{mod}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"overtakezoo.zoo.{mod}":
-                raise
+    try:
+        importlib.import_module(f"overtakezoo.zoo.{mod}")
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").startswith("overtakezoo"):
+            raise
+        _UNAVAILABLE[mod] = exc.name
