@@ -15,6 +15,7 @@ def register(subparsers: Any) -> None:
                    ["overtakezoo eval --suite table1 --decider always-follow",
                     "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
                     "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
+                    "overtakezoo eval --suite table1 --decider rule-fsm --archive run.mcap  # + MCAP archive",
                     "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards"])
     p.add_argument("--suite", required=True, help="a suite name (see `overtakezoo suites`) or a .toml path")
     p.add_argument("--decider", required=True, help="a decider name from the zoo registry")
@@ -22,6 +23,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--shard", metavar="I/K", help="run only the I-th (0-based) of K contiguous slices")
     p.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once (bounds memory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--archive", metavar="RUN.mcap", help="also record every episode to an MCAP archive "
+                   "(Foxglove-ready; see `overtakezoo replay`)")
     p.set_defaults(handler=run)
 
 
@@ -40,7 +43,17 @@ def run(args: Any) -> int:
     suffix = f".shard-{shard[0]}-of-{shard[1]}" if shard else ""
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
-    results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress)
+    recorder = None
+    if args.archive:  # MCAP archive of every episode (benchmark/archive.py)
+        from ..archive import recorder_for_run
+
+        recorder = recorder_for_run(check_writable(args.archive), suite, decider)
+    try:
+        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress,
+                            recorder=recorder)
+    finally:
+        if recorder is not None:
+            recorder.close()
     results.save(out)
     lo, hi = results.meta["range"]
     print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "

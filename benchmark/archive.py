@@ -1,0 +1,416 @@
+"""MCAP episode archives: a recorder the runner drives, and a reader that rebuilds episodes.
+
+File layout (JSON messages, ``jsonschema`` schemas, zstd-compressed chunks):
+
+- ``/episode/spec``    one message per episode at its start: the scenario row (every ``Scenarios`` field).
+- ``/ego``             per step: x, y, psi, v, a, steer (step 0 is the state after reset).
+- ``/npcs``            per step: s, v, lane of every NPC slot (padding slots have ``present`` false in the spec).
+- ``/decision``        per step >= 1: the mode applied during the step that ended at this time.
+- ``/planner``         per step >= 1: rollout end offsets, blocked flags, chosen rollout.
+- ``/reward``          per step >= 1: reward of that step (the return is in the summary).
+- ``/episode/summary`` one message per episode at its end: outcome and episode statistics.
+- ``/scene`` (``foxglove.SceneUpdate``) and ``/tf`` (``foxglove.FrameTransform``) every
+  ``scene_every``-th step, so Foxglove's 3D panel shows road, vehicles and rollouts.
+
+Times: ``log_time = episode * EPISODE_STRIDE_NS + step * dt_ns``: each episode gets its own
+1000 s window of simulated time, so times are monotonic through the file as long as chunks
+arrive in increasing scenario order (the runner's contiguous chunks do). Every message carries
+``episode`` (the global scenario index) and ``step``. Episode boundaries are findable without
+reading any chunk: one ``episode`` metadata record per episode (index, time range, outcome) sits
+in the summary section's metadata index; ``/episode/summary`` repeats them in the data.
+
+Modules: this one records (capture per step, serialize per chunk); :mod:`.archive_reader` reads
+(re-exported here); :mod:`.archive_format` holds topics and schemas; :mod:`.mcap_sink` is the
+batched write path into mcap's Writer.
+
+Non-finite numbers (an infinite reveal distance, ``min_ttc`` without a conflict, ``completion_time``
+of a failure) are written as ``null``; the reader maps them back (inf or NaN by field).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
+
+from .archive_format import (EPISODE_STRIDE_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, SCHEMAS, STATE_TOPICS,
+                             SUMMARY_FIELDS, json_number, json_ready)
+from .archive_reader import (Episode, EpisodeEntry, list_episodes, read_archive, read_archive_meta,
+                             read_episode)
+from .errors import UserError
+from .mcap_sink import MessageSink
+
+ROLLOUT_DRAW_M = 30.0  # rollouts are drawn this far ahead of the ego in the Foxglove scene
+
+
+# ---------------------------------------------------------------------------- recorder
+@dataclass
+class _Chunk:
+    index: np.ndarray  # (N,) global scenario indices
+    steps: list[dict[str, np.ndarray]] = field(default_factory=list)  # active rows only, per step
+    scenes: list[dict[str, np.ndarray]] = field(default_factory=list)  # Foxglove scene captures
+    prev_done: np.ndarray | None = None  # core.done before the current step
+    step: int = 0  # core.step calls so far (a row's step k is the chunk's step k: all rows start together)
+
+
+class ArchiveRecorder:
+    """Records every episode of a run into one MCAP file.
+
+    The runner calls :meth:`begin_chunk` after ``core.reset``, :meth:`record_step` after each
+    ``core.step`` and :meth:`end_chunk` when the chunk is done. Per step only the rows still running
+    are kept (compact numpy arrays); messages are serialized at :meth:`end_chunk`, episode by
+    episode in scenario order, so each episode's messages are contiguous (reading one episode
+    decompresses only the chunks it spans). ``scene_every`` thins the Foxglove scene (0: none).
+    """
+
+    def __init__(self, path: str | os.PathLike, scene_every: int = 5, chunk_size: int = 4 << 20,
+                 metadata: dict[str, Any] | None = None) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.path = Path(path)
+        self.scene_every = int(scene_every)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._stream = open(self.path, "wb")
+        except OSError as exc:
+            raise UserError(f"cannot write archive {self.path}: {exc.strerror or exc}") from None
+        self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=chunk_size)
+        self._writer.start(profile="", library="overtakezoo")
+        self._channels: dict[str, int] = {}
+        for topic, (name, schema) in {**SCHEMAS, **FOXGLOVE_SCHEMAS}.items():
+            sid = self._writer.register_schema(name=name, encoding="jsonschema",
+                                               data=json.dumps(schema, separators=(",", ":")).encode())
+            self._channels[topic] = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self._sink = MessageSink(self._writer)
+        self._meta = {k: str(v) for k, v in (metadata or {}).items()}
+        self._chunk: _Chunk | None = None
+        self._core: Any = None
+        self._dt_ns = 0
+        self.episodes = 0
+        self._closed = False
+
+    # -- runner hooks
+    def begin_chunk(self, core: Any, scenario_index: np.ndarray) -> None:
+        if self._dt_ns == 0:
+            self._dt_ns = int(round(core.cfg.dt * 1e9))
+            self._meta.setdefault("config", json.dumps(_clean_tree(core.cfg.to_dict()), sort_keys=True))
+            self._meta.update({"format_version": FORMAT_VERSION, "episode_stride_ns": str(EPISODE_STRIDE_NS),
+                               "dt_ns": str(self._dt_ns)})
+            self._writer.add_metadata("overtakezoo", self._meta)
+        if np.any(core.scen.time_limit * 1e9 + 2 * self._dt_ns >= EPISODE_STRIDE_NS):
+            raise UserError("archives support episodes up to 1000 s of simulated time")
+        if getattr(core, "auto_reset", False):
+            raise ValueError("archives record evaluation cores (auto_reset=False): rows must not be replaced")
+        self._core = core
+        self._chunk = _Chunk(index=np.asarray(scenario_index, dtype=np.int64).reshape(-1))
+        rows = np.arange(core.num)
+        self._chunk.prev_done = core.done.copy()
+        self._chunk.steps.append(self._snapshot(core, rows, None, None, None) | {"step": 0})
+        if self.scene_every:
+            self._chunk.scenes.append(self._scene_state(core, rows) | {"step": 0})
+
+    def record_step(self, core: Any, modes: np.ndarray, step_result: Any) -> None:
+        ch = self._chunk
+        if ch is None:
+            raise RuntimeError("record_step before begin_chunk")
+        # Rows that ran this step: those not finished before it (finished rows are frozen).
+        active = ~ch.prev_done
+        ch.prev_done = core.done.copy()
+        rows = np.flatnonzero(active)
+        ch.step += 1
+        if rows.size == 0:
+            return
+        step = ch.step
+        ch.steps.append(self._snapshot(core, rows, core.mode, core.last_plan, step_result.reward) | {"step": step})
+        if self.scene_every and step % self.scene_every == 0:
+            ch.scenes.append(self._scene_state(core, rows) | {"step": step})
+
+    def end_chunk(self, core: Any) -> None:
+        ch = self._chunk
+        if ch is None:
+            return
+        self._write_chunk(core, ch)
+        self._chunk = None
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._chunk is not None and self._core is not None:
+                self.end_chunk(self._core)
+            self._sink.flush()
+            self._writer.finish()
+        finally:
+            self._stream.close()
+
+    def __enter__(self) -> "ArchiveRecorder":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- capture (numpy, no per-row Python)
+    @staticmethod
+    def _snapshot(core: Any, rows: np.ndarray, mode: Any, plan: Any, reward: Any) -> dict[str, np.ndarray]:
+        snap = {"rows": rows, "t": core.t[rows], "ego": np.stack(
+            [core.x[rows], core.y[rows], core.psi[rows], core.v[rows], core.a[rows], core.steer[rows]], axis=1),
+            "npc_s": core.npc_s[rows], "npc_v": core.npc_v[rows], "ret": core.episode_return[rows]}
+        if mode is not None:
+            snap.update(mode=mode[rows].astype(np.int8), rollout=plan.rollout[rows].astype(np.int8),
+                        offsets=plan.offsets[rows], blocked=plan.blocked[rows], reward=np.asarray(reward)[rows])
+        return snap
+
+    @staticmethod
+    def _scene_state(core: Any, rows: np.ndarray) -> dict[str, np.ndarray]:
+        from overtakezoo.envs.planner import lateral_profile
+
+        pc, sc = core.cfg.planner, core.scen
+        # Each rollout's lateral profile is piecewise linear (hold, ramp, end offset): its corners
+        # within the first ROLLOUT_DRAW_M metres draw it exactly with four points.
+        y, v = core.y[rows, None], core.v[rows, None]
+        w = sc.lane_width[rows, None]
+        roll_in = pc.roll_in_speed_factor * v + pc.roll_in_margin
+        targets = w * (np.arange(pc.num_rollouts + 1) / pc.num_rollouts)[None, :]  # (n, R)
+        ramp_end = np.minimum(pc.car_tip_margin + np.abs(targets - y) * roll_in / w, ROLLOUT_DRAW_M)
+        ahead = np.stack(np.broadcast_arrays(0.0, min(pc.car_tip_margin, ROLLOUT_DRAW_M), ramp_end,
+                                             ROLLOUT_DRAW_M), axis=-1)  # (n, R, 4)
+        lat = lateral_profile(y[..., None], targets[..., None], ahead, w[..., None], roll_in[..., None],
+                              pc.car_tip_margin)
+        plan = core.last_plan
+        blocked = plan.blocked[rows] if plan is not None else np.zeros(targets.shape[:2], bool)
+        return {"rows": rows, "rollout_x": core.x[rows, None, None] + ahead, "rollout_y": lat, "blocked": blocked,
+                "mode": core.mode[rows], "rollout": core.rollout[rows]}
+
+    # -- serialization
+    def _write_chunk(self, core: Any, ch: _Chunk) -> None:
+        """Write each episode of the chunk contiguously, in global scenario order."""
+        n = len(ch.index)
+        # Flatten the per-step captures to records ordered by (row, step): one lexsort for the chunk.
+        rows = np.concatenate([s["rows"] for s in ch.steps])
+        steps = np.concatenate([np.full(len(s["rows"]), s["step"]) for s in ch.steps])
+        order = np.lexsort((steps, rows))
+        rows, steps = rows[order], steps[order]
+        cat = lambda key: np.concatenate([s[key] for s in ch.steps])[order]  # noqa: E731
+        t, ego, npc_s, npc_v = (cat(k) for k in ("t", "ego", "npc_s", "npc_v"))
+        # Decision / planner / reward exist from step 1 on; pad step 0 so they align with the states.
+        m_r = core.last_plan.offsets.shape[1] if core.last_plan is not None else 1
+        first = ch.steps[0]
+        first.update(mode=np.zeros(len(first["rows"]), np.int8), rollout=np.zeros(len(first["rows"]), np.int8),
+                     offsets=np.zeros((len(first["rows"]), m_r)), blocked=np.zeros((len(first["rows"]), m_r), bool),
+                     reward=np.zeros(len(first["rows"])))
+        mode, rollout, offsets, blocked, reward = (cat(k) for k in ("mode", "rollout", "offsets", "blocked", "reward"))
+        bounds = np.searchsorted(rows, np.arange(n + 1))
+        scen = core.scen.to_arrays()
+        info = core.info()
+        lanes = core.scen.npc_lane.tolist()
+        scenes, sbounds = self._flatten_scenes(ch, n)
+        sink = self._sink
+        for r in np.argsort(ch.index, kind="stable").tolist():
+            ep = int(ch.index[r])
+            base = ep * EPISODE_STRIDE_NS
+            a, b = int(bounds[r]), int(bounds[r + 1])
+            last = b - a - 1  # the final step of this episode
+            spec = {"episode": ep, "step": 0, "t": 0.0,
+                    "scenario": {name: json_ready(arr[r]) for name, arr in scen.items()}}
+            self._add("/episode/spec", base, json.dumps(spec, separators=(",", ":")))
+            msgs = self._state_messages(ep, base, lanes[r], t[a:b], ego[a:b], npc_s[a:b], npc_v[a:b], mode[a:b],
+                                        rollout[a:b], offsets[a:b], blocked[a:b], reward[a:b])
+            sa, sb = int(sbounds[r]), int(sbounds[r + 1])
+            if sb > sa:
+                sl = {k: v[sa:sb] for k, v in scenes.items()}
+                ks = sl["step"]
+                msgs.extend(self._scene_messages(ep, base, r, scen, ks, ego[a + ks], npc_s[a + ks], sl))
+                msgs.sort(key=lambda m: m[1])  # stable: a step's scene and tf after its state messages
+            sink.pending.extend(msgs)
+            sink.flush()
+            summary = {k: json_ready(info[k][r]) for k in SUMMARY_FIELDS}
+            outcome = int(info["outcome"][r])
+            end = base + last * self._dt_ns
+            summary.update(episode=ep, step=last, t=json_ready(t[b - 1]), outcome_name=OUTCOME_NAMES[outcome],
+                           start_ns=base, end_ns=end)
+            self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
+            sink.flush()
+            self._writer.add_metadata("episode", {
+                "episode": str(ep), "start_ns": str(base), "end_ns": str(end), "steps": str(last),
+                "outcome": OUTCOME_NAMES[outcome], "episode_return": json_number(float(info["episode_return"][r]))})
+            self.episodes += 1
+
+    def _state_messages(self, ep: int, base: int, lanes: list[int], t: np.ndarray, ego: np.ndarray,
+                        npc_s: np.ndarray, npc_v: np.ndarray, mode: np.ndarray, rollout: np.ndarray,
+                        offsets: np.ndarray, blocked: np.ndarray, reward: np.ndarray) -> list[tuple[int, int, bytes]]:
+        """/ego, /npcs (steps 0..T) and /decision, /planner, /reward (steps 1..T) of one episode.
+
+        All steps go through one %-format call, the per-step values interleaved in template order.
+        Floats are shortest round-trip reprs (exact); an episode holding a
+        non-finite value (none seen in practice) writes those as null through ``%s``.
+        """
+        steps = len(t)
+        m_n, m_o = npc_s.shape[1], offsets.shape[1]
+        head = f'{{"episode":{ep},"step":%d,'
+        lane = ",".join(map(str, lanes))
+        ego_t = head + '"t":%r,"x":%r,"y":%r,"psi":%r,"v":%r,"a":%r,"steer":%r}\n'
+        npc_t = head + '"s":[' + ",".join(["%r"] * m_n) + '],"v":[' + ",".join(["%r"] * m_n) + \
+            f'],"lane":[{lane}]}}\n'
+        dec_t = head + '%s\n'
+        plan_t = head + '"offsets":[' + ",".join(["%r"] * m_o) + '],"blocked":%s,"rollout":%d}\n'
+        rew_t = head + '"reward":%r}\n'
+        floats = [t[:, None], ego, npc_s, npc_v, offsets, reward[:, None]]
+        fixed_offsets = bool(np.isfinite(offsets).all() and (offsets == offsets[:1]).all())
+        if fixed_offsets:  # the usual case (they depend on the lane width only): format them once
+            plan_t = plan_t.replace(",".join(["%r"] * m_o), ",".join(map(repr, offsets[0].tolist())))
+            offsets = offsets[:, :0]
+        if all(np.isfinite(x).all() for x in floats):
+            num = lambda x: x.T.tolist()  # noqa: E731  (one list per column)
+        else:
+            ego_t, npc_t, plan_t, rew_t = (x.replace("%r", "%s") for x in (ego_t, npc_t, plan_t, rew_t))
+            num = lambda x: [[json_number(v) for v in col] for col in x.T.tolist()]  # noqa: E731
+        weights = 1 << np.arange(blocked.shape[1])
+        codes = (blocked.astype(np.int64) @ weights).tolist()
+        bl_json = {c: _ENCODE(((c & weights) > 0).tolist()) for c in set(codes)}
+        ks = list(range(steps))
+        # One list per template field, in template order; zip + chain interleave them in C.
+        cols = [ks, *num(t[:, None]), *num(ego), ks, *num(npc_s), *num(npc_v),
+                ks, [_MODE_JSON[m] for m in mode.tolist()],
+                ks, *num(offsets), [bl_json[c] for c in codes], rollout.tolist(), ks, *num(reward[:, None])]
+        split = 1 + 7 + 1 + 2 * m_n  # the ego and npc fields; step 0 has only these
+        first = ((ego_t + npc_t) % tuple(c[0] for c in cols[:split])).encode().split(b"\n")[:-1]
+        rest = ((ego_t + npc_t + dec_t + plan_t + rew_t) * (steps - 1) % tuple(
+            itertools.chain.from_iterable(itertools.islice(zip(*cols), 1, None)))).encode().split(b"\n")[:-1]
+        chan = self._channels
+        step_chans = [chan[x] for x in ("/ego", "/npcs", "/decision", "/planner", "/reward")]
+        times = (base + np.repeat(np.arange(1, steps), 5) * self._dt_ns).tolist()
+        out = [(step_chans[0], base, first[0]), (step_chans[1], base, first[1])]
+        out.extend(zip(step_chans * (steps - 1), times, rest))
+        return out
+
+    @staticmethod
+    def _flatten_scenes(ch: _Chunk, n: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """All scene captures of the chunk as arrays ordered by (row, step), and each row's bounds."""
+        if not ch.scenes:
+            return {}, np.zeros(n + 1, np.int64)
+        rows = np.concatenate([c["rows"] for c in ch.scenes])
+        steps = np.concatenate([np.full(len(c["rows"]), c["step"]) for c in ch.scenes])
+        order = np.lexsort((steps, rows))
+        flat = {k: np.concatenate([c[k] for c in ch.scenes])[order]
+                for k in ("rollout_x", "rollout_y", "blocked", "mode", "rollout")}
+        flat["step"] = steps[order]
+        return flat, np.searchsorted(rows[order], np.arange(n + 1))
+
+    def _scene_messages(self, ep: int, base: int, r: int, scen: dict[str, np.ndarray], ks: np.ndarray,
+                        ego: np.ndarray, npc_s: np.ndarray, cap: dict[str, np.ndarray]) -> list[tuple[int, int, bytes]]:
+        """foxglove.SceneUpdate + FrameTransform of one episode's scene steps ``ks``, through one
+        %-template per episode (its road and vehicle sizes built in; display precision: mm)."""
+        w, length, goal = float(scen["lane_width"][r]), float(scen["road_length"][r]), float(scen["goal_s"][r])
+        lo = min(-20.0, float(np.min(scen["npc_s"][r])) - 20.0)
+        mid, span = (lo + length) / 2, length - lo
+        road = ",".join([_CUBE_FMT % (mid, 0.0, -0.05, 0.0, 1.0, span, w, 0.1, _ROAD),
+                         _CUBE_FMT % (mid, w, -0.05, 0.0, 1.0, span, w, 0.1, _ROAD_OPP),
+                         _CUBE_FMT % (mid, w / 2, 0.0, 0.0, 1.0, span, 0.15, 0.02, _WHITE),
+                         _CUBE_FMT % (goal, 0.0, 0.01, 0.0, 1.0, 0.3, w, 0.02, _GOAL)])
+        # Vehicles: the ego (x, y, yaw vary), then each present NPC (only x varies).
+        size = f'"size":{{"x":{float(scen["ego_length"][r]):.3f},"y":{float(scen["ego_width"][r]):.3f},"z":1.500}}'
+        cubes = ['{"pose":{"position":{"x":%.3f,"y":%.3f,"z":0.750},"orientation":{"x":0.0,"y":0.0,"z":%.6f,'
+                 f'"w":%.6f}}}},{size},"color":{_BLUE}}}']
+        present = np.flatnonzero(scen["npc_present"][r]).tolist()
+        for j in present:
+            lane = int(scen["npc_lane"][r][j])
+            cubes.append('{"pose":{"position":{"x":%.3f,' + f'"y":{lane * w:.3f},"z":0.750}},"orientation":{_QID}}},'
+                         f'"size":{{"x":{float(scen["npc_length"][r][j]):.3f},'
+                         f'"y":{float(scen["npc_width"][r][j]):.3f},"z":1.500}},'
+                         f'"color":{_ORANGE if lane == 0 else _RED_CAR}}}')
+        n_ro = cap["blocked"].shape[1]
+        line = ('{"type":0,"pose":{"position":{"x":0.0,"y":0.0,"z":0.0},"orientation":' + _QID + '},'
+                '"thickness":%s,"scale_invariant":false,"points":[' + _POINTS_FMT + '],"color":%s,'
+                '"colors":[],"indices":[]}')
+        text = ('{"pose":{"position":{"x":%.3f,"y":%.3f,"z":3.0},"orientation":' + _QID + '},"billboard":true,'
+                '"font_size":14.0,"scale_invariant":true,"color":' + _WHITE + ',"text":"episode ' + str(ep) +
+                '  t=%.1fs  %s"}')
+        scene_t = ('{"deletions":%s,"entities":[' + ",".join([
+            _entity(ep, "road", cubes=road), _entity(ep, "vehicles", cubes=",".join(cubes)),
+            _entity(ep, "rollouts", lines=",".join([line] * n_ro)), _entity(ep, "label", texts=text)]) + "]}\n")
+        tf_t = ('{"timestamp":{"sec":%d,"nsec":%d},"parent_frame_id":"map","child_frame_id":"ego",'
+                '"translation":{"x":%.3f,"y":%.3f,"z":0.0},"rotation":{"x":0.0,"y":0.0,"z":%.6f,"w":%.6f}}\n')
+
+        ns = base + ks * self._dt_ns
+        sec, nsec = (ns // 10**9).tolist(), (ns % 10**9).tolist()
+        step = ks.tolist()
+        x, y, psi = ego[:, 0], ego[:, 1], ego[:, 2]
+        qz, qw = np.sin(psi / 2).tolist(), np.cos(psi / 2).tolist()
+        x, y = x.tolist(), y.tolist()
+        deletions = [f'[{{"timestamp":{{"sec":{s_},"nsec":{n_}}},"type":1,"id":""}}]' if k == 0 else "[]"
+                     for s_, n_, k in zip(sec, nsec, step)]
+        chosen = np.arange(n_ro)[None, :] == cap["rollout"][:, None]
+        color = np.array([_GREEN, _RED, _GREY_LINE], dtype=object)[np.where(chosen, 0, np.where(cap["blocked"], 1, 2))]
+        thick = np.where(chosen, "0.25", "0.10")
+        line_cols = []
+        for ro in range(n_ro):
+            pts = np.stack([cap["rollout_x"][:, ro], cap["rollout_y"][:, ro]], axis=-1).reshape(len(ks), 8)
+            line_cols += [thick[:, ro].tolist(), *pts.T.tolist(), color[:, ro].tolist()]
+        stamp = [sec, nsec, step]
+        t = (ks * (self._dt_ns / 1e9)).tolist()
+        modes = [MODE_NAMES[m] for m in cap["mode"].tolist()]
+        cols = [deletions, *stamp, *stamp, x, y, qz, qw, *npc_s[:, present].T.tolist(), *stamp, *line_cols,
+                *stamp, x, y, t, modes]
+        scene_b = ((scene_t * len(ks)) % tuple(itertools.chain.from_iterable(zip(*cols)))).encode().split(b"\n")
+        tf_b = ((tf_t * len(ks)) % tuple(itertools.chain.from_iterable(zip(sec, nsec, x, y, qz, qw)))
+                ).encode().split(b"\n")
+        sc_ch, tf_ch = self._channels["/scene"], self._channels["/tf"]
+        out = []
+        for tm, sb, tb in zip(ns.tolist(), scene_b, tf_b):
+            out += [(sc_ch, tm, sb), (tf_ch, tm, tb)]
+        return out
+
+    def _add(self, topic: str, log_time: int, text: str) -> None:
+        self._sink.append((self._channels[topic], log_time, text.encode()))
+
+
+def _entity(ep: int, eid: str, cubes: str = "", lines: str = "", texts: str = "") -> str:
+    """A foxglove.SceneEntity template: every field present; timestamp and step left as %d."""
+    return ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"map","id":"' + eid + '","lifetime":{"sec":0,"nsec":0},'
+            '"frame_locked":false,"metadata":[{"key":"episode","value":"' + str(ep) + '"},{"key":"step","value":"%d"}],'
+            '"arrows":[],"cubes":[' + cubes + '],"spheres":[],"cylinders":[],"lines":[' + lines + '],'
+            '"triangles":[],"texts":[' + texts + '],"models":[]}')
+
+
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode  # C-accelerated lists of floats
+_MODE_JSON = [f'"mode":{m},"mode_name":"{name}"}}' for m, name in enumerate(MODE_NAMES)]
+
+
+
+# Scene JSON templates (Foxglove fields in full; display precision only, the state topics are exact).
+_POINTS_FMT = ",".join(['{"x":%.3f,"y":%.3f,"z":0.05}'] * 4)
+_QID = '{"x":0.0,"y":0.0,"z":0.0,"w":1.0}'
+_CUBE_FMT = ('{"pose":{"position":{"x":%.3f,"y":%.3f,"z":%.3f},"orientation":{"x":0.0,"y":0.0,"z":%.6f,"w":%.6f}},'
+             '"size":{"x":%.3f,"y":%.3f,"z":%.3f},"color":%s}')
+_rgba = lambda r, g, b, a: '{"r":%g,"g":%g,"b":%g,"a":%g}' % (r, g, b, a)  # noqa: E731
+_ROAD, _ROAD_OPP, _WHITE, _GOAL = _rgba(.25, .25, .25, 1), _rgba(.3, .3, .3, 1), _rgba(1, 1, 1, 1), _rgba(.1, .8, .1, 1)
+_BLUE, _ORANGE, _RED_CAR = _rgba(.1, .4, 1, 1), _rgba(1, .6, .1, 1), _rgba(.9, .1, .1, 1)
+_GREEN, _RED, _GREY_LINE = _rgba(.1, .9, .1, 1), _rgba(.9, .2, .2, .6), _rgba(.8, .8, .8, .5)
+
+
+def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 5) -> ArchiveRecorder:
+    """An :class:`ArchiveRecorder` for ``run_suite(suite, decider, recorder=...)``; the file's
+    ``overtakezoo`` metadata names the suite (with its hash) and the decider."""
+    return ArchiveRecorder(path, scene_every=scene_every, metadata={
+        "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.hash,
+        "decider": decider.name, "decider_version": decider.version})
+
+
+def _clean_tree(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _clean_tree(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean_tree(v) for v in obj]
+    return json_ready(obj)
+
+
+__all__ = ["ArchiveRecorder", "recorder_for_run", "Episode", "EpisodeEntry", "list_episodes", "read_archive",
+           "read_episode", "read_archive_meta", "EPISODE_STRIDE_NS", "STATE_TOPICS"]

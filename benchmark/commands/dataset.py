@@ -1,0 +1,100 @@
+"""``overtakezoo dataset``: build offline-RL datasets (Minari format), list them, download published ones."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..cmdutil import add_parser
+
+
+def register(subparsers: Any) -> None:
+    p = add_parser(subparsers, "dataset", "build, list, download or pack offline-RL datasets (Minari)",
+                   "Offline-RL datasets in Minari's format (HDF5), stored under $MINARI_DATASETS_PATH or\n"
+                   "$OVERTAKEZOO_HOME/datasets (default ~/.cache/overtakezoo/datasets); load them with\n"
+                   "minari.load_dataset(NAME) once MINARI_DATASETS_PATH points there.",
+                   ["overtakezoo dataset build --suite table1-train --decider rule-fsm --epsilon 0.1 "
+                    "--name overtakezoo/table1/rule-fsm-v0",
+                    "overtakezoo dataset list",
+                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0",
+                    "overtakezoo dataset pack overtakezoo/table1/rule-fsm-v0 --out rule-fsm-v0.tar.gz"])
+    sub = p.add_subparsers(dest="action", metavar="ACTION")
+    b = add_parser(sub, "build", "record a decider's transitions on a suite",
+                   "Run a decider (epsilon-random) on a suite and store every transition as a Minari dataset.",
+                   ["overtakezoo dataset build --suite table1-train --decider rule-fsm "
+                    "--name overtakezoo/table1/rule-fsm-v0",
+                    "overtakezoo dataset build --suite table1-train --decider always-overtake --count 100 "
+                    "--epsilon 0.3 --name overtakezoo/table1/overtake-v0"])
+    b.add_argument("--suite", required=True, help="a suite name or .toml path")
+    b.add_argument("--decider", required=True, help="a decider name from the zoo registry")
+    b.add_argument("--name", required=True, help="dataset id, namespace/env/name-vN")
+    b.add_argument("--epsilon", type=float, default=0.1, help="probability of a random mode per decision (0.1)")
+    b.add_argument("--count", type=int, help="use only the first N scenarios of the suite")
+    b.add_argument("--seed", type=int, default=0, help="seed of the exploration noise (0)")
+    b.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once")
+    b.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that name")
+    b.set_defaults(handler=run_build)
+    ls = add_parser(sub, "list", "list local datasets", "List the datasets in the local datasets folder.",
+                    ["overtakezoo dataset list"])
+    ls.set_defaults(handler=run_list)
+    d = add_parser(sub, "download", "fetch a published dataset",
+                   "Download a dataset listed in the package's registry (resumable, SHA-256 verified).",
+                   ["overtakezoo dataset download overtakezoo/table1/rule-fsm-v0"])
+    d.add_argument("name", help="a dataset name from the registry")
+    d.add_argument("--no-progress", action="store_true", help="no progress bar")
+    d.set_defaults(handler=run_download)
+    k = add_parser(sub, "pack", "write a local dataset as .tar.gz for publishing",
+                   "Pack a local dataset and print the registry entry (size, sha256) to publish it.",
+                   ["overtakezoo dataset pack overtakezoo/table1/rule-fsm-v0 --out rule-fsm-v0.tar.gz"])
+    k.add_argument("name")
+    k.add_argument("--out", required=True, help="output .tar.gz")
+    k.set_defaults(handler=run_pack)
+    p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
+
+
+def run_build(args: Any) -> int:
+    from ..cmdutil import load_decider
+    from ..datasets import build_dataset, datasets_dir
+    from ..errors import UserError
+    from ..suites import load_suite
+
+    if args.chunk_size < 1:
+        raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")
+    suite = load_suite(args.suite)
+    decider = load_decider(args.decider, suite.config)
+    ds = build_dataset(args.name, suite, decider, epsilon=args.epsilon, count=args.count, seed=args.seed,
+                       chunk_size=args.chunk_size, overwrite=args.overwrite)
+    print(f"wrote dataset {args.name}: {ds.total_episodes} episodes, {ds.total_steps} steps in "
+          f"{datasets_dir() / args.name}")
+    return 0
+
+
+def run_list(args: Any) -> int:
+    from ..datasets import datasets_dir, list_datasets
+
+    found = list_datasets()
+    print(f"datasets in {datasets_dir()}:")
+    if not found:
+        print("  (none; build one with `overtakezoo dataset build`)")
+    for name, meta in sorted(found.items()):
+        print(f"  {name}  episodes {meta.get('total_episodes', '?')}  steps {meta.get('total_steps', '?')}  "
+              f"{meta.get('dataset_size', '?')} MB  {meta.get('algorithm_name', '')}")
+    return 0
+
+
+def run_download(args: Any) -> int:
+    from ..datasets import download
+
+    path = download(args.name, progress=not args.no_progress)
+    print(f"downloaded {args.name} to {path}")
+    return 0
+
+
+def run_pack(args: Any) -> int:
+    import json
+
+    from ..datasets import pack
+
+    out, size, sha = pack(args.name, args.out)
+    print(f"wrote {out}; registry entry:")
+    print(json.dumps({args.name: {"url": "https://.../" + out.name, "size": size, "sha256": sha}}, indent=1))
+    return 0
