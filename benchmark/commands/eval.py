@@ -13,6 +13,7 @@ def register(subparsers: Any) -> None:
                    "Run a decider on every scenario of a suite (one batch, in chunks), print a Table I-style\n"
                    "summary with 95 % CIs and write a results file (JSON).",
                    ["overtakezoo eval --suite table1 --decider always-follow",
+                    "overtakezoo eval --suite table1 --decider dqn --ray --shards 8   # local Ray instance",
                     "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
                     "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
                     "overtakezoo eval --suite table1 --decider rule-fsm --archive run.mcap  # + MCAP archive",
@@ -25,12 +26,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--archive", metavar="RUN.mcap", help="also record every episode to an MCAP archive "
                    "(Foxglove-ready; see `overtakezoo replay`)")
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="fan shards over Ray (a local instance, or ADDRESS such as ray://head:10001 or auto) "
+                        "and merge them into one results file; needs the [ray] extra")
+    p.add_argument("--shards", type=int, default=4, help="with --ray: number of shards (default 4)")
     p.set_defaults(handler=run)
 
 
 def run(args: Any) -> int:
     from ..errors import UserError
-    from ..metrics import render_table
     from ..runner import run_suite
     from ..suites import load_suite, parse_shard, shard_bounds
 
@@ -43,6 +47,13 @@ def run(args: Any) -> int:
     suffix = f".shard-{shard[0]}-of-{shard[1]}" if shard else ""
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
+    if args.ray is not None:
+        if shard or args.archive:
+            raise UserError("--ray runs every shard itself: it cannot be combined with --shard or --archive")
+        from ..distributed import parse_address, run_suite_ray
+
+        results = run_suite_ray(suite, decider.name, args.shards, parse_address(args.ray))
+        return _report(results, suite, decider, out)
     recorder = None
     if args.archive:  # MCAP archive of every episode (benchmark/archive.py)
         from ..archive import recorder_for_run
@@ -54,6 +65,12 @@ def run(args: Any) -> int:
     finally:
         if recorder is not None:
             recorder.close()
+    return _report(results, suite, decider, out)
+
+
+def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:
+    from ..metrics import render_table
+
     results.save(out)
     lo, hi = results.meta["range"]
     print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
