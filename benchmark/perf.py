@@ -9,7 +9,6 @@ are auto-reset so the batch stays full). Simulated seconds per wall second = env
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import subprocess
@@ -161,7 +160,7 @@ def measure(sizes: list[int], seconds: float, suites: bool = True, progress=prin
 
 
 def to_markdown(report: dict[str, Any]) -> str:
-    lines = [f"# Performance report", "", f"Machine: {report['machine']} ({report['date']}).", "",
+    lines = ["# Performance report", "", f"Machine: {report['machine']} ({report['date']}).", "",
              "| measurement | value |", "|---|---|"]
     for n, row in report["core"].items():
         lines.append(f"| core, N = {n} | {row['env_steps_per_s']:,} env-steps/s "
