@@ -43,41 +43,43 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
 
 
 def observe(core: "OvertakeCore", geo: dict) -> Any:
-    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N))."""
+    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N)). It is
+    assembled feature-major, (D, N), so every write is a contiguous row, then transposed once."""
     xp, cfg, E = core.xp, core.cfg, core._ego
     oc = cfg.observation
     n, k = core.num, oc.vehicles_per_lane
     cols = xp.arange(n)
-    out = xp.zeros((n, observation_size(cfg)), np.float32)
-    out[:, 0] = core.v / oc.speed_scale
-    out[:, 1] = core.yaw_rate
-    out[:, 2] = core.y / E["lane_width"]
-    out[:, 3] = (E["goal_s"] - core.x - E["ego_length"] / 2) / oc.position_scale
-    out[cols, EGO_FEATURES + core.mode] = 1.0
+    out = xp.zeros((observation_size(cfg), n))
+    out[0] = core.v / oc.speed_scale
+    out[1] = core.yaw_rate
+    out[2] = core.y / E["lane_width"]
+    out[3] = (E["goal_s"] - core.x - E["ego_length"] / 2) / oc.position_scale
+    out[EGO_FEATURES + core.mode, cols] = 1.0
     r = cfg.planner.num_rollouts + 1
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == n:
-        out[:, EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = xp.astype(core.last_plan.blocked, np.float32)
+        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked.T
 
-    # Relative position and velocity in the ego frame, (5, M, N).
     c, s = xp.cos(core.psi), xp.sin(core.psi)
-    dx, dy = geo["dx"], geo["dy"]
-    rvx = geo["v_along"] - core.v * c
-    rvy = -core.v * s
-    feats = xp.stack([xp.ones_like(dx), (dx * c + dy * s) / oc.position_scale, (-dx * s + dy * c) / E["lane_width"],
-                      (rvx * c + rvy * s) / oc.speed_scale, (-rvx * s + rvy * c) / oc.speed_scale])
     base = EGO_FEATURES + 3 + r
-    lanes = core._sc["lane"]
+    lanes, dx_all = core._sc["lane"], geo["dx"]
     for lane in (0, 1):  # two lanes x k slots: fixed, tiny loops, not over scenarios or vehicles
-        key = xp.where(geo["visible"] & (lanes == lane), xp.abs(dx), INF)
+        key = xp.where(geo["visible"] & (lanes == lane), xp.abs(dx_all), INF)
         for slot in range(k):
             if key.shape[0] == 0:
                 break
             idx = first_argmin(key, 0, xp)  # nearest remaining vehicle of this lane, lowest slot on ties
             valid = xp.isfinite(key[idx, cols])
-            at = base + (lane * k + slot) * SLOT_FEATURES
-            out[:, at:at + SLOT_FEATURES] = xp.astype(xp.where(valid, feats[:, idx, cols], 0.0).T, np.float32)
             key[idx, cols] = INF
-    return out
+            # Relative position and velocity of the picked vehicle in the ego frame.
+            dx, dy = geo["dx"][idx, cols], geo["dy"][idx, cols]
+            rvx, rvy = geo["v_along"][idx, cols] - core.v * c, -core.v * s
+            at = base + (lane * k + slot) * SLOT_FEATURES
+            out[at] = valid
+            out[at + 1] = xp.where(valid, (dx * c + dy * s) / oc.position_scale, 0.0)
+            out[at + 2] = xp.where(valid, (-dx * s + dy * c) / E["lane_width"], 0.0)
+            out[at + 3] = xp.where(valid, (rvx * c + rvy * s) / oc.speed_scale, 0.0)
+            out[at + 4] = xp.where(valid, (-rvx * s + rvy * c) / oc.speed_scale, 0.0)
+    return xp.rows_float32(out)
 
 
 INF = float("inf")
