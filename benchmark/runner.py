@@ -22,16 +22,20 @@ from .suites import Suite, shard_bounds
 
 
 def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = 4096,
-              progress: bool = True, recorder: Any = None) -> Results:
+              progress: bool = True, recorder: Any = None, limit: int | None = None) -> Results:
     """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
 
     ``recorder`` (optional) gets ``begin_chunk(core, scenario_index)``, ``record_step(core, modes,
-    step_result)`` after every step and ``end_chunk(core)``; its creator closes it.
+    step_result)`` after every step and ``end_chunk(core)``; its creator closes it. ``limit`` keeps
+    only the first ``limit`` scenarios of the (shard's) range.
     """
     if chunk_size < 1:
         raise ValueError("chunk_size must be >= 1")
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
+    if limit is not None:
+        stop = min(stop, start + limit)
+        scenarios = scenarios.take(slice(0, stop - start))
     cfg = suite.config
     interval = cfg.decision_interval
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
