@@ -49,7 +49,7 @@ def observe(core: "OvertakeCore", geo: dict) -> Any:
     oc = cfg.observation
     n, k = core.num, oc.vehicles_per_lane
     cols = xp.arange(n)
-    out = xp.zeros((observation_size(cfg), n))
+    out = xp.zeros((observation_size(cfg), n), np.float32)
     out[0] = core.v / oc.speed_scale
     out[1] = core.yaw_rate
     out[2] = core.y / E["lane_width"]

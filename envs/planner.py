@@ -119,13 +119,13 @@ def _lateral_window(y, v, offsets, dj, margin, lane_width, roll_in, tip, xp):
     lat_speed = lane_width * v / roll_in  # (N,) m/s sideways once the roll-in starts
     slow = lat_speed <= 1e-9
     t_start = xp.where(slow, INF, tip / xp.where(slow, 1.0, v))  # the roll-in starts after the tip
-    rate = xp.where(slow, 1.0, lat_speed)
+    inv_rate = 1.0 / xp.where(slow, 1.0, lat_speed)
     # Sideways progress p in [0, span] with |y + sign p - dj| < margin  <=>  p in (lo, hi).
     rel = (dj - y)[None, :, :] * sign[:, None, :]
     lo, hi = rel - margin, rel + margin
     hit = (hi > 0.0) & (lo < span)
-    t0 = xp.where(lo <= 0.0, 0.0, t_start + lo / rate)
-    t1 = xp.where(hi >= span, INF, t_start + hi / rate)
+    t0 = xp.where(lo <= 0.0, 0.0, t_start + lo * inv_rate)
+    t1 = xp.where(hi >= span, INF, t_start + hi * inv_rate)
     return xp.where(hit, t0, INF), xp.where(hit, t1, -INF)
 
 
