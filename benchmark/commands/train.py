@@ -1,0 +1,95 @@
+"""``overtakezoo train``: train a learned decider (dqn, double-dqn, ppo) on a training suite."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from pathlib import Path
+from typing import Any
+
+from ..errors import UserError
+
+ALGORITHMS = ("dqn", "double-dqn", "ppo")
+
+EPILOG = """examples:
+  overtakezoo train dqn --suite table1-train --out runs/dqn
+  overtakezoo train double-dqn --suite table1-train --steps 200000 --seed 3 --out runs/ddqn
+  overtakezoo train dqn --suite table1-train --out runs/dqn --resume runs/dqn/checkpoint.pt
+
+Writes into --out: log.csv (steps, episodes, success / crash rate, loss, epsilon, wall time),
+checkpoint.pt (resumable), the weights <algo>.pt and the model card <algo>.json with the
+table1 evaluation. Copy both into zoo/pretrained/ to publish them."""
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("train", help="train dqn / double-dqn / ppo and evaluate on table1",
+                              description=__doc__, epilog=EPILOG,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("algorithm", choices=ALGORITHMS, help="what to train")
+    p.add_argument("--suite", default="table1-train", help="training suite (default: table1-train)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="total training length, also when resuming (dqn: decision transitions summed over "
+                        "all parallel rows; default: the hyperparameter file)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: the hyperparameter file)")
+    p.add_argument("--out", default=None, help="output directory (default: runs/<algorithm>)")
+    p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint.pt")
+    p.add_argument("--hyperparams", default=None, metavar="TOML",
+                   help="hyperparameter file (default: zoo/hyperparams/<algorithm>.toml)")
+    p.add_argument("--eval-suite", default="table1", help="suite evaluated at the end ('none' to skip)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.steps is not None and args.steps <= 0:
+        raise UserError("--steps must be positive")
+    if args.resume and not Path(args.resume).is_file():
+        raise UserError(f"--resume: no checkpoint at {args.resume}")
+    out = Path(args.out or f"runs/{args.algorithm}")
+    eval_suite = None if args.eval_suite.lower() == "none" else args.eval_suite
+    if args.algorithm == "ppo":
+        return _run_ppo(args, out, eval_suite)
+    from overtakezoo.zoo.train_dqn import TrainError, train
+
+    try:
+        card = train(args.algorithm, suite=args.suite, steps=args.steps, seed=args.seed, out=out,
+                     resume=args.resume, hyperparams=args.hyperparams, eval_suite=eval_suite,
+                     progress=not args.no_progress)
+    except TrainError as exc:  # bad hyperparameter file or checkpoint (unknown suites raise UserError)
+        raise UserError(str(exc)) from None
+    _report(card, out)
+    return 0
+
+
+def _run_ppo(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
+    try:
+        ppo = importlib.import_module("overtakezoo.zoo.ppo")
+    except ModuleNotFoundError as exc:
+        if exc.name != "overtakezoo.zoo.ppo":
+            raise
+        raise UserError("ppo training is not available (overtakezoo.zoo.ppo is not installed)") from None
+    if not hasattr(ppo, "train"):
+        raise UserError("ppo training is not available (overtakezoo.zoo.ppo has no train())")
+    kwargs: dict[str, Any] = {"suite": args.suite, "steps": args.steps, "out": out, "resume": args.resume,
+                              "eval_suite": eval_suite, "progress": not args.no_progress}
+    if args.seed is not None:
+        kwargs["seed"] = args.seed
+    if args.hyperparams:
+        kwargs["hyperparams"] = args.hyperparams
+    result = ppo.train(**kwargs)
+    if isinstance(result, dict):
+        _report(result, out)
+    else:
+        print(f"trained ppo; files in {out}")
+    return 0
+
+
+def _report(card: dict[str, Any], out: Path) -> None:
+    print(f"trained {card.get('name', '?')}: {card.get('steps', '?')} steps in {card.get('wall_time_s', 0):.0f} s; "
+          f"files in {out}")
+    res = (card.get("results") or {}).get("table1")
+    if res:
+        print(f"table1: success {100 * res['success_rate']:.1f} % "
+              f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], "
+              f"crash {100 * res['crash_rate']:.1f} % (lead lane {res['crash_lead_lane']}, "
+              f"opposite lane {res['crash_opposite_lane']}), timeout {100 * res['timeout_rate']:.1f} %")

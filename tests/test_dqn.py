@@ -1,0 +1,203 @@
+"""DQN / Double DQN: the target formulas, weight checks, the pretrained deciders, a short training run."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from overtakezoo import zoo
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario
+from overtakezoo.zoo.dqn import (PRETRAINED, DQNDecider, QNetwork, WeightsError, action_mask, load_pretrained,
+                                 td_targets)
+
+
+class _Table(torch.nn.Module):
+    """A 'network' returning fixed Q rows, to check target formulas by hand."""
+
+    def __init__(self, q: list[list[float]]) -> None:
+        super().__init__()
+        self.q = torch.tensor(q)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.q[: obs.shape[0]]
+
+
+def test_double_dqn_target_differs_from_dqn_as_the_formula_says():
+    online = _Table([[1.0, 5.0, 0.0], [2.0, 1.0, 0.0]])
+    target = _Table([[3.0, 0.5, 9.0], [4.0, 7.0, 0.0]])
+    reward = torch.tensor([1.0, -1.0])
+    done = torch.tensor([0.0, 0.0])
+    next_obs = torch.zeros(2, 4)
+    gamma = 0.9
+    dqn = td_targets(online, target, reward, next_obs, done, gamma, double=False)
+    ddqn = td_targets(online, target, reward, next_obs, done, gamma, double=True)
+    # DQN: max of the target net. Double: the target net's value at the online net's argmax.
+    assert torch.allclose(dqn, torch.tensor([1 + 0.9 * 9.0, -1 + 0.9 * 7.0]))
+    assert torch.allclose(ddqn, torch.tensor([1 + 0.9 * 0.5, -1 + 0.9 * 4.0]))
+    # A mask removes the masked mode from both the max and the online argmax.
+    mask = torch.tensor([[True, True, False], [True, True, False]])
+    assert torch.allclose(td_targets(online, target, reward, next_obs, done, gamma, False, mask),
+                          torch.tensor([1 + 0.9 * 3.0, -1 + 0.9 * 7.0]))
+    # Terminal rows do not bootstrap.
+    assert torch.allclose(td_targets(online, target, reward, next_obs, torch.tensor([1.0, 1.0]), gamma, True),
+                          reward)
+
+
+def test_action_mask_allows_abort_only_while_overtaking_and_follow_only_in_lane():
+    cfg = EnvConfig()
+    core = OvertakeCore(cfg)
+    obs = core.reset(ScenarioDistribution().sample(3, 0))
+    assert not action_mask(obs, cfg)[:, ABORT].any()  # every row starts in follow
+    core.step(np.array([OVERTAKE, FOLLOW, ABORT]))
+    obs = core.observe()
+    np.testing.assert_array_equal(action_mask(obs, cfg)[:, ABORT], [True, False, True])
+    assert action_mask(obs, cfg)[:, FOLLOW].all()  # still inside the ego lane
+    out = obs.copy()
+    out[:, 2] = 0.8  # out in the opposite lane: only finishing or aborting, no cut-in
+    np.testing.assert_array_equal(action_mask(out, cfg)[:, FOLLOW], [False, True, False])
+    np.testing.assert_array_equal(action_mask(torch.from_numpy(out), cfg).numpy(), action_mask(out, cfg))
+    # An abort under way outside the lane is carried through: no overtake until back in lane.
+    np.testing.assert_array_equal(action_mask(out, cfg)[:, OVERTAKE], [True, True, False])
+    assert action_mask(out, cfg, version=2)[:, OVERTAKE].all()
+    assert action_mask(obs, cfg)[:, OVERTAKE].all()
+
+
+def _copy_pretrained(tmp_path, name="dqn"):
+    for ext in (".pt", ".json"):
+        shutil.copy(PRETRAINED / f"{name}{ext}", tmp_path / f"{name}{ext}")
+    return tmp_path
+
+
+@pytest.mark.parametrize("name", ["dqn", "double-dqn"])
+def test_pretrained_loads_and_acts(name):
+    dec = zoo.load(name)
+    assert dec.name == name and len(dec.weights_sha256) == 64
+    assert name in zoo.names()
+    assert "table1" in dec.card()
+    core = OvertakeCore(EnvConfig())
+    obs = core.reset(ScenarioDistribution().sample(64, 1))
+    dec.reset()
+    modes = dec.act(obs)
+    assert modes.shape == (64,) and modes.dtype == np.int64 and set(modes.tolist()) <= {FOLLOW, OVERTAKE}
+
+
+@pytest.mark.parametrize("name", ["dqn", "double-dqn"])
+def test_pretrained_overtakes_a_clear_road_and_waits_for_close_oncoming_traffic(name):
+    from overtakezoo.envs import SUCCESS, Scenarios
+
+    dec = zoo.load(name)
+    clear = make_scenario(lead=(10.0, 1.5), oncoming=[])
+    blocked = make_scenario(lead=(10.0, 1.5), oncoming=[(25.0, 3.0)])
+    core = OvertakeCore(EnvConfig())
+    obs = core.reset(Scenarios.concat([clear, blocked]))
+    dec.reset()
+    lateral_while_oncoming_ahead = 0.0
+    while not core.done.all():
+        obs = core.step(dec.act(obs)).obs
+        if core.npc_s[1, 1] > core.x[1]:  # the oncoming car has not passed the ego yet
+            lateral_while_oncoming_ahead = max(lateral_while_oncoming_ahead, core.y[1])
+    np.testing.assert_array_equal(core.outcome, [SUCCESS, SUCCESS])
+    assert lateral_while_oncoming_ahead < 0.5  # stayed in its lane until the oncoming car passed
+    assert core.t[0] < core.t[1]  # waiting costs time
+
+
+def test_load_refuses_truncated_and_modified_weights(tmp_path):
+    d = _copy_pretrained(tmp_path)
+    data = (d / "dqn.pt").read_bytes()
+    (d / "dqn.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(WeightsError, match="sha256"):
+        load_pretrained("dqn", directory=d)
+    assert issubclass(WeightsError, ValueError)
+    (d / "dqn.pt").write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    with pytest.raises(WeightsError, match="truncated or modified"):
+        load_pretrained("dqn", directory=d)
+    (d / "dqn.pt").write_bytes(data)
+    assert load_pretrained("dqn", directory=d).weights_sha256 == json.loads((d / "dqn.json").read_text())[
+        "weights_sha256"]
+    (d / "dqn.json").unlink()
+    with pytest.raises(WeightsError, match="not found"):
+        load_pretrained("dqn", directory=d)
+
+
+def test_decider_holds_its_decision_for_the_action_repeat():
+    cfg = EnvConfig()
+    dec = DQNDecider(QNetwork(32, [8]), config=cfg, action_repeat=3)
+    core = OvertakeCore(cfg)
+    obs = core.reset(ScenarioDistribution().sample(4, 2))
+    calls = []
+    greedy = dec.greedy
+    dec.greedy = lambda o: (calls.append(len(o)), greedy(o))[1]
+    for _ in range(7):
+        dec.act(obs)
+    assert calls == [4, 4, 4]  # decides at steps 0, 3, 6
+    dec.reset(np.array([True, False, False, False]))
+    dec.act(obs)
+    assert calls[-1] == 1  # only the reset row decides afresh
+
+
+def _success(net_or_card, algo, scenarios):
+    from overtakezoo.zoo.train_dqn import evaluate, load_hyperparams
+
+    hp = load_hyperparams(algo)
+    dec = DQNDecider(net_or_card, config=EnvConfig(), action_repeat=hp["action_repeat"])
+    return evaluate(dec, scenarios, EnvConfig())["success_rate"]
+
+
+def test_short_training_beats_an_untrained_network(tmp_path):
+    from overtakezoo.zoo.train_dqn import load_hyperparams, train
+
+    torch.manual_seed(0)
+    hp = load_hyperparams("dqn")
+    untrained = QNetwork(32, hp["hidden"], hp["dueling"])
+    scen = ScenarioDistribution().sample(200, 777)
+    base = _success(untrained, "dqn", scen)
+    # ~6 s of CPU: the untrained net follows forever (0 %), this one passes about half the time.
+    card = train("dqn", steps=20000, seed=0, out=tmp_path, eval_suite=None, progress=False,
+                 overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 10000,
+                            "log_every": 5000})
+    trained = _success(card["_net"], "dqn", scen)
+    assert trained > base + 0.2, (base, trained)
+    log = (tmp_path / "log.csv").read_text().splitlines()
+    assert log[0].startswith("steps,episodes,success_rate,crash_rate,loss,epsilon")
+    assert (tmp_path / "checkpoint.pt").is_file() and (tmp_path / "dqn.json").is_file()
+
+
+def test_resume_continues_from_a_checkpoint(tmp_path):
+    from overtakezoo.zoo.train_dqn import train
+
+    ov = {"num_envs": 64, "learning_starts": 300, "checkpoint_every": 1500, "log_every": 500}
+    first = train("double-dqn", steps=1500, seed=1, out=tmp_path, eval_suite=None, progress=False, overrides=ov)
+    card = train("double-dqn", steps=3000, seed=1, out=tmp_path, resume=tmp_path / "checkpoint.pt",
+                 eval_suite=None, progress=False, overrides=ov)
+    assert first["steps"] < 3000 <= card["steps"]
+    assert card["gradient_updates"] > first["gradient_updates"] and card["episodes"] >= first["episodes"]
+    rows = (tmp_path / "log.csv").read_text().splitlines()
+    steps = [int(r.split(",")[0]) for r in rows[1:]]
+    assert len(steps) >= 5 and steps == sorted(steps)  # one log, continued
+
+
+@pytest.mark.slow
+def test_training_from_scratch_reaches_the_paper_figure(tmp_path):
+    from overtakezoo.zoo.train_dqn import train
+
+    card = train("dqn", out=tmp_path, progress=False)
+    assert card["results"]["table1"]["success_rate"] >= 0.922
+    assert card["wall_time_s"] < 600
+
+
+def test_train_command_writes_log_weights_and_card(tmp_path, capsys):
+    from overtakezoo.benchmark.cli import main
+
+    out = tmp_path / "run"
+    assert main(["train", "dqn", "--steps", "3000", "--seed", "2", "--out", str(out), "--eval-suite", "none",
+                 "--no-progress"]) == 0
+    card = json.loads((out / "dqn.json").read_text())
+    assert card["steps"] >= 3000 and card["seed"] == 2 and card["train_suite"] == "table1-train"
+    assert card["weights_sha256"] == __import__("hashlib").sha256((out / "dqn.pt").read_bytes()).hexdigest()
+    assert "trained dqn" in capsys.readouterr().out
+    assert main(["train", "dqn", "--resume", str(tmp_path / "missing.pt"), "--out", str(out)]) == 2
+    assert "no checkpoint" in capsys.readouterr().err

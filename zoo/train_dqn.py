@@ -1,0 +1,495 @@
+"""Training loop for the DQN / Double DQN deciders: many scenarios stepped in parallel in one process.
+
+One :class:`~overtakezoo.envs.OvertakeCore` holds ``num_envs`` rows with ``auto_reset=True``; a
+finished row is refilled with a scenario drawn from the training suite. Every row keeps its own
+decision countdown (``action_repeat`` core steps per decision, the same rule the decider applies at
+evaluation). When a row's decision ends -- its countdown runs out or its episode ends -- the
+transition (obs, mode, summed reward, next obs, done) goes into a numpy ring buffer, all such rows
+in one vectorized insert; ``next obs`` of a finished row is the core's ``final_obs``.
+
+Learning: epsilon-greedy (linear decay over the first ``eps_fraction`` of the steps), Huber loss,
+Adam, gradient-norm clipping, a target network copied every ``target_update`` gradient steps; the
+Double DQN target lets the online net pick and the target net evaluate (:func:`~.dqn.td_targets`).
+Hyperparameters come from ``zoo/hyperparams/<algo>.toml``; ``steps`` counts decision transitions
+summed over all rows.
+
+Training reward: the suite's reward (the paper's shape) with the ``[reward]`` table of the file
+replacing its values, minus ``time_penalty`` per core step, because the paper's progress reward
+alone makes following forever the safe bet (measured: 0-77 % success, the rest timeouts). A timeout
+ends the episode as a failure (``timeout_terminal``): the observation has no clock, and the time
+limit is part of the task. Evaluation always uses the suite's own configuration.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import io
+import math
+import time
+import tomllib
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from overtakezoo.envs import (CRASH, SUCCESS, TIMEOUT, EnvConfig, OvertakeCore, ScenarioDistribution,
+                              observation_size)
+from overtakezoo.envs.config import RewardConfig
+
+from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, sha256_bytes, td_targets
+
+HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
+ALGORITHMS = ("dqn", "double-dqn")
+# Used only while the benchmark suites module is not available: disjoint seeds, the paper's counts.
+_FALLBACK = {"table1": (3000, 20240), "table1-train": (1000, 10240)}
+
+
+class TrainError(ValueError):
+    """Bad training input (unknown algorithm, malformed hyperparameters, unusable checkpoint)."""
+
+
+# ----------------------------------------------------------------------------- inputs
+def load_hyperparams(algo: str, path: str | Path | None = None) -> dict[str, Any]:
+    if algo not in ALGORITHMS:
+        raise TrainError(f"unknown algorithm {algo!r} (expected one of {', '.join(ALGORITHMS)})")
+    path = Path(path) if path else HYPERPARAMS / f"{algo}.toml"
+    try:
+        hp = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise TrainError(f"hyperparameter file {path} not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise TrainError(f"hyperparameter file {path}: {exc}") from None
+    missing = {"double", "steps", "num_envs", "action_repeat", "gamma", "lr", "batch_size", "buffer_size",
+               "learning_starts", "train_every", "target_update", "eps_start", "eps_end", "eps_fraction",
+               "huber_delta", "grad_clip", "hidden", "dueling", "action_mask", "threads"} - set(hp)
+    if missing:
+        raise TrainError(f"hyperparameter file {path}: missing keys {', '.join(sorted(missing))}")
+    hp["file"] = str(path.name)
+    return hp
+
+
+@dataclasses.dataclass
+class SuiteData:
+    name: str
+    hash: str | None
+    config: EnvConfig
+    scenarios: Any  # Scenarios
+    suite: Any = None  # the benchmark's Suite, when its module is available
+
+
+def load_suite_data(name: str) -> SuiteData:
+    """A suite through the benchmark's loader, or (while that module is absent) the paper's default
+    distribution with a fixed seed."""
+    try:
+        from overtakezoo.benchmark.suites import load_suite
+    except ImportError:
+        load_suite = None
+    if load_suite is not None:
+        suite = load_suite(name)
+        return SuiteData(suite.name, suite.hash, suite.config, suite.scenarios(), suite)
+    if name not in _FALLBACK:
+        raise TrainError(f"suite {name!r}: the suites module is not available and no fallback is known")
+    count, seed = _FALLBACK[name]
+    return SuiteData(f"{name} (fallback: default distribution, seed {seed})", None, EnvConfig(),
+                     ScenarioDistribution().sample(count, seed))
+
+
+def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:
+    """The suite's configuration with the training reward of the hyperparameter file (if any)."""
+    reward = hp.get("reward")
+    if not reward:
+        return base
+    try:
+        return dataclasses.replace(base, reward=RewardConfig(**{**dataclasses.asdict(base.reward), **reward}))
+    except TypeError as exc:
+        raise TrainError(f"hyperparameters [reward]: {exc}") from None
+
+
+# ----------------------------------------------------------------------------- replay
+class ReplayBuffer:
+    """Fixed-size ring of transitions as numpy arrays; inserts and samples are vectorized."""
+
+    def __init__(self, capacity: int, obs_dim: int) -> None:
+        self.capacity, self.size, self.ptr = int(capacity), 0, 0
+        self.obs = np.zeros((capacity, obs_dim), np.float32)
+        self.next_obs = np.zeros((capacity, obs_dim), np.float32)
+        self.action = np.zeros(capacity, np.int64)
+        self.reward = np.zeros(capacity, np.float32)
+        self.done = np.zeros(capacity, np.float32)
+
+    def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray, next_obs: np.ndarray,
+            done: np.ndarray) -> None:
+        n = len(action)
+        idx = (self.ptr + np.arange(n)) % self.capacity
+        self.obs[idx], self.action[idx], self.reward[idx] = obs, action, reward
+        self.next_obs[idx], self.done[idx] = next_obs, done
+        self.ptr = int((self.ptr + n) % self.capacity)
+        self.size = int(min(self.size + n, self.capacity))
+
+    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        idx = rng.integers(0, self.size, batch)
+        return {"obs": torch.from_numpy(self.obs[idx]), "action": torch.from_numpy(self.action[idx]),
+                "reward": torch.from_numpy(self.reward[idx]), "next_obs": torch.from_numpy(self.next_obs[idx]),
+                "done": torch.from_numpy(self.done[idx])}
+
+    def state(self) -> dict[str, Any]:
+        n = self.size
+        return {"size": n, "ptr": self.ptr, "obs": self.obs[:n].copy(), "next_obs": self.next_obs[:n].copy(),
+                "action": self.action[:n].copy(), "reward": self.reward[:n].copy(), "done": self.done[:n].copy()}
+
+    def load(self, state: dict[str, Any]) -> None:
+        n = min(int(state["size"]), self.capacity)
+        for key in ("obs", "next_obs", "action", "reward", "done"):
+            getattr(self, key)[:n] = np.asarray(state[key])[:n]
+        self.size, self.ptr = n, int(state["ptr"]) % self.capacity
+
+
+# ----------------------------------------------------------------------------- evaluation
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def evaluate(decider: Any, scenarios: Any, config: EnvConfig, chunk_size: int = 4096) -> dict[str, Any]:
+    """Run ``decider`` on every scenario to the end (frozen rows, no auto-reset); outcome summary
+    with Wilson 95 % intervals. The same loop as the benchmark runner (used for suites through
+    :func:`evaluate_suite`), kept here for plain scenario batches."""
+    outcome, crash_lane, ctime = [], [], []
+    for start in range(0, scenarios.num, chunk_size):
+        part = scenarios.take(np.arange(start, min(start + chunk_size, scenarios.num)))
+        core = OvertakeCore(config)
+        obs = core.reset(part)
+        decider.reset()
+        while not core.done.all():
+            obs = core.step(decider.act(obs)).obs
+        outcome.append(core.outcome.copy())
+        crash_lane.append(core.crash_lane.copy())
+        ctime.append(core.stats["completion_time"].copy())
+    return summarize(*map(np.concatenate, (outcome, crash_lane, ctime)))
+
+
+def evaluate_suite(decider: Any, data: SuiteData) -> tuple[dict[str, Any], Any]:
+    """Evaluate on a suite with the benchmark runner when available: (summary, Results or None)."""
+    if data.suite is None:
+        return evaluate(decider, data.scenarios, data.config), None
+    from overtakezoo.benchmark.runner import run_suite
+
+    res = run_suite(data.suite, decider, progress=False)
+    return summarize(np.asarray(res.outcome), np.asarray(res.crash_lane), np.asarray(res.completion_time, float)), res
+
+
+def summarize(outcome: np.ndarray, crash_lane: np.ndarray, ctime: np.ndarray) -> dict[str, Any]:
+    n = len(outcome)
+    succ, crash, tout = int((outcome == SUCCESS).sum()), int((outcome == CRASH).sum()), int((outcome == TIMEOUT).sum())
+    return {
+        "count": n, "success": succ, "crash": crash, "timeout": tout, "offroad": n - succ - crash - tout,
+        "success_rate": succ / n, "success_ci": list(wilson(succ, n)),
+        "crash_rate": crash / n, "crash_ci": list(wilson(crash, n)),
+        "timeout_rate": tout / n,
+        "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
+        "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
+        "mean_completion_time_s": float(np.nanmean(ctime)) if succ else None,
+    }
+
+
+# ----------------------------------------------------------------------------- training
+class Trainer:
+    """State of one training run; :meth:`run` advances it, :meth:`checkpoint` / :meth:`restore`
+    save and reload everything needed to continue (episodes in flight restart on resume)."""
+
+    def __init__(self, algo: str, hp: dict[str, Any], suite: SuiteData, seed: int) -> None:
+        self.algo, self.hp, self.suite, self.seed = algo, hp, suite, int(seed)
+        torch.manual_seed(self.seed)
+        torch.set_num_threads(int(hp["threads"]))
+        self.rng = np.random.default_rng(self.seed)
+        self.config = training_config(suite.config, hp)
+        self.obs_dim = observation_size(self.config)
+        self.net = QNetwork(self.obs_dim, hp["hidden"], hp["dueling"])
+        self.target = copy.deepcopy(self.net)
+        self.optim = torch.optim.Adam(self.net.parameters(), lr=hp["lr"])
+        self.buffer = ReplayBuffer(hp["buffer_size"], self.obs_dim)
+        self.transitions = self.core_steps = self.updates = self.episodes = 0
+        self.wall = 0.0
+        self.recent: deque[int] = deque(maxlen=int(hp.get("stats_window", 1000)))
+        self.last_loss = float("nan")
+        self._core_seed = self.seed + 1
+
+    # --- environment
+    def _start_core(self) -> None:
+        train = self.suite.scenarios
+        pick = lambda n, rng: train.take(rng.integers(0, train.num, n))  # noqa: E731
+        self.core = OvertakeCore(self.config, auto_reset=True, source=pick, seed=self._core_seed)
+        n = int(self.hp["num_envs"])
+        self.obs = self.core.reset(pick(n, self.core.rng))
+        self.count = np.zeros(n, np.int64)  # core steps left on each row's decision
+        self.pend_obs = np.zeros_like(self.obs)
+        self.pend_act = np.zeros(n, np.int64)
+        self.pend_rew = np.zeros(n, np.float32)
+
+    def epsilon(self) -> float:
+        hp = self.hp
+        frac = min(1.0, self.transitions / max(1.0, hp["eps_fraction"] * hp["steps"]))
+        return hp["eps_start"] + frac * (hp["eps_end"] - hp["eps_start"])
+
+    def _choose(self, obs: np.ndarray) -> np.ndarray:
+        t = torch.from_numpy(obs)
+        mask = (action_mask(t, self.config) if self.hp["action_mask"]
+                else torch.ones(len(obs), NUM_MODES, dtype=torch.bool))
+        with torch.no_grad():
+            greedy = masked_argmax(self.net(t), mask).numpy()
+        # Random modes drawn uniformly among the allowed ones.
+        u = self.rng.random((len(obs), NUM_MODES)) * mask.numpy()
+        rand = np.argmax(u, axis=1)
+        explore = self.rng.random(len(obs)) < self.epsilon()
+        return np.where(explore, rand, greedy).astype(np.int64)
+
+    def _env_step(self) -> None:
+        hp = self.hp
+        due = self.count <= 0
+        if due.any():
+            self.pend_obs[due] = self.obs[due]
+            self.pend_act[due] = self._choose(self.obs[due])
+            self.pend_rew[due] = 0.0
+            self.count[due] = hp["action_repeat"]
+        res = self.core.step(self.pend_act)
+        self.core_steps += 1
+        self.count -= 1
+        # An optional cost per core step of a running episode: time spent following is not free.
+        self.pend_rew += res.reward.astype(np.float32) - np.float32(hp.get("time_penalty", 0.0))
+        finished = res.info["_finished"]
+        emit = finished | (self.count <= 0)
+        if emit.any():
+            next_obs = res.obs if res.final_obs is None else np.where(finished[:, None], res.final_obs, res.obs)
+            done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
+            rows = np.flatnonzero(emit)
+            self.buffer.add(self.pend_obs[rows], self.pend_act[rows], self.pend_rew[rows], next_obs[rows],
+                            done[rows].astype(np.float32))
+            self.transitions += len(rows)
+        self.count[finished] = 0  # a refilled row decides on its first observation
+        if finished.any():
+            out = res.info["outcome"][finished]
+            self.recent.extend(out.tolist())
+            self.episodes += int(finished.sum())
+        self.obs = res.obs
+
+    # --- learning
+    def _learn(self) -> None:
+        hp = self.hp
+        b = self.buffer.sample(hp["batch_size"], self.rng)
+        next_mask = action_mask(b["next_obs"], self.config) if hp["action_mask"] else None
+        y = td_targets(self.net, self.target, b["reward"], b["next_obs"], b["done"], hp["gamma"], hp["double"],
+                       next_mask)
+        q = self.net(b["obs"]).gather(1, b["action"][:, None])[:, 0]
+        loss = nn.functional.huber_loss(q, y, delta=hp["huber_delta"])
+        self.optim.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.net.parameters(), hp["grad_clip"])
+        self.optim.step()
+        self.updates += 1
+        self.last_loss = float(loss.detach())
+        if self.updates % hp["target_update"] == 0:
+            self.target.load_state_dict(self.net.state_dict())
+
+    def rates(self) -> tuple[float, float]:
+        if not self.recent:
+            return float("nan"), float("nan")
+        a = np.asarray(self.recent)
+        return float((a == SUCCESS).mean()), float((a == CRASH).mean())
+
+    def run(self, steps: int, out: Path | None = None, progress: bool = True) -> None:
+        hp = self.hp
+        self._start_core()
+        log_every, ckpt_every = int(hp.get("log_every", 20000)), int(hp.get("checkpoint_every", 200000))
+        next_log = (self.transitions // log_every + 1) * log_every
+        next_ckpt = (self.transitions // ckpt_every + 1) * ckpt_every
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, initial=min(self.transitions, steps), unit="tr", desc=self.algo,
+                       dynamic_ncols=True, mininterval=1.0)
+        log = _CsvLog(out / "log.csv") if out else None
+        t0 = time.perf_counter() - self.wall
+        while self.transitions < steps:
+            before = self.transitions
+            self._env_step()
+            if self.buffer.size >= hp["learning_starts"] and self.core_steps % hp["train_every"] == 0:
+                for _ in range(int(hp.get("gradient_steps", 1))):
+                    self._learn()
+            self.wall = time.perf_counter() - t0
+            if bar is not None and self.transitions > before:
+                bar.update(min(self.transitions, steps) - min(before, steps))
+            if self.transitions >= next_log:
+                next_log += log_every
+                s, c = self.rates()
+                if bar is not None:
+                    bar.set_postfix(success=f"{s:.2f}", crash=f"{c:.2f}", eps=f"{self.epsilon():.2f}", refresh=False)
+                if log:
+                    log.write({"steps": self.transitions, "episodes": self.episodes, "success_rate": round(s, 4),
+                               "crash_rate": round(c, 4), "loss": round(self.last_loss, 5),
+                               "epsilon": round(self.epsilon(), 4), "updates": self.updates,
+                               "wall_time_s": round(self.wall, 2)})
+            if out and self.transitions >= next_ckpt:
+                next_ckpt += ckpt_every
+                self.checkpoint(out / "checkpoint.pt")
+        if bar is not None:
+            bar.close()
+        if out:
+            self.checkpoint(out / "checkpoint.pt")
+
+    # --- persistence
+    def checkpoint(self, path: Path) -> None:
+        from overtakezoo.benchmark.io import atomic_write_bytes
+
+        state = {"algo": self.algo, "hp": self.hp, "seed": self.seed, "net": self.net.state_dict(),
+                 "target": self.target.state_dict(), "optim": self.optim.state_dict(),
+                 "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
+                 "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
+                 "torch_rng": torch.get_rng_state(), "core_seed": self._core_seed + 1,
+                 "buffer": self.buffer.state()}
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        atomic_write_bytes(path, buf.getvalue())
+
+    def restore(self, path: str | Path) -> None:
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # truncated / foreign files fail in many ways; one line for all
+            why = (str(exc).splitlines() or [type(exc).__name__])[0].split(". ")[0]
+            raise TrainError(f"cannot read checkpoint {path}: {why}") from None
+        if state.get("algo") != self.algo:
+            raise TrainError(f"checkpoint {path} is for {state.get('algo')!r}, not {self.algo!r}")
+        self.net.load_state_dict(state["net"])
+        self.target.load_state_dict(state["target"])
+        self.optim.load_state_dict(state["optim"])
+        self.transitions, self.core_steps, self.updates, self.episodes = state["counters"]
+        self.wall = state["wall"]
+        self.recent.extend(state["recent"])
+        self.rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        self._core_seed = state["core_seed"]  # episodes in flight restart with fresh draws
+        self.buffer.load(state["buffer"])
+
+    def decider(self) -> DQNDecider:
+        return DQNDecider(copy.deepcopy(self.net).eval(), name=self.algo, config=self.suite.config,
+                          action_repeat=self.hp["action_repeat"], use_mask=self.hp["action_mask"])
+
+
+class _CsvLog:
+    FIELDS = ["steps", "episodes", "success_rate", "crash_rate", "loss", "epsilon", "updates", "wall_time_s"]
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        new = not path.exists()
+        self.f = open(path, "a", newline="")
+        self.w = csv.DictWriter(self.f, fieldnames=self.FIELDS)
+        if new:
+            self.w.writeheader()
+
+    def write(self, row: dict[str, Any]) -> None:
+        self.w.writerow(row)
+        self.f.flush()
+
+
+def _short(data: SuiteData) -> str:
+    return data.suite.name if data.suite is not None else data.name.split(" ")[0]
+
+
+def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
+               eval_suite: SuiteData | None) -> dict[str, Any]:
+    hp = trainer.hp
+    suite_name = trainer.suite.suite.name if trainer.suite.suite is not None else trainer.suite.name
+    return {
+        "name": trainer.algo, "version": "1",
+        "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp["double"] else "DQN (Mnih et al. 2015)",
+        "architecture": {"obs_dim": trainer.obs_dim, "hidden": list(hp["hidden"]), "dueling": bool(hp["dueling"]),
+                         "num_actions": NUM_MODES},
+        "action_repeat": int(hp["action_repeat"]), "action_mask": bool(hp["action_mask"]),
+        "action_mask_version": MASK_VERSION,
+        "hyperparameters": {k: v for k, v in hp.items()},
+        "train_suite": trainer.suite.name, "train_suite_hash": trainer.suite.hash,
+        "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
+        "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
+        "results": {_short(eval_suite): results} if results and eval_suite else {},
+        "eval_suite": eval_suite.name if eval_suite else None,
+        "eval_suite_hash": eval_suite.hash if eval_suite else None,
+        "weights_file": f"{trainer.algo}.pt", "weights_sha256": sha256_bytes(weights),
+        "torch": torch.__version__,
+        "reproduce": (f"overtakezoo train {trainer.algo} --suite {suite_name} --steps {hp['steps']} "
+                      f"--seed {trainer.seed}"),
+    }
+
+
+def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = None, seed: int | None = None,
+          out: str | Path | None = None, resume: str | Path | None = None, hyperparams: str | Path | None = None,
+          overrides: dict[str, Any] | None = None, eval_suite: str | None = "table1", progress: bool = True
+          ) -> dict[str, Any]:
+    """Train ``algo`` and (unless ``eval_suite`` is None) evaluate it; writes ``log.csv``,
+    ``checkpoint.pt``, ``<algo>.pt`` and the model card ``<algo>.json`` into ``out``.
+    Returns the model card (dict)."""
+    hp = load_hyperparams(algo, hyperparams)
+    hp.update(overrides or {})
+    if steps is not None:
+        hp["steps"] = int(steps)
+    seed = int(hp.get("seed", 0) if seed is None else seed)
+    hp["seed"] = seed
+    data = load_suite_data(suite)
+    trainer = Trainer(algo, hp, data, seed)
+    if resume:
+        trainer.restore(resume)
+    out_dir = Path(out) if out else None
+    if out_dir:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    trainer.run(int(hp["steps"]), out_dir, progress)
+    buf = io.BytesIO()
+    torch.save(trainer.net.state_dict(), buf)
+    weights = buf.getvalue()
+    results, ev, full = None, None, None
+    if eval_suite:
+        ev = load_suite_data(eval_suite)
+        dec = trainer.decider()
+        dec.config, dec.weights_sha256 = ev.config, sha256_bytes(weights)
+        results, full = evaluate_suite(dec, ev)
+    card = model_card(trainer, weights, results, ev)
+    if out_dir:
+        from overtakezoo.benchmark.io import atomic_write_bytes, atomic_write_json
+
+        atomic_write_bytes(out_dir / f"{algo}.pt", weights)
+        atomic_write_json(out_dir / f"{algo}.json", card)
+        if eval_suite and full is not None:  # the runner's results file, ready for `overtakezoo submit`
+            full.save(out_dir / f"{algo}-{eval_suite}.results.json")
+    card["_net"] = trainer.net  # for callers in-process (tests); not serialized
+    return card
+
+
+
+def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path | None = None,
+                        write: bool = False) -> dict[str, Any]:
+    """Re-measure a published decider on ``suite`` (e.g. after a suite or code change); with
+    ``write`` the model card's ``results[suite]`` is replaced (the weights, and so their sha256,
+    stay as they are)."""
+    from .dqn import PRETRAINED, load_pretrained, read_card
+
+    directory = Path(directory) if directory else PRETRAINED
+    data = load_suite_data(suite)
+    dec = load_pretrained(name, data.config, directory)
+    summary, _ = evaluate_suite(dec, data)
+    if write:
+        from overtakezoo.benchmark.io import atomic_write_json
+
+        card = read_card(directory / f"{name}.json")
+        card.setdefault("results", {})[suite] = summary
+        if suite == "table1":
+            card["eval_suite"], card["eval_suite_hash"] = data.name, data.hash
+        atomic_write_json(directory / f"{name}.json", card)
+    return summary
