@@ -67,6 +67,9 @@ class NumpyBackend:
     def nonzero(self, mask: np.ndarray) -> np.ndarray:
         return np.flatnonzero(mask)
 
+    def nonzero2(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.nonzero(mask)
+
     def to_numpy(self, x: Any) -> np.ndarray:
         return x
 
@@ -161,6 +164,9 @@ class TorchBackend:
 
     def nonzero(self, mask: Any) -> Any:
         return self.torch.nonzero(mask).flatten()
+
+    def nonzero2(self, mask: Any) -> tuple[Any, Any]:
+        return self.torch.nonzero(mask, as_tuple=True)
 
     def to_numpy(self, x: Any) -> np.ndarray:
         return x.detach().cpu().numpy() if isinstance(x, self.torch.Tensor) else np.asarray(x)

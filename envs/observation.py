@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .config import EnvConfig
-from .planner import first_argmin
 
 if TYPE_CHECKING:
     from .core import OvertakeCore
@@ -59,26 +58,28 @@ def observe(core: "OvertakeCore", geo: dict) -> Any:
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == n:
         out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked.T
 
-    c, s = xp.cos(core.psi), xp.sin(core.psi)
-    base = EGO_FEATURES + 3 + r
-    lanes, dx_all = core._sc["lane"], geo["dx"]
-    for lane in (0, 1):  # two lanes x k slots: fixed, tiny loops, not over scenarios or vehicles
-        key = xp.where(geo["visible"] & (lanes == lane), xp.abs(dx_all), INF)
-        for slot in range(k):
-            if key.shape[0] == 0:
-                break
-            idx = first_argmin(key, 0, xp)  # nearest remaining vehicle of this lane, lowest slot on ties
-            valid = xp.isfinite(key[idx, cols])
-            key[idx, cols] = INF
-            # Relative position and velocity of the picked vehicle in the ego frame.
-            dx, dy = geo["dx"][idx, cols], geo["dy"][idx, cols]
-            rvx, rvy = geo["v_along"][idx, cols] - core.v * c, -core.v * s
-            at = base + (lane * k + slot) * SLOT_FEATURES
-            out[at] = valid
-            out[at + 1] = xp.where(valid, (dx * c + dy * s) / oc.position_scale, 0.0)
-            out[at + 2] = xp.where(valid, (-dx * s + dy * c) / E["lane_width"], 0.0)
-            out[at + 3] = xp.where(valid, (rvx * c + rvy * s) / oc.speed_scale, 0.0)
-            out[at + 4] = xp.where(valid, (-rvx * s + rvy * c) / oc.speed_scale, 0.0)
+    # Slot of each vehicle: its rank by distance among the perceived vehicles of its lane (ties by
+    # slot index, like a stable sort), from pairwise comparisons on (M, M, N) -- no sort, no loop.
+    lanes, dx, dy = core._sc["lane"], geo["dx"], geo["dy"]
+    dist = xp.abs(dx)
+    seen = geo["visible"]
+    m = dist.shape[0]
+    if m:
+        j = xp.arange(m)
+        before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
+        rank = xp.sum(before & seen[None, :] & (lanes[None, :] == lanes[:, None]), axis=1)  # (M, N)
+        keep = seen & (rank < k)
+        vj, vn = xp.nonzero2(keep)
+        if len(vn):
+            # Relative position and velocity of the kept vehicles in the ego frame.
+            c, s = xp.cos(core.psi)[vn], xp.sin(core.psi)[vn]
+            ddx, ddy, v = dx[vj, vn], dy[vj, vn], core.v[vn]
+            rvx, rvy = geo["v_along"][vj, vn] - v * c, -v * s
+            feats = xp.stack([xp.ones_like(ddx), (ddx * c + ddy * s) / oc.position_scale,
+                              (-ddx * s + ddy * c) / E["lane_width"][vn], (rvx * c + rvy * s) / oc.speed_scale,
+                              (-rvx * s + rvy * c) / oc.speed_scale])
+            row = EGO_FEATURES + 3 + r + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
+            out[row[None, :] + xp.arange(SLOT_FEATURES)[:, None], vn[None, :]] = xp.astype(feats, np.float32)
     return xp.rows_float32(out)
 
 
