@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import torch
 
+from overtakezoo.benchmark.suites import load_suite
+
 from overtakezoo import zoo
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario
 from overtakezoo.zoo.dqn import (PRETRAINED, DQNDecider, QNetwork, WeightsError, action_mask, load_pretrained,
@@ -139,12 +141,13 @@ def test_decider_holds_its_decision_for_the_action_repeat():
     assert calls[-1] == 1  # only the reset row decides afresh
 
 
-def _success(net_or_card, algo, scenarios):
-    from overtakezoo.zoo.train_dqn import evaluate, load_hyperparams
+def _success(net_or_card, algo, suite):
+    from overtakezoo.zoo.common import evaluate
+    from overtakezoo.zoo.train_dqn import load_hyperparams
 
     hp = load_hyperparams(algo)
-    dec = DQNDecider(net_or_card, config=EnvConfig(), action_repeat=hp["action_repeat"])
-    return evaluate(dec, scenarios, EnvConfig())["success_rate"]
+    dec = DQNDecider(net_or_card, config=suite.config, action_repeat=hp["action_repeat"])
+    return evaluate(dec, suite, limit=200)[0]["success_rate"]  # table1's first 200 scenarios
 
 
 def test_short_training_beats_an_untrained_network(tmp_path):
@@ -153,7 +156,7 @@ def test_short_training_beats_an_untrained_network(tmp_path):
     torch.manual_seed(0)
     hp = load_hyperparams("dqn")
     untrained = QNetwork(32, hp["hidden"], hp["dueling"])
-    scen = ScenarioDistribution().sample(200, 777)
+    scen = load_suite("table1")
     base = _success(untrained, "dqn", scen)
     # ~6 s of CPU: the untrained net follows forever (0 %), this one passes about half the time.
     card = train("dqn", steps=20000, seed=0, out=tmp_path, eval_suite=None, progress=False,

@@ -26,9 +26,7 @@ holds, among the provenance, the sha256 of the weights; loading refuses a file w
 from __future__ import annotations
 
 import copy
-import hashlib
 import io
-import json
 from pathlib import Path
 from typing import Any
 
@@ -39,13 +37,10 @@ from torch import nn
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
 
 from .base import Decider, register
+from .common import WeightsError, read_card, read_verified  # noqa: F401 (WeightsError is re-exported)
 
 PRETRAINED = Path(__file__).resolve().parent / "pretrained"
 NUM_MODES = 3
-
-
-class WeightsError(ValueError):
-    """Pretrained weights are missing, truncated, modified or do not fit the configuration."""
 
 
 class QNetwork(nn.Module):
@@ -118,22 +113,10 @@ def td_targets(online: nn.Module, target: nn.Module, reward: torch.Tensor, next_
         return reward + gamma * (1.0 - done.float()) * boot
 
 
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def load_weights(weights: str | Path, card: dict[str, Any]) -> QNetwork:
     """Build the network described by ``card`` and load ``weights`` after checking its sha256."""
     weights = Path(weights)
-    try:
-        data = weights.read_bytes()
-    except OSError as exc:
-        raise WeightsError(f"cannot read weights {weights}: {exc.strerror or exc}") from None
-    expected = card.get("weights_sha256")
-    actual = sha256_bytes(data)
-    if expected != actual:
-        raise WeightsError(f"weights {weights.name}: sha256 {actual[:12]}... does not match the model card's "
-                           f"{str(expected)[:12]}... (file truncated or modified)")
+    data = read_verified(weights, card, card.get("name", "dqn"))
     arch = card["architecture"]
     net = QNetwork(arch["obs_dim"], arch["hidden"], arch["dueling"])
     try:
@@ -143,16 +126,6 @@ def load_weights(weights: str | Path, card: dict[str, Any]) -> QNetwork:
         raise WeightsError(f"weights {weights.name}: cannot load ({type(exc).__name__}: {exc})") from None
     net.eval()
     return net
-
-
-def read_card(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise WeightsError(f"model card {path} not found (no pretrained weights for this decider)") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise WeightsError(f"model card {path}: unreadable ({exc})") from None
 
 
 class DQNDecider(Decider):
@@ -243,7 +216,7 @@ def from_card(name: str, card: dict[str, Any], weights: str | Path, config: EnvC
 def load_pretrained(name: str, config: EnvConfig | None = None, directory: str | Path | None = None) -> DQNDecider:
     """The committed ``<name>.pt`` + ``<name>.json`` from ``zoo/pretrained`` (or ``directory``)."""
     directory = Path(directory) if directory else PRETRAINED
-    card = read_card(directory / f"{name}.json")
+    card = read_card(directory / f"{name}.json", name)
     return from_card(name, card, directory / f"{name}.pt", config)
 
 

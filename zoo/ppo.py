@@ -15,7 +15,6 @@ import contextlib
 import copy
 import csv
 import dataclasses
-import hashlib
 import io
 import json
 import math
@@ -29,10 +28,11 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, EnvConfig, OvertakeCore, ScenarioDistribution, observation_size
-from overtakezoo.envs.config import RewardConfig
+from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 
 from .base import Decider, register
+from .common import WeightsError, evaluate, read_card, read_verified, sha256_bytes, training_config  # noqa: F401
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
@@ -41,14 +41,6 @@ HYPERPARAMS = HERE / "hyperparams" / "ppo.toml"
 PRETRAINED = HERE / "pretrained"
 WEIGHTS_FORMAT = "overtakezoo-ppo/1"
 NUM_MODES = 3
-# While the benchmark's suites module is absent: the paper's distribution with fixed seeds.
-_FALLBACK_SUITES = {"table1": (3000, 1), "table1-train": (1000, 2)}
-
-
-class WeightsError(ValueError):
-    """PPO weights are missing, truncated, modified, or do not fit the configuration."""
-
-
 # ----------------------------------------------------------------------------- data
 def load_hyperparams(path: str | Path | None = None) -> dict[str, Any]:
     path = Path(path) if path else HYPERPARAMS
@@ -73,49 +65,6 @@ def train_cfg(hp: dict[str, Any]) -> dict[str, Any]:
     return cfg
 
 
-def load_suite_data(name: str) -> tuple[dict[str, Any], EnvConfig, Any]:
-    """(provenance, config, scenarios) of a suite; the default distribution if suites are absent."""
-    try:
-        from overtakezoo.benchmark.suites import load_suite
-    except ImportError:
-        load_suite = None
-    if load_suite is not None:
-        suite = load_suite(name)
-        meta = {"name": suite.name, "version": suite.version, "count": suite.count, "seed": suite.seed,
-                "sha256": suite.hash}
-        return meta, suite.config, suite.scenarios()
-    if name not in _FALLBACK_SUITES:
-        raise ValueError(f"suite {name!r}: the suites module is not available and no fallback is known")
-    count, seed = _FALLBACK_SUITES[name]
-    meta = {"name": name, "fallback": "default ScenarioDistribution", "count": count, "seed": seed, "sha256": None}
-    return meta, EnvConfig(), ScenarioDistribution().sample(count, seed)
-
-
-def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:
-    """The suite's configuration with the training reward of the hyperparameter file (if any)."""
-    reward = hp.get("reward")
-    if not reward:
-        return base
-    try:
-        return dataclasses.replace(base, reward=RewardConfig(**{**dataclasses.asdict(base.reward), **reward}))
-    except TypeError as exc:
-        raise ValueError(f"hyperparameters [reward]: {exc}") from None
-
-
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def wilson(k: int, n: int, z: float = 1.959964) -> list[float]:
-    """95 % Wilson score interval of a rate k / n."""
-    if n == 0:
-        return [0.0, 1.0]
-    p, den = k / n, 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return [max(0.0, centre - half), min(1.0, centre + half)]
-
-
 # ----------------------------------------------------------------------------- policy
 def build_actor(obs_dim: int, actor_cfg: dict[str, Any]) -> torch.nn.Module:
     """rsl-rl's ``MLPModel`` as the runner builds it (one observation group, one action column)."""
@@ -136,14 +85,7 @@ def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]
 def load_weights(weights: str | Path, card: dict[str, Any]) -> tuple[torch.nn.Module, int]:
     """The actor stored in ``weights`` after checking its sha256 against ``card``."""
     weights = Path(weights)
-    try:
-        data = weights.read_bytes()
-    except OSError as exc:
-        raise WeightsError(f"ppo: cannot read weights {weights}: {exc.strerror or exc}") from None
-    expected, actual = card.get("weights_sha256"), sha256_bytes(data)
-    if expected != actual:
-        raise WeightsError(f"ppo: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
-                           f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
+    data = read_verified(weights, card, "ppo")
     try:
         blob = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
         if blob.get("format") != WEIGHTS_FORMAT:
@@ -153,16 +95,6 @@ def load_weights(weights: str | Path, card: dict[str, Any]) -> tuple[torch.nn.Mo
     except Exception as exc:  # a hash-matching but unusable file: one line, not a traceback
         raise WeightsError(f"ppo: weights {weights.name}: cannot load ({type(exc).__name__}: {exc})") from None
     return actor.eval(), int(blob["obs_dim"])
-
-
-def read_card(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise WeightsError(f"ppo: model card {path} not found (no pretrained weights)") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise WeightsError(f"ppo: model card {path}: unreadable ({exc})") from None
 
 
 class PPODecider(Decider):
@@ -236,7 +168,7 @@ class PPODecider(Decider):
 def load_pretrained(config: EnvConfig | None = None, directory: str | Path | None = None) -> PPODecider:
     """``ppo.pt`` + ``ppo.json`` from ``zoo/pretrained`` (or ``directory``), sha256 checked."""
     directory = Path(directory) if directory else PRETRAINED
-    card = read_card(directory / "ppo.json")
+    card = read_card(directory / "ppo.json", "ppo")
     actor, obs_dim = load_weights(directory / "ppo.pt", card)
     return PPODecider(actor, obs_dim, config, card)
 
@@ -259,34 +191,6 @@ def greedy_score(decider: Decider, config: EnvConfig, scenarios: Any) -> float:
     """Success rate minus crash rate of ``decider`` on ``scenarios`` (model selection)."""
     outcome, _, _ = rollout(decider, config, scenarios)
     return float(np.mean(outcome == SUCCESS) - np.mean(outcome == CRASH))
-
-
-def evaluate(decider: Decider, suite: str = "table1", progress: bool = False) -> dict[str, Any]:
-    """Outcome summary (Wilson 95 % CIs) of ``decider`` on every scenario of ``suite``: through the
-    benchmark runner when it exists, else the same plain loop (frozen rows, no auto-reset)."""
-    meta, config, scenarios = load_suite_data(suite)
-    outcome = crash_lane = ctime = None
-    try:
-        from overtakezoo.benchmark.runner import run_suite
-        from overtakezoo.benchmark.suites import load_suite
-    except ImportError:
-        run_suite = None
-    if run_suite is not None:
-        res = run_suite(load_suite(suite), decider, progress=progress)
-        outcome, crash_lane = np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"])
-        ctime = np.asarray(res.per["completion_time"], float)
-        meta = {**meta, "measured_with": "overtakezoo.benchmark.runner.run_suite"}
-    if outcome is None:
-        outcome, crash_lane, ctime = rollout(decider, config, scenarios)
-    n = len(outcome)
-    succ, crash, tout = int((outcome == SUCCESS).sum()), int((outcome == CRASH).sum()), int((outcome == TIMEOUT).sum())
-    return {"suite": meta, "count": n, "success": succ, "crash": crash, "timeout": tout,
-            "offroad": n - succ - crash - tout, "success_rate": succ / n, "success_ci": wilson(succ, n),
-            "crash_rate": crash / n, "crash_ci": wilson(crash, n), "timeout_rate": tout / n,
-            # Key names as in dqn's cards; lane 0 is the ego's lane (the lead, NPC1, in table1).
-            "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
-            "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
-            "mean_completion_time_s": float(np.nanmean(ctime)) if succ else None}
 
 
 # ----------------------------------------------------------------------------- training
@@ -317,7 +221,10 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(int(hp["train"].get("threads", 1)))
     torch.manual_seed(seed)
-    meta, config, scenarios = load_suite_data(suite)
+    train_suite = load_suite(suite)
+    config, scenarios = train_suite.config, train_suite.scenarios()
+    meta = {"name": train_suite.name, "version": train_suite.version, "count": train_suite.count,
+            "seed": train_suite.seed, "sha256": train_suite.hash}
     num_envs = int(hp["env"]["num_envs"])
     repeat = int(hp["env"].get("action_repeat", 1))
     env = OvertakeRslRlEnv(num_envs, training_config(config, hp), scenarios, seed=seed,
@@ -408,7 +315,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     _write(weights, blob)
     if eval_suite:
         decider = PPODecider(*load_weights(weights, card), config=config, card=card)
-        card["results"][eval_suite] = evaluate(decider, eval_suite, progress=progress)
+        card["results"][eval_suite] = evaluate(decider, eval_suite, progress=progress)[0]
     _write(out / "ppo.json", (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
     return weights
 

@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import copy
 import csv
-import dataclasses
 import io
-import math
 import time
 import tomllib
 from collections import deque
@@ -37,16 +35,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from overtakezoo.envs import (CRASH, SUCCESS, TIMEOUT, EnvConfig, OvertakeCore, ScenarioDistribution,
-                              observation_size)
-from overtakezoo.envs.config import RewardConfig
+from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
 
-from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, sha256_bytes, td_targets
+from .common import evaluate, read_card, sha256_bytes, training_config
+from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
 ALGORITHMS = ("dqn", "double-dqn")
 # Used only while the benchmark suites module is not available: disjoint seeds, the paper's counts.
-_FALLBACK = {"table1": (3000, 20240), "table1-train": (1000, 10240)}
 
 
 class TrainError(ValueError):
@@ -71,43 +68,6 @@ def load_hyperparams(algo: str, path: str | Path | None = None) -> dict[str, Any
         raise TrainError(f"hyperparameter file {path}: missing keys {', '.join(sorted(missing))}")
     hp["file"] = str(path.name)
     return hp
-
-
-@dataclasses.dataclass
-class SuiteData:
-    name: str
-    hash: str | None
-    config: EnvConfig
-    scenarios: Any  # Scenarios
-    suite: Any = None  # the benchmark's Suite, when its module is available
-
-
-def load_suite_data(name: str) -> SuiteData:
-    """A suite through the benchmark's loader, or (while that module is absent) the paper's default
-    distribution with a fixed seed."""
-    try:
-        from overtakezoo.benchmark.suites import load_suite
-    except ImportError:
-        load_suite = None
-    if load_suite is not None:
-        suite = load_suite(name)
-        return SuiteData(suite.name, suite.hash, suite.config, suite.scenarios(), suite)
-    if name not in _FALLBACK:
-        raise TrainError(f"suite {name!r}: the suites module is not available and no fallback is known")
-    count, seed = _FALLBACK[name]
-    return SuiteData(f"{name} (fallback: default distribution, seed {seed})", None, EnvConfig(),
-                     ScenarioDistribution().sample(count, seed))
-
-
-def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:
-    """The suite's configuration with the training reward of the hyperparameter file (if any)."""
-    reward = hp.get("reward")
-    if not reward:
-        return base
-    try:
-        return dataclasses.replace(base, reward=RewardConfig(**{**dataclasses.asdict(base.reward), **reward}))
-    except TypeError as exc:
-        raise TrainError(f"hyperparameters [reward]: {exc}") from None
 
 
 # ----------------------------------------------------------------------------- replay
@@ -149,70 +109,20 @@ class ReplayBuffer:
         self.size, self.ptr = n, int(state["ptr"]) % self.capacity
 
 
-# ----------------------------------------------------------------------------- evaluation
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    if n == 0:
-        return (0.0, 1.0)
-    p = k / n
-    den = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def evaluate(decider: Any, scenarios: Any, config: EnvConfig, chunk_size: int = 4096) -> dict[str, Any]:
-    """Run ``decider`` on every scenario to the end (frozen rows, no auto-reset); outcome summary
-    with Wilson 95 % intervals. The same loop as the benchmark runner (used for suites through
-    :func:`evaluate_suite`), kept here for plain scenario batches."""
-    outcome, crash_lane, ctime = [], [], []
-    for start in range(0, scenarios.num, chunk_size):
-        part = scenarios.take(np.arange(start, min(start + chunk_size, scenarios.num)))
-        core = OvertakeCore(config)
-        obs = core.reset(part)
-        decider.reset()
-        while not core.done.all():
-            obs = core.step(decider.act(obs)).obs
-        outcome.append(core.outcome.copy())
-        crash_lane.append(core.crash_lane.copy())
-        ctime.append(core.stats["completion_time"].copy())
-    return summarize(*map(np.concatenate, (outcome, crash_lane, ctime)))
-
-
-def evaluate_suite(decider: Any, data: SuiteData) -> tuple[dict[str, Any], Any]:
-    """Evaluate on a suite with the benchmark runner when available: (summary, Results or None)."""
-    if data.suite is None:
-        return evaluate(decider, data.scenarios, data.config), None
-    from overtakezoo.benchmark.runner import run_suite
-
-    res = run_suite(data.suite, decider, progress=False)
-    return summarize(np.asarray(res.outcome), np.asarray(res.crash_lane), np.asarray(res.completion_time, float)), res
-
-
-def summarize(outcome: np.ndarray, crash_lane: np.ndarray, ctime: np.ndarray) -> dict[str, Any]:
-    n = len(outcome)
-    succ, crash, tout = int((outcome == SUCCESS).sum()), int((outcome == CRASH).sum()), int((outcome == TIMEOUT).sum())
-    return {
-        "count": n, "success": succ, "crash": crash, "timeout": tout, "offroad": n - succ - crash - tout,
-        "success_rate": succ / n, "success_ci": list(wilson(succ, n)),
-        "crash_rate": crash / n, "crash_ci": list(wilson(crash, n)),
-        "timeout_rate": tout / n,
-        "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
-        "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
-        "mean_completion_time_s": float(np.nanmean(ctime)) if succ else None,
-    }
-
-
 # ----------------------------------------------------------------------------- training
 class Trainer:
     """State of one training run; :meth:`run` advances it, :meth:`checkpoint` / :meth:`restore`
     save and reload everything needed to continue (episodes in flight restart on resume)."""
 
-    def __init__(self, algo: str, hp: dict[str, Any], suite: SuiteData, seed: int) -> None:
+    def __init__(self, algo: str, hp: dict[str, Any], suite: Any, seed: int) -> None:
         self.algo, self.hp, self.suite, self.seed = algo, hp, suite, int(seed)
         torch.manual_seed(self.seed)
         torch.set_num_threads(int(hp["threads"]))
         self.rng = np.random.default_rng(self.seed)
-        self.config = training_config(suite.config, hp)
+        try:
+            self.config = training_config(suite.config, hp)
+        except ValueError as exc:
+            raise TrainError(str(exc)) from None
         self.obs_dim = observation_size(self.config)
         self.net = QNetwork(self.obs_dim, hp["hidden"], hp["dueling"])
         self.target = copy.deepcopy(self.net)
@@ -226,7 +136,7 @@ class Trainer:
 
     # --- environment
     def _start_core(self) -> None:
-        train = self.suite.scenarios
+        train = self.suite.scenarios()
         pick = lambda n, rng: train.take(rng.integers(0, train.num, n))  # noqa: E731
         self.core = OvertakeCore(self.config, auto_reset=True, source=pick, seed=self._core_seed)
         n = int(self.hp["num_envs"])
@@ -401,14 +311,10 @@ class _CsvLog:
         self.f.flush()
 
 
-def _short(data: SuiteData) -> str:
-    return data.suite.name if data.suite is not None else data.name.split(" ")[0]
-
-
 def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
-               eval_suite: SuiteData | None) -> dict[str, Any]:
+               eval_suite: Any) -> dict[str, Any]:
     hp = trainer.hp
-    suite_name = trainer.suite.suite.name if trainer.suite.suite is not None else trainer.suite.name
+    suite_name = trainer.suite.name
     return {
         "name": trainer.algo, "version": "1",
         "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp["double"] else "DQN (Mnih et al. 2015)",
@@ -420,7 +326,7 @@ def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
         "train_suite": trainer.suite.name, "train_suite_hash": trainer.suite.hash,
         "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
         "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
-        "results": {_short(eval_suite): results} if results and eval_suite else {},
+        "results": {eval_suite.name: results} if results and eval_suite else {},
         "eval_suite": eval_suite.name if eval_suite else None,
         "eval_suite_hash": eval_suite.hash if eval_suite else None,
         "weights_file": f"{trainer.algo}.pt", "weights_sha256": sha256_bytes(weights),
@@ -443,8 +349,7 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
         hp["steps"] = int(steps)
     seed = int(hp.get("seed", 0) if seed is None else seed)
     hp["seed"] = seed
-    data = load_suite_data(suite)
-    trainer = Trainer(algo, hp, data, seed)
+    trainer = Trainer(algo, hp, load_suite(suite), seed)
     if resume:
         trainer.restore(resume)
     out_dir = Path(out) if out else None
@@ -456,10 +361,10 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
     weights = buf.getvalue()
     results, ev, full = None, None, None
     if eval_suite:
-        ev = load_suite_data(eval_suite)
+        ev = load_suite(eval_suite)
         dec = trainer.decider()
         dec.config, dec.weights_sha256 = ev.config, sha256_bytes(weights)
-        results, full = evaluate_suite(dec, ev)
+        results, full = evaluate(dec, ev)
     card = model_card(trainer, weights, results, ev)
     if out_dir:
         from overtakezoo.benchmark.io import atomic_write_bytes, atomic_write_json
@@ -478,16 +383,16 @@ def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path 
     """Re-measure a published decider on ``suite`` (e.g. after a suite or code change); with
     ``write`` the model card's ``results[suite]`` is replaced (the weights, and so their sha256,
     stay as they are)."""
-    from .dqn import PRETRAINED, load_pretrained, read_card
+    from .dqn import PRETRAINED, load_pretrained
 
     directory = Path(directory) if directory else PRETRAINED
-    data = load_suite_data(suite)
+    data = load_suite(suite)
     dec = load_pretrained(name, data.config, directory)
-    summary, _ = evaluate_suite(dec, data)
+    summary, _ = evaluate(dec, data)
     if write:
         from overtakezoo.benchmark.io import atomic_write_json
 
-        card = read_card(directory / f"{name}.json")
+        card = read_card(directory / f"{name}.json", name)
         card.setdefault("results", {})[suite] = summary
         if suite == "table1":
             card["eval_suite"], card["eval_suite_hash"] = data.name, data.hash

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import importlib
+import json
 from pathlib import Path
 from typing import Any
 
@@ -62,25 +62,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_ppo(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
-    try:
-        ppo = importlib.import_module("overtakezoo.zoo.ppo")
-    except ModuleNotFoundError as exc:
-        if exc.name != "overtakezoo.zoo.ppo":
-            raise
-        raise UserError("ppo training is not available (overtakezoo.zoo.ppo is not installed)") from None
-    if not hasattr(ppo, "train"):
-        raise UserError("ppo training is not available (overtakezoo.zoo.ppo has no train())")
+    from overtakezoo.zoo import ppo
+
     kwargs: dict[str, Any] = {"suite": args.suite, "steps": args.steps, "out": out, "resume": args.resume,
                               "eval_suite": eval_suite, "progress": not args.no_progress}
     if args.seed is not None:
         kwargs["seed"] = args.seed
     if args.hyperparams:
         kwargs["hyperparams"] = args.hyperparams
-    result = ppo.train(**kwargs)
-    if isinstance(result, dict):
-        _report(result, out)
-    else:
-        print(f"trained ppo; files in {out}")
+    try:
+        weights = ppo.train(**kwargs)
+    except (ValueError, FileNotFoundError) as exc:  # a bad hyperparameter file or checkpoint: one line
+        raise UserError(f"ppo: {exc}") from None
+    _report(json.loads((weights.parent / "ppo.json").read_text()), out)
     return 0
 
 

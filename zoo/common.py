@@ -1,0 +1,91 @@
+"""What the learned members (dqn, double-dqn, ppo) share: verified weights, model cards, the
+training reward, and the results a model card quotes (measured with the benchmark runner)."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, EnvConfig
+from overtakezoo.envs.config import RewardConfig
+
+
+class WeightsError(ValueError):
+    """Pretrained weights are missing, truncated, modified or do not fit the configuration."""
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def read_card(path: str | Path, who: str) -> dict[str, Any]:
+    """A model card (JSON); one-line :class:`WeightsError` when missing or unreadable."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise WeightsError(f"{who}: model card {path} not found (no pretrained weights for this decider)") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise WeightsError(f"{who}: model card {path}: unreadable ({exc})") from None
+
+
+def read_verified(weights: str | Path, card: dict[str, Any], who: str) -> bytes:
+    """The bytes of ``weights`` once their sha256 equals the model card's; else :class:`WeightsError`."""
+    weights = Path(weights)
+    try:
+        data = weights.read_bytes()
+    except OSError as exc:
+        raise WeightsError(f"{who}: cannot read weights {weights}: {exc.strerror or exc}") from None
+    expected, actual = card.get("weights_sha256"), sha256_bytes(data)
+    if expected != actual:
+        raise WeightsError(f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
+                           f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
+    return data
+
+
+def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:
+    """The suite's configuration with the training reward of the hyperparameter file (if any)."""
+    reward = hp.get("reward")
+    if not reward:
+        return base
+    try:
+        return dataclasses.replace(base, reward=RewardConfig(**{**dataclasses.asdict(base.reward), **reward}))
+    except TypeError as exc:
+        raise ValueError(f"hyperparameters [reward]: {exc}") from None
+
+
+def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time: np.ndarray) -> dict[str, Any]:
+    """The results block of a model card, with 95 % Wilson intervals."""
+    from overtakezoo.benchmark.metrics import wilson
+
+    n = len(outcome)
+    succ, crash, tout = (int((outcome == k).sum()) for k in (SUCCESS, CRASH, TIMEOUT))
+    return {
+        "count": n, "success": succ, "crash": crash, "timeout": tout, "offroad": n - succ - crash - tout,
+        "success_rate": succ / n, "success_ci": list(wilson(succ, n)),
+        "crash_rate": crash / n, "crash_ci": list(wilson(crash, n)), "timeout_rate": tout / n,
+        # Lane 0 is the ego's lane (the lead, NPC1, in table1); lane 1 the opposite lane.
+        "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
+        "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
+        "mean_completion_time_s": float(np.nanmean(completion_time)) if succ else None,
+    }
+
+
+def evaluate(decider: Any, suite: Any, progress: bool = False, limit: int | None = None) -> tuple[dict[str, Any], Any]:
+    """Run ``decider`` on ``suite`` (a name, path or Suite) with the benchmark runner: the card's
+    summary and the full Results."""
+    from overtakezoo.benchmark.runner import run_suite
+    from overtakezoo.benchmark.suites import load_suite
+
+    suite = load_suite(suite) if isinstance(suite, (str, Path)) else suite
+    res = run_suite(suite, decider, progress=progress, limit=limit)
+    summary = outcome_summary(np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]),
+                              np.asarray(res.per["completion_time"], float))
+    summary["suite"] = {"name": suite.name, "version": suite.version, "sha256": suite.hash,
+                        "measured_with": "overtakezoo.benchmark.runner.run_suite"}
+    return summary, res
