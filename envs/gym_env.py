@@ -18,13 +18,14 @@ from gymnasium import spaces
 
 from .config import MODE_NAMES, EnvConfig
 from .core import OvertakeCore
+from .face_render import RendersFirstRow
 from .pettingzoo_env import as_config, repeat_step, row_info, single_ego
 from .scenarios import ScenarioDistribution, Scenarios
 
 ENV_ID = "overtakezoo/Overtake-v0"
 
 
-class OvertakeEnv(gymnasium.Env):
+class OvertakeEnv(RendersFirstRow, gymnasium.Env):
     """Single-ego overtaking: action 0 follow / 1 overtake / 2 abort; observation the core's vector.
 
     Each ``reset`` draws a scenario from the config's ``scenario`` distribution with the env's
@@ -71,16 +72,7 @@ class OvertakeEnv(gymnasium.Env):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from .render import Renderer, frame_from_core
-
-        if self._renderer is None:
-            self._renderer = Renderer(self.render_mode, fps=self.metadata["render_fps"])
-        return self._renderer.render(frame_from_core(self.core, 0))
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        return self._render_first_row()
 
 
 def register_envs() -> None:

@@ -36,6 +36,7 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from .config import MODE_NAMES, ConfigError, EnvConfig
 from .core import OUTCOME_NAMES, OvertakeCore, StepResult
+from .face_render import RendersFirstRow
 from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
@@ -95,7 +96,7 @@ def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
     return out
 
 
-class OvertakeParallelEnv(ParallelEnv):
+class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
     """Egos (and optionally NPCs) as agents over one batched core; see the module docstring."""
 
     metadata = {"name": "overtake_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10,
@@ -221,16 +222,7 @@ class OvertakeParallelEnv(ParallelEnv):
             return None
         if self.core.scen is None:
             raise RuntimeError("render() before reset()")
-        from .render import Renderer, frame_from_core
-
-        if self._renderer is None:
-            self._renderer = Renderer(self.render_mode, fps=self.metadata["render_fps"])
-        return self._renderer.render(frame_from_core(self.core, 0))
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        return self._render_first_row()
 
 
 def parallel_env(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> OvertakeParallelEnv:
