@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import platform
-import subprocess
 import sys
 import time
 from typing import Any
@@ -67,27 +66,24 @@ def suite_wall_time(suite: str, decider: str) -> dict[str, Any]:
             "simulated_s": sim}
 
 
-_RSS_SCRIPT = """
-import resource, sys
-from overtakezoo.benchmark.suites import load_suite
-from overtakezoo.benchmark.runner import run_suite
-from overtakezoo import zoo
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-if sys.argv[1] != "0":
-    s = load_suite("table1")
-    run_suite(s, zoo.load("always-overtake", config=s.config), progress=False)
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base)
-"""
+def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-fsm") -> float:
+    """Peak memory (MiB) a whole-suite run allocates (numpy arrays included: numpy reports its
+    allocations to tracemalloc), per 1000 scenarios."""
+    import tracemalloc
 
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.runner import run_suite
+    from overtakezoo.benchmark.suites import load_suite
 
-def peak_rss_per_1000_scenarios() -> float:
-    """Extra peak RSS (MiB) of a table1 run over the imports alone, per 1000 scenarios."""
-    def run(flag: str) -> int:
-        out = subprocess.run([sys.executable, "-c", _RSS_SCRIPT, flag], capture_output=True, text=True, check=True)
-        return int(out.stdout.strip().splitlines()[-1])
-
-    extra_kib = run("1") - run("0")
-    return round(max(extra_kib, 0) / 1024 / 3.0, 1)
+    s = load_suite(suite)
+    d = zoo.load(decider, config=s.config)
+    tracemalloc.start()
+    try:
+        run_suite(s, d, progress=False)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return round(peak / 2**20 / (s.count / 1000), 2)
 
 
 def highway_env_sim_seconds_per_second(seconds: float = 5.0) -> dict[str, Any] | None:
@@ -95,7 +91,7 @@ def highway_env_sim_seconds_per_second(seconds: float = 5.0) -> dict[str, Any] |
     with the IDLE action on one core; None when the ``[compare]`` extra is not installed."""
     try:
         import gymnasium as gym
-        import highway_env  # noqa: F401
+        import highway_env  # noqa: F401  (registers two-way-v0 on import)
     except ImportError:
         return None
     env = gym.make("two-way-v0")
@@ -145,8 +141,8 @@ def measure(sizes: list[int], seconds: float, suites: bool = True, progress=prin
                 row = {"suite": "table1", "decider": decider, "error": str(exc).splitlines()[0]}
             report["suites"].append(row)
             progress(f"table1 / {decider}: {row.get('wall_time_s', row.get('error'))} s")
-        report["peak_rss_mib_per_1000_scenarios"] = peak_rss_per_1000_scenarios()
-        progress(f"peak RSS: {report['peak_rss_mib_per_1000_scenarios']} MiB per 1000 scenarios")
+        report["peak_memory_mib_per_1000_scenarios"] = peak_memory_per_1000_scenarios()
+        progress(f"peak memory: {report['peak_memory_mib_per_1000_scenarios']} MiB per 1000 scenarios")
     hw = highway_env_sim_seconds_per_second(seconds)
     report["highway_env"] = hw
     if hw:
@@ -170,8 +166,9 @@ def to_markdown(report: dict[str, Any]) -> str:
     for row in report.get("suites", []):
         value = f"{row['wall_time_s']} s" if "wall_time_s" in row else f"not measured: {row['error']}"
         lines.append(f"| {row['suite']} ({row.get('scenarios', '?')} scenarios) with {row['decider']}, end to end | {value} |")
-    if report.get("peak_rss_mib_per_1000_scenarios") is not None:
-        lines.append(f"| peak RSS per 1000 scenarios | {report['peak_rss_mib_per_1000_scenarios']} MiB |")
+    if report.get("peak_memory_mib_per_1000_scenarios") is not None:
+        lines.append(f"| peak memory of a table1 run (rule-fsm), per 1000 scenarios | "
+                     f"{report['peak_memory_mib_per_1000_scenarios']} MiB |")
     hw = report.get("highway_env")
     if hw:
         lines.append(f"| highway-env {hw['version']} two-way-v0 | {hw['decisions_per_s']} decisions/s = "
