@@ -215,8 +215,9 @@ def _plot(name: str, live: list) -> bytes:
         for i, (_, r) in enumerate(live):
             s, c = r.summary["success_rate"], r.summary["crash_rate"]
             x, y = 100 * s["value"], 100 * c["value"]
-            xerr = [[x - 100 * s["lo"]], [100 * s["hi"] - x]]
-            yerr = [[y - 100 * c["lo"]], [100 * c["hi"] - y]]
+            # max(0, .): a Wilson bound can sit a rounding error beyond the rate it brackets.
+            xerr = [[max(0.0, x - 100 * s["lo"])], [max(0.0, 100 * s["hi"] - x)]]
+            yerr = [[max(0.0, y - 100 * c["lo"])], [max(0.0, 100 * c["hi"] - y)]]
             ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="o", capsize=3, color=f"C{i % 10}",
                         label=r.decider["name"])
             ax.annotate(r.decider["name"], (x, y), textcoords="offset points", xytext=(5, 5))
