@@ -101,21 +101,32 @@ class OvertakeCore:
         self.last_plan = None
         return self.observe()
 
-    def _set_scenarios(self, sc: Scenarios) -> None:
+    def _set_scenarios(self, sc: Scenarios, rows: Any = None) -> None:
         """Cache the scenarios' constants in the backend's layout: per-row (N,) and batch-last (M, N)
-        NPC arrays (they do not change within an episode)."""
+        NPC arrays (they do not change within an episode). With ``rows``, ``sc`` holds only those
+        rows' scenarios and just their columns are rewritten (auto-reset)."""
+        ego, npc = self._constants(sc)
+        if rows is None:
+            self._ego, self._sc = ego, npc
+            return
+        for key, value in ego.items():
+            self._ego[key][rows] = value
+        for key, value in npc.items():
+            self._sc[key][..., rows] = value
+
+    def _constants(self, sc: Scenarios) -> tuple[dict[str, Any], dict[str, Any]]:
         xp = self.xp
-        self._ego = {name: xp.asarray(getattr(sc, name), xp.float) for name in _EGO_FIELDS}
+        ego = {name: xp.asarray(getattr(sc, name), xp.float) for name in _EGO_FIELDS}
         T = {name[4:]: xp.batch_last(getattr(sc, name)) for name in _NPC_FIELDS}
         T["same_dir"] = T["lane"] != OPPOSITE_LANE
         T["direction"] = xp.where(T["same_dir"], 1.0, -1.0)
-        w = self._ego["lane_width"]
+        w = ego["lane_width"]
         T["d"] = T["lane"] * w
-        T["half_len"] = (self._ego["ego_length"] + T["length"]) / 2
-        T["half_wid"] = (self._ego["ego_width"] + T["width"]) / 2
-        T["reach"] = xp.minimum(self._ego["sensor_range"], T["reveal"])
+        T["half_len"] = (ego["ego_length"] + T["length"]) / 2
+        T["half_wid"] = (ego["ego_width"] + T["width"]) / 2
+        T["reach"] = xp.minimum(ego["sensor_range"], T["reveal"])
         T.update(rollout_geometry(self.cfg.planner, w, T["d"], T["half_wid"], xp))
-        self._sc = T
+        return ego, T
 
     def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
         """Initial state of ``rows`` from the scenarios ``fresh`` (one per row)."""
@@ -149,8 +160,10 @@ class OvertakeCore:
             arrays[name] = arrays[name].copy()
             arrays[name][host_rows] = value
         self.scen = Scenarios.from_arrays(arrays)
-        self._set_scenarios(self.scen)
+        self._set_scenarios(fresh, rows)
         self._start_rows(rows, fresh)
+        if self.last_plan is not None:  # a new episode starts with no planner flags, as after reset()
+            self.last_plan.blocked[rows] = False
 
     def clone(self, rows: Any = None) -> "OvertakeCore":
         """An independent copy of ``rows`` (all rows when None), e.g. for look-ahead search."""
@@ -257,7 +270,8 @@ class OvertakeCore:
             final_obs = obs
             rows = xp.nonzero(finished)
             self._replace_rows(rows, self.source(len(rows), self.rng))
-            obs = self.observe()
+            obs = xp.copy(obs)
+            obs[rows] = observe(self, self._geometry(), rows)  # only the restarted rows change
         return StepResult(obs, reward, terminated, truncated, final_obs, info)
 
     def _step_npcs(self, geo: dict[str, Any], dt: Any, npc_accel: Any) -> None:

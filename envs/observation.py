@@ -41,42 +41,44 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
             "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES)}
 
 
-def observe(core: "OvertakeCore", geo: dict) -> Any:
-    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N)). It is
-    assembled feature-major, (D, N), so every write is a contiguous row, then transposed once."""
+def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
+    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N)); only the
+    rows ``cols`` when given (auto-reset rows). It is assembled feature-major, (D, N), so every
+    write is a contiguous row, then transposed once."""
     xp, cfg, E = core.xp, core.cfg, core._ego
     oc = cfg.observation
-    n, k = core.num, oc.vehicles_per_lane
-    cols = xp.arange(n)
+    sel = slice(None) if cols is None else cols
+    v, psi, y = core.v[sel], core.psi[sel], core.y[sel]
+    lane_width = E["lane_width"][sel]
+    lanes, dx, dy = core._sc["lane"][:, sel], geo["dx"][:, sel], geo["dy"][:, sel]
+    seen, v_along = geo["visible"][:, sel], geo["v_along"][:, sel]
+    n, k = v.shape[0], oc.vehicles_per_lane
     out = xp.zeros((observation_size(cfg), n), np.float32)
-    out[0] = core.v / oc.speed_scale
-    out[1] = core.yaw_rate
-    out[2] = core.y / E["lane_width"]
-    out[3] = (E["goal_s"] - core.x - E["ego_length"] / 2) / oc.position_scale
-    out[EGO_FEATURES + core.mode, cols] = 1.0
+    out[0] = v / oc.speed_scale
+    out[1] = core.yaw_rate[sel]
+    out[2] = y / lane_width
+    out[3] = (E["goal_s"][sel] - core.x[sel] - E["ego_length"][sel] / 2) / oc.position_scale
+    out[EGO_FEATURES + core.mode[sel], xp.arange(n)] = 1.0
     r = cfg.planner.num_rollouts + 1
-    if core.last_plan is not None and core.last_plan.blocked.shape[0] == n:
-        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked.T
+    if core.last_plan is not None and core.last_plan.blocked.shape[0] == core.num:
+        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked[sel].T
 
     # Slot of each vehicle: its rank by distance among the perceived vehicles of its lane (ties by
     # slot index, like a stable sort), from pairwise comparisons on (M, M, N) -- no sort, no loop.
-    lanes, dx, dy = core._sc["lane"], geo["dx"], geo["dy"]
     dist = xp.abs(dx)
-    seen = geo["visible"]
     m = dist.shape[0]
     if m:
         j = xp.arange(m)
         before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
         rank = xp.sum(before & seen[None, :] & (lanes[None, :] == lanes[:, None]), axis=1)  # (M, N)
-        keep = seen & (rank < k)
-        vj, vn = xp.nonzero2(keep)
+        vj, vn = xp.nonzero2(seen & (rank < k))
         if len(vn):
             # Relative position and velocity of the kept vehicles in the ego frame.
-            c, s = xp.cos(core.psi)[vn], xp.sin(core.psi)[vn]
-            ddx, ddy, v = dx[vj, vn], dy[vj, vn], core.v[vn]
-            rvx, rvy = geo["v_along"][vj, vn] - v * c, -v * s
+            c, s = xp.cos(psi)[vn], xp.sin(psi)[vn]
+            ddx, ddy, vv = dx[vj, vn], dy[vj, vn], v[vn]
+            rvx, rvy = v_along[vj, vn] - vv * c, -vv * s
             feats = xp.stack([xp.ones_like(ddx), (ddx * c + ddy * s) / oc.position_scale,
-                              (-ddx * s + ddy * c) / E["lane_width"][vn], (rvx * c + rvy * s) / oc.speed_scale,
+                              (-ddx * s + ddy * c) / lane_width[vn], (rvx * c + rvy * s) / oc.speed_scale,
                               (-rvx * s + rvy * c) / oc.speed_scale])
             row = EGO_FEATURES + 3 + r + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
             out[row[None, :] + xp.arange(SLOT_FEATURES)[:, None], vn[None, :]] = xp.astype(feats, np.float32)
