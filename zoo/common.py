@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,22 @@ def read_verified(weights: str | Path, card: dict[str, Any], who: str) -> bytes:
         raise WeightsError(f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
                            f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
     return data
+
+
+def read_hyperparams(path: str | Path, required: set[str]) -> dict[str, Any]:
+    """A hyperparameter file (TOML) with its ``required`` top-level keys; ``hp["file"]`` is its name."""
+    path = Path(path)
+    try:
+        hp = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"hyperparameter file {path} not found") from None
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"hyperparameter file {path}: {exc}") from None
+    missing = required - set(hp)
+    if missing:
+        raise ValueError(f"hyperparameter file {path}: missing keys {', '.join(sorted(missing))}")
+    hp["file"] = path.name
+    return hp
 
 
 def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:

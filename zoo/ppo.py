@@ -20,7 +20,6 @@ import json
 import math
 import os
 import time
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,8 @@ from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 
 from .base import Decider, register
-from .common import WeightsError, evaluate, read_card, read_verified, sha256_bytes, training_config  # noqa: F401
+from .common import (WeightsError, evaluate, read_card, read_hyperparams, read_verified,  # noqa: F401
+                     sha256_bytes, training_config)
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
@@ -43,18 +43,7 @@ WEIGHTS_FORMAT = "overtakezoo-ppo/1"
 NUM_MODES = 3
 # ----------------------------------------------------------------------------- data
 def load_hyperparams(path: str | Path | None = None) -> dict[str, Any]:
-    path = Path(path) if path else HYPERPARAMS
-    try:
-        hp = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"hyperparameter file {path} not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"hyperparameter file {path}: {exc}") from None
-    missing = {"train", "env", "runner", "algorithm", "actor", "critic"} - set(hp)
-    if missing:
-        raise ValueError(f"hyperparameter file {path}: missing sections {', '.join(sorted(missing))}")
-    hp["file"] = path.name
-    return hp
+    return read_hyperparams(path or HYPERPARAMS, {"train", "env", "runner", "algorithm", "actor", "critic"})
 
 
 def train_cfg(hp: dict[str, Any]) -> dict[str, Any]:

@@ -26,7 +26,6 @@ import copy
 import csv
 import io
 import time
-import tomllib
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,7 @@ from torch import nn
 from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
 
-from .common import evaluate, read_card, sha256_bytes, training_config
+from .common import evaluate, read_card, read_hyperparams, sha256_bytes, training_config
 from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
@@ -54,20 +53,13 @@ class TrainError(ValueError):
 def load_hyperparams(algo: str, path: str | Path | None = None) -> dict[str, Any]:
     if algo not in ALGORITHMS:
         raise TrainError(f"unknown algorithm {algo!r} (expected one of {', '.join(ALGORITHMS)})")
-    path = Path(path) if path else HYPERPARAMS / f"{algo}.toml"
+    required = {"double", "steps", "num_envs", "action_repeat", "gamma", "lr", "batch_size", "buffer_size",
+                "learning_starts", "train_every", "target_update", "eps_start", "eps_end", "eps_fraction",
+                "huber_delta", "grad_clip", "hidden", "dueling", "action_mask", "threads"}
     try:
-        hp = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise TrainError(f"hyperparameter file {path} not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise TrainError(f"hyperparameter file {path}: {exc}") from None
-    missing = {"double", "steps", "num_envs", "action_repeat", "gamma", "lr", "batch_size", "buffer_size",
-               "learning_starts", "train_every", "target_update", "eps_start", "eps_end", "eps_fraction",
-               "huber_delta", "grad_clip", "hidden", "dueling", "action_mask", "threads"} - set(hp)
-    if missing:
-        raise TrainError(f"hyperparameter file {path}: missing keys {', '.join(sorted(missing))}")
-    hp["file"] = str(path.name)
-    return hp
+        return read_hyperparams(path or HYPERPARAMS / f"{algo}.toml", required)
+    except ValueError as exc:
+        raise TrainError(str(exc)) from None
 
 
 # ----------------------------------------------------------------------------- replay
