@@ -60,9 +60,6 @@ class NumpyBackend:
     def copy(self, x: np.ndarray) -> np.ndarray:
         return x.copy()
 
-    def rows_float32(self, x: np.ndarray) -> np.ndarray:
-        """A feature-major (D, N) array as a C-contiguous float32 (N, D) one."""
-        return np.ascontiguousarray(x.T, dtype=np.float32)
 
     def nonzero(self, mask: np.ndarray) -> np.ndarray:
         return np.flatnonzero(mask)
@@ -159,8 +156,6 @@ class TorchBackend:
     def copy(self, x: Any) -> Any:
         return x.clone()
 
-    def rows_float32(self, x: Any) -> Any:
-        return x.T.to(self.torch.float32).contiguous()
 
     def nonzero(self, mask: Any) -> Any:
         return self.torch.nonzero(mask).flatten()

@@ -110,23 +110,26 @@ def first_true(mask: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
     return xp.amin(xp.where(mask, index, length), axis=axis)
 
 
-def _lateral_window(y, v, offsets, dj, margin, lane_width, roll_in, tip, xp):
-    """Times [t0, t1] (R, M, N) during which the ego, driven at speed ``v`` along each rollout's
-    lateral profile (see :func:`lateral_profile`), is within ``margin`` of lateral position ``dj``."""
+def _swept_conflict(y, v, offsets, dj, margin, lane_width, roll_in, tip, t_from, t_to, xp):
+    """(R, M, N) bool: does the ego, driven at speed ``v`` along each rollout's lateral profile (see
+    :func:`lateral_profile`), come within ``margin`` of lateral position ``dj`` at some time in
+    [t_from, t_to] (M, N)? Sideways progress is monotone in time, so the window maps to a progress
+    interval [p_from, p_to] on each rollout; the test is its overlap with the vehicle's band."""
     delta = offsets - y  # (R, N) lateral travel to each end offset
     sign = xp.where(delta >= 0.0, 1.0, -1.0)
     span = xp.abs(delta)[:, None, :]
-    lat_speed = lane_width * v / roll_in  # (N,) m/s sideways once the roll-in starts
-    slow = lat_speed <= 1e-9
-    t_start = xp.where(slow, INF, tip / xp.where(slow, 1.0, v))  # the roll-in starts after the tip
-    inv_rate = 1.0 / xp.where(slow, 1.0, lat_speed)
-    # Sideways progress p in [0, span] with |y + sign p - dj| < margin  <=>  p in (lo, hi).
+    lat_speed = lane_width * v / roll_in  # (N,) m/s sideways once the roll-in starts (after the tip)
+    moving = lat_speed > 1e-9
+    t_start = tip / xp.where(moving, v, 1.0)
+    rate = xp.where(moving, lat_speed, 1.0)  # (a placeholder where standing: avoids inf * 0)
+    # Unclipped progress at the window's ends (M, N); a standing ego makes no progress.
+    u_from = xp.where(moving, (t_from - t_start) * rate, 0.0)
+    u_to = xp.where(moving, (t_to - t_start) * rate, 0.0)
+    p_from = xp.minimum(xp.maximum(u_from, 0.0), span)  # (R, M, N)
+    p_to = xp.minimum(xp.maximum(u_to, 0.0), span)
+    # In each rollout's signed frame the ego moves towards +p; the vehicle's band is rel +- margin.
     rel = (dj - y)[None, :, :] * sign[:, None, :]
-    lo, hi = rel - margin, rel + margin
-    hit = (hi > 0.0) & (lo < span)
-    t0 = xp.where(lo <= 0.0, 0.0, t_start + lo * inv_rate)
-    t1 = xp.where(hi >= span, INF, t_start + hi * inv_rate)
-    return xp.where(hit, t0, INF), xp.where(hit, t1, -INF)
+    return (p_to > rel - margin) & (p_from < rel + margin)
 
 
 def _longitudinal_window(dx, rel_v, reach, xp):
@@ -174,16 +177,16 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     lead_block = xp.any(inside & (ahead_same & (gap < avoid)), axis=1)
 
     # (b) predicted overlap with every other perceived vehicle within the horizon, solved in closed
-    # form: the lateral and the longitudinal overlap are each one time interval, so a conflict is
-    # their intersection inside [0, horizon] (exact in continuous time, and O(R M N), not O(R M N T)).
+    # form: the longitudinal overlap is one time interval, during which the ego sweeps one lateral
+    # interval per rollout; a conflict is that sweep touching the vehicle (exact in continuous time,
+    # and O(R M N), not O(R M N T)).
     roll_in = cfg.roll_in_speed_factor * v + cfg.roll_in_margin
-    lat_t0, lat_t1 = _lateral_window(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, xp)
     rel_v = npc["v_along"] * cfg.enable_prediction - v  # (M, N) NPC speed relative to the ego
     lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, half_len + cfg.vertical_safety, xp)
-    start = xp.maximum(xp.maximum(lat_t0, lon_t0), 0.0)
-    end = xp.minimum(xp.minimum(lat_t1, lon_t1), cfg.horizon_time)
-    watch = visible & ~ahead_same
-    pred_block = xp.any((start <= end) & watch, axis=1)
+    t_from, t_to = xp.maximum(lon_t0, 0.0), xp.minimum(lon_t1, cfg.horizon_time)
+    watch = visible & ~ahead_same & (t_from <= t_to)  # (M, N): longitudinally in reach in the horizon
+    swept = _swept_conflict(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, t_from, t_to, xp)
+    pred_block = xp.any(swept & watch, axis=1)
     blocked = lead_block | pred_block  # (R, N)
 
     # Costs, normalized over the allowed rollouts.
