@@ -95,6 +95,8 @@ class OvertakeCore:
         self.stats = {key: xp.zeros(n, xp.int if key in ("aborts", "switches") else None) for key in _STAT_INIT}
         self._npc_s, self._npc_v, self._npc_a, self._npc_aware = (xp.zeros((m, n)) for _ in range(4))
         self._npc_boosted = xp.zeros((m, n), xp.bool)
+        if self.auto_reset:  # auto-reset rewrites rows of the batch in place: keep a private copy
+            scenarios = Scenarios.from_arrays({k: v.copy() for k, v in scenarios.to_arrays().items()})
         self.scen = scenarios
         self._set_scenarios(scenarios)
         self._start_rows(xp.arange(n), scenarios)
@@ -155,11 +157,8 @@ class OvertakeCore:
             raise ValueError("auto-reset scenarios have more NPC slots than the batch")
         fresh = fresh.pad_npcs(self.scen.num_npcs)
         host_rows = self.xp.to_numpy(rows)
-        arrays = self.scen.to_arrays()
-        for name, value in fresh.to_arrays().items():
-            arrays[name] = arrays[name].copy()
-            arrays[name][host_rows] = value
-        self.scen = Scenarios.from_arrays(arrays)
+        for name, value in fresh.to_arrays().items():  # in place: the batch's Scenarios is private
+            getattr(self.scen, name)[host_rows] = value
         self._set_scenarios(fresh, rows)
         self._start_rows(rows, fresh)
         if self.last_plan is not None:  # a new episode starts with no planner flags, as after reset()
