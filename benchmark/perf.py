@@ -50,7 +50,8 @@ def pettingzoo_steps_per_second(seconds: float = 3.0, seed: int = 0) -> float:
 
 
 def suite_wall_time(suite: str, decider: str) -> dict[str, Any]:
-    """Wall time of a whole suite run, end to end (scenario generation and decider included)."""
+    """Wall time of a whole suite run in the runner (scenario generation and decider included;
+    process start-up and imports not)."""
     from overtakezoo import zoo
     from overtakezoo.benchmark.runner import run_suite
     from overtakezoo.benchmark.suites import load_suite
@@ -164,7 +165,8 @@ def to_markdown(report: dict[str, Any]) -> str:
         lines.append(f"| one PettingZoo env | {report['pettingzoo_steps_per_s']:,} steps/s |")
     for row in report.get("suites", []):
         value = f"{row['wall_time_s']} s" if "wall_time_s" in row else f"not measured: {row['error']}"
-        lines.append(f"| {row['suite']} ({row.get('scenarios', '?')} scenarios) with {row['decider']}, end to end | {value} |")
+        lines.append(f"| {row['suite']} ({row.get('scenarios', '?')} scenarios) with {row['decider']}, whole run in "
+                     f"the runner (scenarios, decider, simulation) | {value} |")
     if report.get("peak_memory_mib_per_1000_scenarios") is not None:
         lines.append(f"| peak memory of a table1 run (rule-fsm), per 1000 scenarios | "
                      f"{report['peak_memory_mib_per_1000_scenarios']} MiB |")
