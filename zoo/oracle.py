@@ -29,15 +29,10 @@ from .base import Decider, register
 CAND_OVERTAKE, CAND_RETREAT = 0, 1
 
 
-def clone_rows(core, rows: np.ndarray):
-    """An independent copy of ``rows`` of ``core`` for look-ahead (the core's own ``clone``)."""
-    return core.clone(rows)
-
-
 def simulate(core, rows: np.ndarray, cand: np.ndarray, retreat_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Simulate candidate ``cand[i]`` from the live state of ``rows[i]`` (one batch); returns the
     outcome of each copy (RUNNING for a retreat that survived its horizon) and the time it ended."""
-    sim = clone_rows(core, rows)
+    sim = core.clone(rows)
     lane_w = sim.scen.lane_width
     retreat = cand == CAND_RETREAT
     steps = 0
