@@ -1,7 +1,8 @@
 """Run a decider on a suite: the whole suite as one batch (in chunks to bound memory).
 
-The decider acts every ``decision_interval`` steps on the batch's observations; finished rows are
-frozen by the core, so the loop simply steps until every row is done.
+The runner applies the action hold (``overtakezoo.envs.hold``): the decider acts on the batch's
+observations, and each decision is held for ``hold_steps(decision_interval, decider.action_repeat)``
+core steps; finished rows are frozen by the core, so the loop simply steps until every row is done.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from overtakezoo.envs import OvertakeCore
+from overtakezoo.envs.hold import hold, hold_steps
 
 from .results import PER_SCENARIO, Results, round_per_scenario
 from .suites import Suite, shard_bounds
@@ -37,7 +39,7 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
     cfg = suite.config
-    interval = cfg.decision_interval
+    held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
     max_steps = int(math.ceil(float(np.max(scenarios.time_limit)) / cfg.dt)) + 10
     parts: list[dict[str, np.ndarray]] = []
@@ -55,18 +57,15 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
                 decider.bind(core)
             if recorder is not None:
                 recorder.begin_chunk(core, np.arange(start + lo, start + lo + chunk.num))
-            modes, step = None, 0
+            record = None if recorder is None else (lambda modes, res: recorder.record_step(core, modes, res))
+            step = 0
             while not core.done.all():
                 if step >= max_steps:
                     raise RuntimeError(f"rows still running after {max_steps} steps (time limit not enforced?)")
-                if step % interval == 0:  # between decisions the last modes are held
-                    modes = np.asarray(decider.act(obs), dtype=np.int64)
-                result = core.step(modes)
-                if recorder is not None:
-                    recorder.record_step(core, modes, result)
-                obs = result.obs
-                bar.update(int(np.count_nonzero(result.info["_finished"])))
-                step += 1
+                res = hold(core, decider.act(obs), held, on_step=record)
+                obs = res.obs
+                bar.update(int(np.count_nonzero(res.finished)))
+                step += res.steps
             total_steps += step
             if recorder is not None:
                 recorder.end_chunk(core)

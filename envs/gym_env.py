@@ -19,7 +19,8 @@ from gymnasium import spaces
 from .config import MODE_NAMES, EnvConfig
 from .core import OvertakeCore
 from .face_render import RendersFirstRow
-from .pettingzoo_env import as_config, repeat_step, row_info, single_ego
+from .hold import hold
+from .pettingzoo_env import as_config, row_info, single_ego
 from .scenarios import ScenarioDistribution, Scenarios
 
 ENV_ID = "overtakezoo/Overtake-v0"
@@ -62,7 +63,8 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
         return obs, row_info(self.core.info(), 0)
 
     def step(self, action: Any):
-        res = repeat_step(self.core, np.array([action], dtype=np.int64), None, self.config.decision_interval)
+        # One env step holds the action for decision_interval core steps (rewards summed).
+        res = hold(self.core, np.array([action], dtype=np.int64), self.config.decision_interval)
         if self.render_mode == "human":
             self.render()
         return (res.obs[0], float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0]),

@@ -35,8 +35,9 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from .config import MODE_NAMES, ConfigError, EnvConfig
-from .core import OUTCOME_NAMES, OvertakeCore, StepResult
+from .core import OUTCOME_NAMES, OvertakeCore
 from .face_render import RendersFirstRow
+from .hold import hold
 from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
@@ -53,24 +54,6 @@ def as_config(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any
     if config is not None and not isinstance(config, dict):
         raise ConfigError(f"config: expected an EnvConfig or a dict, got {type(config).__name__}")
     return EnvConfig.from_dict(config, **overrides)
-
-
-def repeat_step(core: OvertakeCore, modes: np.ndarray, npc_accel: np.ndarray | None, repeat: int) -> StepResult:
-    """``repeat`` core steps under the same actions (``decision_interval``: the decider acts every k
-    steps, as in the benchmark runner), rewards summed. Needs ``auto_reset=False``: a row that ends
-    mid-way is frozen by the core (zero reward after its final step) until the others are done."""
-    res = core.step(modes, npc_accel)
-    if repeat == 1:
-        return res
-    reward, terminated, truncated = res.reward.copy(), res.terminated.copy(), res.truncated.copy()
-    for _ in range(repeat - 1):
-        if core.done.all():
-            break
-        res = core.step(modes, npc_accel)
-        reward += res.reward
-        terminated |= res.terminated
-        truncated |= res.truncated
-    return StepResult(res.obs, reward, terminated, truncated, None, res.info)
 
 
 def single_ego(config: EnvConfig, face: str) -> EnvConfig:
@@ -178,7 +161,8 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             for a in live_npcs:
                 if actions.get(a) is not None:
                     npc_accel[0, int(a[4:])] = NPC_ACCELERATIONS[int(actions[a])]
-        res = repeat_step(self.core, modes, npc_accel, self.config.decision_interval)
+        # One env step holds the actions for decision_interval core steps (rewards summed).
+        res = hold(self.core, modes, self.config.decision_interval, npc_accel)
 
         obs, rew, term, trunc, infos = {}, {}, {}, {}, {}
         for a in live:

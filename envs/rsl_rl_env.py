@@ -4,7 +4,8 @@ One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios;
 refilled from ``source``. The action is one column holding the mode index as a float (what a
 categorical action distribution samples); observations are a TensorDict with one group,
 ``"policy"``, which the runner's ``obs_groups`` route to both actor and critic. With
-``action_repeat`` = k one env step holds the decision for k core steps (rewards summed).
+``action_repeat`` = k one env step holds the decision for k core steps (:func:`.hold.hold`,
+rewards summed).
 
 rsl-rl and torch are optional dependencies (the ``train`` extra); nothing else in ``envs`` needs
 them, so this module is imported explicitly, never from ``overtakezoo.envs``.
@@ -25,6 +26,7 @@ from rsl_rl.env import VecEnv  # noqa: E402
 
 from .config import EnvConfig  # noqa: E402
 from .core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
+from .hold import hold  # noqa: E402
 from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
 
 Source = Callable[[int, np.random.Generator], Scenarios]
@@ -79,20 +81,10 @@ class OvertakeRslRlEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         modes = actions.detach().reshape(self.num_envs, -1)[:, 0].round().clamp(0, 2).to("cpu", torch.int64).numpy()
-        n = self.num_envs
-        reward, finished = np.zeros(n), np.zeros(n, bool)
-        truncated, outcome, crash_lane = np.zeros(n, bool), np.zeros(n, np.int8), np.full(n, -1)
-        for _ in range(self.action_repeat):
-            # A row whose episode ended during the repeat has been refilled: it follows (the reset
-            # mode) until the next decision; those few steps' rewards belong to no decision and are dropped.
-            res = self.core.step(np.where(finished, 0, modes))
-            live = ~finished
-            reward += np.where(live, res.reward, 0.0)
-            ended = live & res.info["_finished"]
-            truncated |= ended & res.truncated
-            outcome = np.where(ended, res.info["outcome"], outcome)
-            crash_lane = np.where(ended, res.info["crash_lane"], crash_lane)
-            finished |= ended
+        # A row whose episode ended during the hold has been refilled: it follows (the reset mode)
+        # until the next decision; those few steps' rewards belong to no decision and are dropped.
+        res = hold(self.core, modes, self.action_repeat)
+        reward, finished, truncated = res.reward, res.finished, res.truncated
         self._obs = res.obs
         dev = self.device
         self.episode_length_buf += 1
@@ -101,7 +93,7 @@ class OvertakeRslRlEnv(VecEnv):
         extras: dict = {"time_outs": torch.as_tensor(time_outs, dtype=torch.float32, device=dev)}
         if finished.any():
             # Per finished episode indicators: the runner's logger averages them over an iteration.
-            out, lane = outcome[finished], crash_lane[finished]
+            out, lane = res.final_info["outcome"][finished], res.final_info["crash_lane"][finished]
             crash = out == CRASH
             rates = {"success": out == SUCCESS, "crash": crash, "crash_ego_lane": crash & (lane != OPPOSITE_LANE),
                      "crash_opposite_lane": crash & (lane == OPPOSITE_LANE), "timeout": out == TIMEOUT,

@@ -13,6 +13,7 @@ from overtakezoo.benchmark.suites import load_suite
 
 from overtakezoo import zoo
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario
+from overtakezoo.envs.hold import hold, hold_steps
 from overtakezoo.zoo.dqn import (PRETRAINED, DQNDecider, QNetwork, WeightsError, action_mask, load_pretrained,
                                  td_targets)
 
@@ -97,11 +98,15 @@ def test_pretrained_overtakes_a_clear_road_and_waits_for_close_oncoming_traffic(
     core = OvertakeCore(EnvConfig())
     obs = core.reset(Scenarios.concat([clear, blocked]))
     dec.reset()
-    lateral_while_oncoming_ahead = 0.0
-    while not core.done.all():
-        obs = core.step(dec.act(obs)).obs
-        if core.npc_s[1, 1] > core.x[1]:  # the oncoming car has not passed the ego yet
-            lateral_while_oncoming_ahead = max(lateral_while_oncoming_ahead, core.y[1])
+    lateral = []  # the ego's offset while the oncoming car has not passed it yet
+
+    def watch(modes, res):
+        if core.npc_s[1, 1] > core.x[1]:
+            lateral.append(core.y[1])
+
+    while not core.done.all():  # each decision held as the runner holds it
+        obs = hold(core, dec.act(obs), hold_steps(1, dec.action_repeat), on_step=watch).obs
+    lateral_while_oncoming_ahead = max(lateral, default=0.0)
     np.testing.assert_array_equal(core.outcome, [SUCCESS, SUCCESS])
     assert lateral_while_oncoming_ahead < 0.5  # stayed in its lane until the oncoming car passed
     assert core.t[0] < core.t[1]  # waiting costs time
@@ -125,20 +130,15 @@ def test_load_refuses_truncated_and_modified_weights(tmp_path):
         load_pretrained("dqn", directory=d)
 
 
-def test_decider_holds_its_decision_for_the_action_repeat():
+def test_decider_is_stateless_and_declares_its_hold_for_the_runner():
     cfg = EnvConfig()
     dec = DQNDecider(QNetwork(32, [8]), config=cfg, action_repeat=3)
+    assert dec.action_repeat == 3 and zoo.load("dqn").action_repeat == 10  # the model card's
     core = OvertakeCore(cfg)
     obs = core.reset(ScenarioDistribution().sample(4, 2))
-    calls = []
-    greedy = dec.greedy
-    dec.greedy = lambda o: (calls.append(len(o)), greedy(o))[1]
-    for _ in range(7):
-        dec.act(obs)
-    assert calls == [4, 4, 4]  # decides at steps 0, 3, 6
-    dec.reset(np.array([True, False, False, False]))
-    dec.act(obs)
-    assert calls[-1] == 1  # only the reset row decides afresh
+    first = dec.act(obs)
+    np.testing.assert_array_equal(dec.act(obs), first)  # no countdown: same input, same modes
+    assert [dec.act(o) for o in obs] == first.tolist()  # one observation (D,) -> int
 
 
 def _success(net_or_card, algo, suite):

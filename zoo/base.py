@@ -10,21 +10,38 @@ from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig
 
 
 class Decider:
-    """Maps a batch of observations (N, D) to a batch of modes (N,): 0 follow, 1 overtake, 2 abort.
+    """Maps observations to modes: 0 follow, 1 overtake, 2 abort.
 
-    Subclasses set ``name`` and ``version`` and implement :meth:`act`. ``reset(mask)`` is called with
-    the rows whose episodes (re)start, so stateful deciders can clear them. Privileged deciders (the
-    oracle) set ``privileged = True`` and receive the simulation core through :meth:`bind` before
-    the first step; every other decider sees observations only.
+    The protocol (every zoo member, and what ``overtakezoo.zoo.testing.check_decider`` checks):
+
+    - ``act(obs)``: one observation (D,) -> a Python ``int``; a batch (N, D) -> an (N,) int64 array.
+    - ``reset(mask)``: forget per-row state for the rows in ``mask`` (all rows when None); the
+      runner calls it when episodes (re)start.
+    - ``action_repeat``: core steps each decision was made for (from training); the benchmark runner
+      holds every decision that long (``overtakezoo.envs.hold``), so a decider never counts steps.
+
+    Subclasses set ``name`` and ``version`` and implement the batch form, :meth:`act_batch`; the
+    single-observation form is derived here. (A subclass that overrides ``act`` itself is taken to
+    have written the batch form and is wrapped the same way.) Privileged deciders (the oracle) set
+    ``privileged = True`` and receive the simulation core through :meth:`bind` before the first
+    step; every other decider sees observations only.
     """
 
     name: str = "decider"
     version: str = "1"
     privileged: bool = False
     weights_sha256: str | None = None
+    action_repeat: int = 1
 
     def __init__(self, config: EnvConfig | None = None) -> None:
         self.config = config or EnvConfig()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("act")
+        if own is not None and own is not Decider.act:  # act written in batch form: derive the rest
+            cls.act_batch = own
+            cls.act = Decider.act
 
     def bind(self, core: Any) -> None:  # only privileged deciders use the core
         self.core = core
@@ -32,12 +49,32 @@ class Decider:
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget any per-row state for rows in ``mask`` (all rows when None)."""
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act(self, obs: np.ndarray) -> Any:
+        """One observation (D,) -> int; a batch (N, D) -> (N,) int64."""
+        return act_with(self.act_batch, obs, self.name)
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        """(N, D) observations -> (N,) modes."""
         raise NotImplementedError
 
     def card(self) -> str:
         """A one-paragraph model card."""
         return (self.__doc__ or self.name).strip().splitlines()[0]
+
+
+def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider") -> Any:
+    """The decider protocol around a batch function: (D,) -> int through a batch of one, (N, D) ->
+    (N,) int64; anything else is a ValueError naming the shape."""
+    obs = np.asarray(obs)
+    if obs.ndim not in (1, 2):
+        raise ValueError(f"{who}: act expects one observation (D,) or a batch (N, D), got shape {obs.shape}")
+    batch = obs[None] if obs.ndim == 1 else obs
+    modes = np.asarray(act_batch(batch))
+    if modes.shape != (batch.shape[0],):
+        raise ValueError(f"{who}: act returned shape {modes.shape} for {batch.shape[0]} observation(s); "
+                         f"expected ({batch.shape[0]},)")
+    modes = modes.astype(np.int64, copy=False)
+    return int(modes[0]) if obs.ndim == 1 else modes
 
 
 class ConstantDecider(Decider):
@@ -47,7 +84,7 @@ class ConstantDecider(Decider):
         super().__init__(config)
         self.mode, self.name = mode, name
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
         return np.full(obs.shape[0], self.mode, dtype=np.int64)
 
     def card(self) -> str:

@@ -3,11 +3,10 @@
 The paper's method (Malayjerdi et al.): a Q-network picks follow / overtake / abort; training is in
 :mod:`overtakezoo.zoo.train_dqn`. Two choices of ours, both recorded in each model card:
 
-- **Action repeat** (``action_repeat`` = k): a decision is held for k core steps (k * dt seconds).
-  The decider keeps a per-row countdown so evaluation behaves exactly as training did;
-  ``reset(mask)`` clears it, so a (re)starting row decides on its first observation. Where the
-  configuration's ``decision_interval`` already holds each ``act`` for several steps, the countdown
-  runs in calls (k / decision_interval of them).
+- **Action repeat** (``action_repeat`` = k): a decision is held for k core steps (k * dt seconds),
+  in training and in evaluation. The decider only declares k (from its model card); the hold itself
+  is applied by whoever steps the core (``overtakezoo.envs.hold``: the benchmark runner, the
+  trainer), combined with the configuration's ``decision_interval``.
 - **Float64 inference**: float32 Q-values move by ~1e-6 with the batch's composition, enough to
   flip a near-tie argmax; in float64 a result does not depend on how rows happen to be batched.
 - **Action mask** (a mode-transition rule, the same in training and evaluation): ABORT is only
@@ -129,7 +128,8 @@ def load_weights(weights: str | Path, card: dict[str, Any]) -> QNetwork:
 
 
 class DQNDecider(Decider):
-    """Q-network decider: argmax Q over the allowed modes, held for ``action_repeat`` core steps."""
+    """Q-network decider: argmax Q over the allowed modes (each decision held ``action_repeat`` core
+    steps by the runner)."""
 
     privileged = False
 
@@ -146,39 +146,17 @@ class DQNDecider(Decider):
         self.mask_version = int(self.model_card.get("action_mask_version", MASK_VERSION))
         self.version = str(self.model_card.get("version", "1"))
         self.weights_sha256 = self.model_card.get("weights_sha256")
-        self._count: np.ndarray | None = None  # core steps left on each row's held decision
-        self._held: np.ndarray | None = None
-
-    def reset(self, mask: np.ndarray | None = None) -> None:
-        if self._count is None:
-            return
-        if mask is None:
-            self._count = None
-        else:
-            self._count[np.asarray(mask)] = 0
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
             return self._infer(torch.as_tensor(np.asarray(obs), dtype=torch.float64)).numpy()
 
-    def greedy(self, obs: np.ndarray) -> np.ndarray:
-        """Argmax Q over the allowed modes, ignoring the action repeat."""
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        """Argmax Q over the allowed modes (stateless: the hold is the runner's)."""
         with torch.no_grad():
             t = torch.as_tensor(np.asarray(obs), dtype=torch.float64)
             mask = action_mask(t, self.config, self.mask_version) if self.use_mask else None
             return masked_argmax(self._infer(t), mask).numpy().astype(np.int64)
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        if self._count is None or self._count.shape[0] != n:
-            self._count = np.zeros(n, np.int64)
-            self._held = np.full(n, FOLLOW, np.int64)
-        due = self._count <= 0
-        if due.any():
-            self._held[due] = self.greedy(obs[due])
-            self._count[due] = max(1, round(self.action_repeat / self.config.decision_interval))
-        self._count -= 1
-        return self._held.copy()
 
     def card(self) -> str:
         c = self.model_card

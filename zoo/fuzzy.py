@@ -229,7 +229,7 @@ class FuzzyDecider(Decider):
         ego_travel = v_e * t_b - d * t_b ** 2 / 2 + v_ab * np.maximum(t_a - t1, 0.0)
         return ego_travel + v_2 * t_a + p.clearance
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
         if self.mode.shape[0] != obs.shape[0]:
             self.mode = np.full(obs.shape[0], FOLLOW, np.int64)

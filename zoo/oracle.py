@@ -1,6 +1,6 @@
 """``oracle``: a privileged upper bound that searches the future by simulating it.
 
-Every ``replan_s`` seconds, for the rows where a decision is still open, the oracle clones those
+Every ``replan_s`` seconds (its ``action_repeat``: the runner holds each decision that long), for the rows where a decision is still open, the oracle clones those
 rows of the live core (``OvertakeCore.clone``: every state array, the NPCs' hidden state
 included) and simulates candidate policies forward in one batch (all rows x all candidates, no
 loop over scenarios):
@@ -57,8 +57,7 @@ class Oracle(Decider):
     def __init__(self, config: EnvConfig | None = None, replan_s: float = 1.0, retreat_horizon_s: float = 8.0,
                  trust_verified: bool = True) -> None:
         super().__init__(config)
-        step_s = self.config.dt * self.config.decision_interval
-        self.every = max(1, int(round(replan_s / step_s)))
+        self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
         self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
         self.trust_verified = trust_verified
         self.core = None
@@ -67,7 +66,6 @@ class Oracle(Decider):
 
     def _size(self, n: int) -> None:
         self.decision = np.full(n, FOLLOW, np.int64)
-        self.countdown = np.zeros(n, np.int64)
         self.verified = np.zeros(n, bool)
 
     def bind(self, core) -> None:
@@ -80,10 +78,9 @@ class Oracle(Decider):
             return
         mask = np.asarray(mask, bool)
         self.decision[mask] = FOLLOW
-        self.countdown[mask] = 0
         self.verified[mask] = False
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
         core = self.core
         if core is None:
             raise RuntimeError("the oracle is privileged: call bind(core) after core.reset")
@@ -92,12 +89,10 @@ class Oracle(Decider):
             raise ValueError(f"observation has {n} rows but the bound core has {core.num}")
         if self.decision.shape[0] != n:
             self._size(n)
-        due = ~core.done & (self.countdown <= 0) & ~(self.verified & self.trust_verified)
-        self.countdown -= 1
+        due = ~core.done & ~(self.verified & self.trust_verified)
         rows = np.flatnonzero(due)
         if rows.size:
             self._replan(rows)
-            self.countdown[rows] = self.every - 1
         return self.decision.copy()
 
     def _replan(self, rows: np.ndarray) -> None:

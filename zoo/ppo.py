@@ -102,37 +102,17 @@ class PPODecider(Decider):
         self.model_card = card or {}
         self.version = str(self.model_card.get("version", "1"))
         self.weights_sha256 = self.model_card.get("weights_sha256")
-        # A decision is held for action_repeat core steps, exactly as in training.
+        # Core steps each decision is held, exactly as in training (the runner applies the hold).
         self.action_repeat = int(action_repeat or self.model_card.get("action_repeat", 1))
-        self._count: np.ndarray | None = None  # core steps left on each row's held decision
-        self._held: np.ndarray | None = None
-
-    def reset(self, mask: np.ndarray | None = None) -> None:
-        if self._count is None or mask is None:
-            self._count = None
-        else:
-            self._count[np.asarray(mask)] = 0
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
             x = self.actor.obs_normalizer(torch.as_tensor(np.asarray(obs), dtype=torch.float32))
             return self.actor.mlp(x).numpy()
 
-    def greedy(self, obs: np.ndarray) -> np.ndarray:
-        """Argmax of the policy logits, ignoring the action repeat."""
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        """Argmax of the policy logits (stateless: the hold is the runner's)."""
         return self.logits(obs).argmax(axis=1).astype(np.int64)
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        if self._count is None or self._count.shape[0] != n:
-            self._count = np.zeros(n, np.int64)
-            self._held = np.zeros(n, np.int64)
-        due = self._count <= 0
-        if due.any():
-            self._held[due] = self.greedy(obs[due])
-            self._count[due] = self.action_repeat
-        self._count -= 1
-        return self._held.copy()
 
     def card(self) -> str:
         c = self.model_card
@@ -167,12 +147,16 @@ register("ppo", lambda config=None, **kw: load_pretrained(config, **kw))
 
 # ----------------------------------------------------------------------------- evaluation
 def rollout(decider: Decider, config: EnvConfig, scenarios: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every scenario run to its end under ``decider`` (one batch): outcome, crash lane, completion time."""
+    """Every scenario run to its end under ``decider`` (one batch, each decision held as the runner
+    holds it): outcome, crash lane, completion time."""
+    from overtakezoo.envs.hold import hold, hold_steps
+
     core = OvertakeCore(config)
     obs = core.reset(scenarios)
     decider.reset()
+    steps = hold_steps(config.decision_interval, decider.action_repeat)
     while not core.done.all():
-        obs = core.step(decider.act(obs)).obs
+        obs = hold(core, decider.act(obs), steps).obs
     return core.outcome, core.crash_lane, core.stats["completion_time"]
 
 

@@ -87,7 +87,7 @@ class RuleFSM(Decider):
         self.mode[mask] = FOLLOW
         self.count[mask] = 0
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
         self._ensure(obs.shape[0])
         blocked = obs[:, self.layout["blocked"]] > 0.5  # (N, n + 1); 0 = ego-lane centre

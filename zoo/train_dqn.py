@@ -1,11 +1,12 @@
 """Training loop for the DQN / Double DQN deciders: many scenarios stepped in parallel in one process.
 
 One :class:`~overtakezoo.envs.OvertakeCore` holds ``num_envs`` rows with ``auto_reset=True``; a
-finished row is refilled with a scenario drawn from the training suite. Every row keeps its own
-decision countdown (``action_repeat`` core steps per decision, the same rule the decider applies at
-evaluation). When a row's decision ends -- its countdown runs out or its episode ends -- the
-transition (obs, mode, summed reward, next obs, done) goes into a numpy ring buffer, all such rows
-in one vectorized insert; ``next obs`` of a finished row is the core's ``final_obs``.
+finished row is refilled with a scenario drawn from the training suite. Every row decides at once
+and each decision is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same hold
+the benchmark runner applies at evaluation). Each decision gives one transition (obs, mode, summed
+reward, next obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs``
+of a row whose episode ended during the hold is its final observation (the refilled row follows
+until the next decision, and those steps belong to no transition).
 
 Learning: epsilon-greedy (linear decay over the first ``eps_fraction`` of the steps), Huber loss,
 Adam, gradient-norm clipping, a target network copied every ``target_update`` gradient steps; the
@@ -36,6 +37,7 @@ from torch import nn
 
 from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
+from overtakezoo.envs.hold import hold
 
 from .common import evaluate, read_card, read_hyperparams, sha256_bytes, training_config
 from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
@@ -133,10 +135,6 @@ class Trainer:
         self.core = OvertakeCore(self.config, auto_reset=True, source=pick, seed=self._core_seed)
         n = int(self.hp["num_envs"])
         self.obs = self.core.reset(pick(n, self.core.rng))
-        self.count = np.zeros(n, np.int64)  # core steps left on each row's decision
-        self.pend_obs = np.zeros_like(self.obs)
-        self.pend_act = np.zeros(n, np.int64)
-        self.pend_rew = np.zeros(n, np.float32)
 
     def epsilon(self) -> float:
         hp = self.hp
@@ -155,34 +153,25 @@ class Trainer:
         explore = self.rng.random(len(obs)) < self.epsilon()
         return np.where(explore, rand, greedy).astype(np.int64)
 
-    def _env_step(self) -> None:
+    def _env_step(self) -> int:
+        """One decision of every row, held ``action_repeat`` core steps; returns the core steps taken."""
         hp = self.hp
-        due = self.count <= 0
-        if due.any():
-            self.pend_obs[due] = self.obs[due]
-            self.pend_act[due] = self._choose(self.obs[due])
-            self.pend_rew[due] = 0.0
-            self.count[due] = hp["action_repeat"]
-        res = self.core.step(self.pend_act)
-        self.core_steps += 1
-        self.count -= 1
+        act = self._choose(self.obs)
+        res = hold(self.core, act, int(hp["action_repeat"]))
+        self.core_steps += res.steps
         # An optional cost per core step of a running episode: time spent following is not free.
-        self.pend_rew += res.reward.astype(np.float32) - np.float32(hp.get("time_penalty", 0.0))
-        finished = res.info["_finished"]
-        emit = finished | (self.count <= 0)
-        if emit.any():
-            next_obs = res.obs if res.final_obs is None else np.where(finished[:, None], res.final_obs, res.obs)
-            done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
-            rows = np.flatnonzero(emit)
-            self.buffer.add(self.pend_obs[rows], self.pend_act[rows], self.pend_rew[rows], next_obs[rows],
-                            done[rows].astype(np.float32))
-            self.transitions += len(rows)
-        self.count[finished] = 0  # a refilled row decides on its first observation
+        reward = (res.reward - float(hp.get("time_penalty", 0.0)) * res.live_steps).astype(np.float32)
+        finished = res.finished
+        next_obs = res.obs if res.final_obs is None else np.where(finished[:, None], res.final_obs, res.obs)
+        done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
+        self.buffer.add(self.obs, act, reward, next_obs, done.astype(np.float32))
+        self.transitions += len(act)
         if finished.any():
-            out = res.info["outcome"][finished]
+            out = res.final_info["outcome"][finished]
             self.recent.extend(out.tolist())
             self.episodes += int(finished.sum())
         self.obs = res.obs
+        return res.steps
 
     # --- learning
     def _learn(self) -> None:
@@ -223,10 +212,12 @@ class Trainer:
         log = _CsvLog(out / "log.csv") if out else None
         t0 = time.perf_counter() - self.wall
         while self.transitions < steps:
-            before = self.transitions
+            before, steps_before = self.transitions, self.core_steps
             self._env_step()
-            if self.buffer.size >= hp["learning_starts"] and self.core_steps % hp["train_every"] == 0:
-                for _ in range(int(hp.get("gradient_steps", 1))):
+            # A gradient step every `train_every` core steps, as many as the hold spanned.
+            due = self.core_steps // hp["train_every"] - steps_before // hp["train_every"]
+            if self.buffer.size >= hp["learning_starts"]:
+                for _ in range(due * int(hp.get("gradient_steps", 1))):
                     self._learn()
             self.wall = time.perf_counter() - t0
             if bar is not None and self.transitions > before:

@@ -1,0 +1,90 @@
+"""The action hold: one decision drives the core for several steps. The one implementation used by
+the benchmark runner, the Gymnasium / PettingZoo faces, the rsl-rl face and the DQN trainer.
+
+A decision is held for :func:`hold_steps` core steps: the configuration's ``decision_interval``
+(how often the benchmark lets a decider act) rounded to the multiple of it nearest the decider's own
+``action_repeat`` (how many steps each decision was held in training). :func:`hold` then steps the
+core that many times under the same modes.
+
+A row whose episode ends during the hold stops counting: its reward, termination and (on an
+auto-reset core) its final observation and info are those of its own episode. On a core without
+auto-reset the finished row is frozen by the core; on an auto-reset core the refilled row follows
+(the reset mode) until the hold ends, and those steps belong to no decision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .config import FOLLOW
+from .core import OvertakeCore, StepResult
+
+
+def hold_steps(decision_interval: int, action_repeat: int = 1) -> int:
+    """Core steps one decision is held: ``decision_interval`` times ``round(action_repeat /
+    decision_interval)``, at least one interval (a decider trained at 10 steps per decision under a
+    suite deciding every step is held 10 steps; under a suite deciding every 4 steps, 8)."""
+    interval, repeat = int(decision_interval), int(action_repeat)
+    if interval < 1 or repeat < 1:
+        raise ValueError(f"decision_interval and action_repeat must be >= 1, got {interval} and {repeat}")
+    return interval * max(1, round(repeat / interval))
+
+
+@dataclass
+class HeldStep:
+    """What :func:`hold` returns; every array has one entry per row."""
+
+    obs: np.ndarray  # (N, D) after the last step (a refilled row's new episode on an auto-reset core)
+    reward: np.ndarray  # (N,) summed over the row's own steps
+    terminated: np.ndarray  # (N,) bool: the row's episode terminated during the hold
+    truncated: np.ndarray  # (N,) bool: ... or hit its time limit
+    finished: np.ndarray  # (N,) bool: terminated | truncated
+    live_steps: np.ndarray  # (N,) int: core steps the row's episode ran during the hold
+    final_obs: np.ndarray | None  # (N, D) the finished rows' last observation (auto-reset cores only)
+    final_info: dict[str, np.ndarray] | None  # per-row info at each finished row's end (auto-reset only)
+    info: dict[str, np.ndarray]  # the last step's info
+    steps: int  # core steps taken (fewer than asked when every row was done)
+
+
+def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | None = None,
+         on_step: Callable[[np.ndarray, StepResult], None] | None = None) -> HeldStep:
+    """Step ``core`` ``steps`` times under ``modes`` (and ``npc_accel``), stopping early once every
+    row is done. ``on_step(modes, result)`` sees every core step (e.g. a recorder)."""
+    modes = np.asarray(modes, dtype=np.int64).reshape(-1)
+    n = modes.shape[0]
+    reward = np.zeros(n)
+    terminated, truncated, ended = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    live_steps = np.zeros(n, np.int64)
+    final_obs, final_info = None, None
+    res, taken = None, 0
+    for _ in range(int(steps)):
+        if taken and core.done.all():
+            break
+        # Rows running at this step: a held core freezes its finished rows (zero reward); an
+        # auto-reset row that ended is refilled, and its new episode is not this decision's.
+        active = ~ended if core.auto_reset else ~ended & ~np.asarray(core.done)
+        step_modes = np.where(ended, FOLLOW, modes) if core.auto_reset and ended.any() else modes
+        res = core.step(step_modes, npc_accel)
+        taken += 1
+        if on_step is not None:
+            on_step(step_modes, res)
+        reward += np.where(active, res.reward, 0.0)
+        live_steps += active
+        now = active & res.info["_finished"]
+        terminated |= now & res.terminated
+        truncated |= now & res.truncated
+        if core.auto_reset and now.any():
+            if final_obs is None:
+                final_obs = np.array(res.obs)
+                final_info = {k: np.array(v) for k, v in res.info.items() if k[0] != "_"}
+            final_obs[now] = res.final_obs[now]
+            for k in final_info:
+                final_info[k][now] = res.info[k][now]
+        ended |= now
+    if res is None:
+        raise ValueError("hold: steps must be >= 1 (and the core reset)")
+    return HeldStep(res.obs, reward, terminated, truncated, ended, live_steps, final_obs, final_info, res.info,
+                    taken)
