@@ -1,0 +1,157 @@
+"""The decider protocol (act on (D,) and (N, D), reset(mask)), its conformance checker, and the one
+action hold (envs/hold.py) that the runner, the faces and the trainers share."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from overtakezoo import zoo
+from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution, observation_size
+from overtakezoo.envs.hold import hold, hold_steps
+from overtakezoo.zoo.testing import check_decider
+
+MEMBERS = ["always-follow", "always-overtake", "always-abort", "rule-fsm", "fuzzy", "oracle", "dqn", "double-dqn",
+           "ppo"]
+
+
+def test_every_member_is_listed():
+    assert set(MEMBERS) == set(zoo.names())
+
+
+@pytest.mark.parametrize("name", MEMBERS)
+def test_one_observation_gives_an_int(name):
+    dec = zoo.load(name)
+    core = OvertakeCore(EnvConfig())
+    obs = core.reset(ScenarioDistribution().sample(1, 5))
+    if dec.privileged:  # the oracle reads the simulator: bind it to a one-row core
+        dec.bind(core)
+    mode = dec.act(obs[0])
+    assert type(mode) is int and mode in (0, 1, 2), (name, mode)
+
+
+@pytest.mark.parametrize("name", MEMBERS)
+def test_every_member_passes_the_conformance_check(name):
+    check_decider(zoo.load(name))
+
+
+class _BatchOnly:
+    """A decider written without the zoo's base class: batch form only, like the old always-*."""
+
+    name, version = "batch-only", "1"
+
+    def reset(self, mask=None):
+        pass
+
+    def act(self, obs):
+        return np.full(np.shape(obs)[0], 1, np.int64)
+
+
+def test_checker_names_what_is_wrong():
+    with pytest.raises(AssertionError, match=r"one observation of shape \(\d+,\) must return a Python int"):
+        check_decider(_BatchOnly())
+
+    class Random(zoo.Decider):
+        name = "random"
+
+        def __init__(self):
+            super().__init__()
+            self.rng = np.random.default_rng(0)
+
+        def act_batch(self, obs):
+            return self.rng.integers(0, 3, len(obs))
+
+    with pytest.raises(AssertionError, match="not deterministic"):
+        check_decider(Random())
+
+    class Four(zoo.Decider):
+        name = "four"
+
+        def act_batch(self, obs):
+            return np.full(len(obs), 4)
+
+    with pytest.raises(AssertionError, match=r"returned mode \[4\]"):
+        check_decider(Four())
+
+    class NoRepeat(zoo.Decider):
+        name, action_repeat = "zero", 0
+
+        def act_batch(self, obs):
+            return np.zeros(len(obs), np.int64)
+
+    with pytest.raises(AssertionError, match="action_repeat must be an int >= 1"):
+        check_decider(NoRepeat())
+
+
+def test_a_subclass_that_writes_act_in_batch_form_gets_the_single_form():
+    class Old(zoo.Decider):
+        name = "old"
+
+        def act(self, obs):
+            return np.full(obs.shape[0], 1, np.int64)
+
+    dec = Old()
+    obs = np.zeros((5, observation_size(dec.config)), np.float32)
+    assert dec.act(obs[0]) == 1 and type(dec.act(obs[0])) is int
+    assert dec.act(obs).shape == (5,)
+    check_decider(dec)
+    with pytest.raises(ValueError, match=r"got shape \(2, 5, \d+\)"):
+        dec.act(np.stack([obs, obs]))
+
+
+def test_hold_steps_rounds_to_the_decision_interval():
+    assert hold_steps(1, 10) == 10 and hold_steps(4, 10) == 8 and hold_steps(5, 1) == 5 and hold_steps(1) == 1
+    with pytest.raises(ValueError):
+        hold_steps(0, 1)
+
+
+def test_hold_on_a_held_core_equals_stepping_it():
+    scen = ScenarioDistribution().sample(6, 3)
+    a, b = OvertakeCore(EnvConfig()), OvertakeCore(EnvConfig())
+    a.reset(scen), b.reset(scen)
+    modes = np.array([1, 1, 0, 1, 0, 1])
+    seen = []
+    res = hold(a, modes, 25, on_step=lambda m, r: seen.append(m))
+    total = np.zeros(6)
+    for _ in range(25):
+        total += b.step(modes).reward
+    assert res.steps == len(seen) == 25
+    np.testing.assert_array_equal(res.obs, b.observe())
+    np.testing.assert_allclose(res.reward, total, rtol=0, atol=1e-12)
+
+
+def test_hold_on_an_auto_reset_core_keeps_each_episode_to_itself():
+    pool = ScenarioDistribution().sample(16, 4)
+    core = OvertakeCore(EnvConfig(), auto_reset=True, source=lambda n, rng: pool.take(rng.integers(0, 16, n)), seed=0)
+    core.reset(pool.take(np.arange(8)))
+    res = None
+    for _ in range(60):  # overtake blindly until some episodes end mid-hold
+        res = hold(core, np.ones(8, np.int64), 10)
+        if res.finished.any():
+            break
+    assert res.finished.any() and res.final_obs is not None
+    rows = np.flatnonzero(res.finished)
+    assert (res.final_info["outcome"][rows] > 0).all()  # the ended episode's outcome, not the new one's
+    assert (res.live_steps[rows] <= 10).all() and (res.live_steps[~res.finished] == 10).all()
+    assert (res.terminated | res.truncated)[rows].all()
+
+
+def test_runner_asks_for_a_decision_once_per_hold():
+    suite = load_suite("table1")
+
+    class Counting(zoo.Decider):
+        name, action_repeat = "counting", 7
+
+        def __init__(self, config):
+            super().__init__(config)
+            self.calls = 0
+
+        def act_batch(self, obs):
+            self.calls += 1
+            return np.zeros(len(obs), np.int64)
+
+    dec = Counting(suite.config)
+    res = run_suite(suite, dec, limit=4, progress=False)
+    assert dec.calls == -(-res.timing["steps"] // 7)  # ceil: the last hold may end early
