@@ -8,8 +8,6 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from overtakezoo.envs import ConfigError
-
 from .errors import UserError
 
 
@@ -21,14 +19,28 @@ def add_parser(subparsers: Any, name: str, help: str, description: str, examples
 
 
 def load_decider(name: str, config: Any = None) -> Any:
-    from overtakezoo import zoo
+    """A zoo member by registry name (``--decider``)."""
+    from .policy import load_zoo
 
-    try:
-        return zoo.load(name, config=config)
-    except zoo.UnknownDecider as exc:
-        raise UserError(str(exc)) from None
-    except ConfigError as exc:
-        raise UserError(f"decider {name!r}: {exc}") from None
+    return load_zoo(name, config, hint="; for a policy file or package.module:factory use --policy")
+
+
+def add_decider_options(p: argparse.ArgumentParser) -> None:
+    """``--decider NAME`` or ``--policy SPEC`` (one of them)."""
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--decider", help="a decider name from the zoo registry (see `overtakezoo zoo`)")
+    g.add_argument("--policy", metavar="SPEC",
+                   help="any policy: a zoo name, package.module:factory, weights written by `overtakezoo train` "
+                        "(<algo>.pt beside <algo>.json), a TorchScript or ONNX file ([onnx] extra), or a "
+                        "Stable-Baselines3 .zip ([sb3] extra)")
+
+
+def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:
+    if args.policy is not None:
+        from .policy import load_policy
+
+        return load_policy(args.policy, config)
+    return load_decider(args.decider, config)
 
 
 def check_writable(path: str | Path) -> Path:

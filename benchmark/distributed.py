@@ -21,14 +21,14 @@ from .suites import Suite
 
 
 def _run_shard(suite_bytes: bytes, suite_path: str, decider_name: str, shard: tuple[int, int]) -> str:
-    """One shard on a Ray worker; returns the results as JSON text."""
-    from overtakezoo import zoo
-
+    """One shard on a Ray worker; returns the results as JSON text. ``decider_name`` is any policy
+    spec (``benchmark/policy.py``): a registry name, a file or package.module:factory."""
+    from .policy import load_policy
     from .runner import run_suite
     from .suites import parse_suite
 
     suite = parse_suite(suite_bytes, Path(suite_path))
-    decider = zoo.load(decider_name, config=suite.config)
+    decider = load_policy(decider_name, suite.config)
     return run_suite(suite, decider, shard=shard, progress=False).to_json()
 
 

@@ -90,7 +90,9 @@ class Results:
             "config_sha256": config_sha256(suite.config),
             "decider": {"name": str(decider.name), "version": str(decider.version),
                         "weights_sha256": getattr(decider, "weights_sha256", None),
-                        "privileged": bool(getattr(decider, "privileged", False))},
+                        "privileged": bool(getattr(decider, "privileged", False)),
+                        # What a --policy was (kind, file, sha256); zoo members by name have none.
+                        **({"policy": decider.policy} if getattr(decider, "policy", None) else {})},
             "package": {"name": "overtakezoo", "version": package_version()},
             "git_commit": git_commit(),
             "seed": suite.seed,

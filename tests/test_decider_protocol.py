@@ -34,7 +34,7 @@ def test_one_observation_gives_an_int(name):
 
 @pytest.mark.parametrize("name", MEMBERS)
 def test_every_member_passes_the_conformance_check(name):
-    check_decider(zoo.load(name))
+    check_decider(zoo.load(name), num=4, decisions=8)
 
 
 class _BatchOnly:

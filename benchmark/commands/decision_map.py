@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..cmdutil import add_parser, check_writable, load_decider
+from ..cmdutil import add_decider_options, add_parser, check_writable, decider_from_args
 
 
 def register(subparsers: Any) -> None:
@@ -15,8 +15,9 @@ def register(subparsers: Any) -> None:
                    "first observation of each (shown for --ticks decision ticks; the last mode is drawn).",
                    ["overtakezoo decision-map --decider always-overtake",
                     "overtakezoo decision-map --decider dqn --out fig10-dqn.png --lead-speed 1 --oncoming-speed 3",
-                    "overtakezoo decision-map --decider rule-fsm --gaps 5 40 --distances 10 200 --resolution 60"])
-    p.add_argument("--decider", required=True, help="a decider name from the zoo registry")
+                    "overtakezoo decision-map --decider rule-fsm --gaps 5 40 --distances 10 200 --resolution 60",
+                    "overtakezoo decision-map --policy runs/dqn/dqn.pt --out fig10-mine.png"])
+    add_decider_options(p)
     p.add_argument("--suite", default="table1", help="suite whose road and simulator settings are used")
     p.add_argument("--out", help="PNG path (default: decision-map-<decider>.png)")
     p.add_argument("--lead-speed", type=float, default=2.0, help="NPC1 speed, m/s (default 2)")
@@ -55,7 +56,7 @@ def run(args: Any) -> int:
         if not 0 <= v <= 100:
             raise UserError(f"{flag} {v:g}: expected a speed in [0, 100] m/s")
     suite = load_suite(args.suite)
-    decider = load_decider(args.decider, suite.config)
+    decider = decider_from_args(args, suite.config)
     out = check_writable(Path(args.out or f"decision-map-{decider.name}.png"))
     dm = decision_map(decider, suite, np.linspace(*args.gaps, args.resolution),
                       np.linspace(*args.distances, args.resolution), args.lead_speed, args.oncoming_speed,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..cmdutil import add_parser, check_writable, load_decider
+from ..cmdutil import add_decider_options, add_parser, check_writable, decider_from_args
 
 
 def register(subparsers: Any) -> None:
@@ -17,9 +17,12 @@ def register(subparsers: Any) -> None:
                     "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
                     "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
                     "overtakezoo eval --suite table1 --decider rule-fsm --archive run.mcap  # + MCAP archive",
+                    "overtakezoo eval --suite table1 --policy runs/dqn/dqn.pt      # weights from `overtakezoo train`",
+                    "overtakezoo eval --suite table1 --policy model.zip            # Stable-Baselines3 ([sb3] extra)",
+                    "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
                     "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards"])
     p.add_argument("--suite", required=True, help="a suite name (see `overtakezoo suites`) or a .toml path")
-    p.add_argument("--decider", required=True, help="a decider name from the zoo registry")
+    add_decider_options(p)
     p.add_argument("--out", help="results file (default: results/<suite>/<decider>[.shard-i-of-k].json)")
     p.add_argument("--shard", metavar="I/K", help="run only the I-th (0-based) of K contiguous slices")
     p.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once (bounds memory)")
@@ -43,7 +46,7 @@ def run(args: Any) -> int:
     shard_bounds(suite.count, shard)  # validates the shard against the suite
     if args.chunk_size < 1:
         raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")
-    decider = load_decider(args.decider, suite.config)
+    decider = decider_from_args(args, suite.config)
     suffix = f".shard-{shard[0]}-of-{shard[1]}" if shard else ""
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
@@ -52,7 +55,9 @@ def run(args: Any) -> int:
             raise UserError("--ray runs every shard itself: it cannot be combined with --shard or --archive")
         from ..distributed import parse_address, run_suite_ray
 
-        results = run_suite_ray(suite, decider.name, args.shards, parse_address(args.ray))
+        # Each worker loads the decider itself: by registry name, or the policy spec (a file by absolute path).
+        spec = args.decider or (str(Path(args.policy).resolve()) if Path(args.policy).is_file() else args.policy)
+        results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
         return _report(results, suite, decider, out)
     recorder = None
     if args.archive:  # MCAP archive of every episode (benchmark/archive.py)
