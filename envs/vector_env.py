@@ -41,6 +41,7 @@ class OvertakeVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any) -> None:
+        self._renderer = None  # first: close() runs on an instance whose __init__ raised, too
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
@@ -66,7 +67,6 @@ class OvertakeVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._first_reset = True
-        self._renderer = None
         self._autoreset = np.zeros(self.num_envs, bool)  # NEXT_STEP: rows that restart on the next step
 
     def _draw(self, n: int, rng: np.random.Generator) -> Scenarios:
