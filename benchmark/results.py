@@ -69,8 +69,10 @@ def git_commit() -> str | None:
 
 
 def config_sha256(config: Any) -> str:
-    """Hash of the resolved settings: catches a change of library defaults the suite file does not name."""
-    text = json.dumps(config.to_dict(), sort_keys=True, default=repr)
+    """Hash of the resolved settings: catches a change of library defaults the suite file does not name.
+    The reward is left out: it changes no outcome or statistic a results file records."""
+    settings = {k: v for k, v in config.to_dict().items() if k != "reward"}
+    text = json.dumps(settings, sort_keys=True, default=repr)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

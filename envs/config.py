@@ -137,17 +137,24 @@ class NPCConfig:
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """The paper's reward: progress term inversely proportional to the distance to the goal,
-    a large bonus for finishing in the correct lane, a huge crash penalty, and a small penalty for
-    each mode switch into or out of the opposite lane."""
+    """The reward every face and trainer uses: the paper's shape (progress towards the goal, a bonus
+    for finishing in the correct lane, a crash penalty, a small penalty per switch into or out of
+    OVERTAKE) plus a cost of time and a timeout penalty, so that following the lead until the time
+    limit is never the best return (the paper's weights alone rank always-follow first on
+    table1-train; see the README's "Reward" section for the measured returns)."""
 
-    progress: float = 0.1  # per step: progress / (1 + distance_to_goal / progress_scale)
-    progress_scale: float = 10.0
-    success: float = 10.0
-    crash: float = -20.0
-    switch: float = -0.1
-    timeout: float = 0.0
-    offroad: float = -20.0
+    # Progress per step: progress / (1 + distance_to_goal / progress_scale), at most 0.01 per step
+    # (~6 over a 60 s episode): small next to the terminal terms, it only breaks ties towards the goal.
+    progress: float = 0.01
+    progress_scale: float = 10.0  # m: the progress term doubles over the last progress_scale metres
+    success: float = 10.0  # finishing past the goal in the ego lane, ahead of NPC1: the task
+    crash: float = -10.0  # a collision costs the success bonus it forgoes, and as much again
+    switch: float = -0.1  # per switch into or out of OVERTAKE: discourages dithering, not aborting
+    timeout: float = -5.0  # the time limit is part of the task: not finishing is a failure, half a crash
+    offroad: float = -10.0  # leaving the road is as bad as a crash
+    # Per step of a running episode (-0.1 per s at dt = 0.1): waiting behind the lead is not free,
+    # so a safe pass earns more than following and a pass that can be made is not put off.
+    time: float = -0.01
 
     def validate(self) -> None:
         for f in dataclasses.fields(self):

@@ -164,6 +164,12 @@ class OvertakeCore:
         if self.last_plan is not None:  # a new episode starts with no planner flags, as after reset()
             self.last_plan.blocked[rows] = False
 
+    def restart(self, rows: Any, fresh: Scenarios) -> Any:
+        """Start ``fresh`` scenarios in ``rows`` (the other rows untouched); their first observations.
+        The batch's Scenarios are rewritten in place: reset the core on a private copy."""
+        self._replace_rows(rows, fresh)
+        return observe(self, self._geometry(), rows)
+
     def clone(self, rows: Any = None) -> "OvertakeCore":
         """An independent copy of ``rows`` (all rows when None), e.g. for look-ahead search."""
         xp = self.xp
@@ -268,9 +274,8 @@ class OvertakeCore:
         if self.auto_reset and finished.any():
             final_obs = obs
             rows = xp.nonzero(finished)
-            self._replace_rows(rows, self.source(len(rows), self.rng))
             obs = xp.copy(obs)
-            obs[rows] = observe(self, self._geometry(), rows)  # only the restarted rows change
+            obs[rows] = self.restart(rows, self.source(len(rows), self.rng))  # only the restarted rows change
         return StepResult(obs, reward, terminated, truncated, final_obs, info)
 
     def _step_npcs(self, geo: dict[str, Any], dt: Any, npc_accel: Any) -> None:
@@ -366,7 +371,7 @@ class OvertakeCore:
     def _reward(self, terminated: Any, truncated: Any, switched: Any, active: Any) -> Any:
         xp, rc, E = self.xp, self.cfg.reward, self._ego
         dist = xp.maximum(E["goal_s"] - (self.x + E["ego_length"] / 2), 0.0)
-        r = rc.progress / (1.0 + dist / rc.progress_scale) * active
+        r = (rc.progress / (1.0 + dist / rc.progress_scale) + rc.time) * active
         r = r + rc.switch * xp.astype(switched, xp.float)
         terminal = xp.asarray([0.0, rc.success, rc.crash, rc.timeout, rc.offroad], xp.float)[xp.astype(self.outcome, xp.int)]
         return r + terminal * (terminated | truncated)

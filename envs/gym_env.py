@@ -20,8 +20,9 @@ from .config import MODE_NAMES, EnvConfig
 from .core import OvertakeCore
 from .face_render import RendersFirstRow
 from .hold import hold
-from .pettingzoo_env import as_config, row_info, single_ego
+from .pettingzoo_env import as_config, check_action, row_info, single_ego
 from .scenarios import ScenarioDistribution, Scenarios
+from .spaces import ego_observation_space
 
 ENV_ID = "overtakezoo/Overtake-v0"
 
@@ -42,7 +43,7 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (self.core.obs_size,), np.float32)
+        self.observation_space = ego_observation_space(self.config)  # finite bounds, see envs/spaces.py
         self.action_space = spaces.Discrete(len(MODE_NAMES))
         self._renderer = None
         self._first_reset = True
@@ -57,18 +58,30 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
             scen = self.distribution.sample(1, self.np_random)
         elif not isinstance(scen, Scenarios) or scen.num != 1:
             raise ValueError("options['scenarios'] must be a Scenarios batch of one row")
-        obs = self.core.reset(scen)[0]
+        obs = self._clip(self.core.reset(scen)[0])
         if self.render_mode == "human":
             self.render()
         return obs, row_info(self.core.info(), 0)
 
     def step(self, action: Any):
+        if self.core.scen is None:
+            raise RuntimeError("step() before reset(): call reset() first")
+        if self.core.done[0]:
+            # Gymnasium leaves stepping a finished episode undefined; ours would silently return
+            # terminated=False on a frozen state, so say so instead.
+            raise RuntimeError("step() after the episode ended (terminated or truncated): call reset() first")
+        action = check_action(action, len(MODE_NAMES), "OvertakeEnv.step")
         # One env step holds the action for decision_interval core steps (rewards summed).
         res = hold(self.core, np.array([action], dtype=np.int64), self.config.decision_interval)
         if self.render_mode == "human":
             self.render()
-        return (res.obs[0], float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0]),
+        return (self._clip(res.obs[0]), float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0]),
                 row_info(res.info, 0))
+
+    def _clip(self, obs: np.ndarray) -> np.ndarray:
+        # A no-op for scenarios of the config's distribution; only a scenario given through
+        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)
 
     def render(self):
         if self.render_mode is None:

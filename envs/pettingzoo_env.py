@@ -10,7 +10,7 @@ Agents:
   the batch ``ScenarioDistribution.sample(E, s)``, so ego ``i`` gets the same scenario as row ``i``
   of a suite with that seed. They are meant to share one policy (same spaces, same reward).
   Action ``Discrete(3)``: 0 follow, 1 overtake, 2 abort. Observation: the core's vector
-  (``observation_layout``), ``Box(-inf, inf, (D,), float32)``.
+  (``observation_layout``), a ``Box`` of finite bounds derived from the config (envs/spaces.py).
 - with ``npc_agents=True`` also ``npc_0 .. npc_{M-1}``: the NPC slots of ``ego_0``'s scenario
   (slot 0 is NPC1, the lead; then the oncoming vehicles; then the followers). Action
   ``Discrete(4)``: an acceleration from :data:`NPC_ACCELERATIONS` (m/s^2; the core clips it to the
@@ -39,6 +39,7 @@ from .core import OUTCOME_NAMES, OvertakeCore
 from .face_render import RendersFirstRow
 from .hold import hold
 from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
+from .spaces import ego_observation_space, npc_observation_space, npc_start_extent
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
 NPC_OBS_SIZE = 6
@@ -64,6 +65,30 @@ def single_ego(config: EnvConfig, face: str) -> EnvConfig:
     if config.npc_agents:
         raise ConfigError(f"npc_agents: {face} has no NPC agents; use parallel_env(npc_agents=True)")
     return config
+
+
+def check_action(action: Any, n: int, who: str) -> int:
+    """``action`` as an int in ``range(n)``; a ValueError naming ``who`` (the agent) for anything else:
+    a float, a bool, a negative or too large index (NumPy would wrap -1 round to the last choice)."""
+    value = action.item() if isinstance(action, np.ndarray) and action.ndim == 0 else action
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value < n:
+        shown = action.item() if isinstance(action, np.generic) else action
+        raise ValueError(f"{who}: action {shown!r} is not an integer in 0..{n - 1}")
+    return int(value)
+
+
+def check_actions(actions: Any, num: int, who: str, n: int = len(MODE_NAMES)) -> np.ndarray:
+    """A batch of ``num`` actions as int64, each an integer in ``range(n)``; else a ValueError naming
+    the first bad entry ``who[i]``."""
+    arr = np.asarray(actions)
+    if arr.shape != (num,):
+        raise ValueError(f"{who}: expected shape ({num},), got {arr.shape}")
+    if arr.dtype.kind not in "iu":
+        raise ValueError(f"{who}: expected integers in 0..{n - 1}, got dtype {arr.dtype}")
+    bad = np.flatnonzero((arr < 0) | (arr >= n))
+    if len(bad):
+        raise ValueError(f"{who}[{bad[0]}]: action {arr[bad[0]].item()!r} is not an integer in 0..{n - 1}")
+    return arr.astype(np.int64, copy=False)
 
 
 def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
@@ -96,8 +121,10 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         self._npcs = [f"npc_{j}" for j in range(self.num_npcs)] if self.config.npc_agents else []
         self.possible_agents = self._egos + self._npcs
         self.agents: list[str] = []
-        ego_obs = spaces.Box(-np.inf, np.inf, (self.core.obs_size,), np.float32)
-        npc_obs = spaces.Box(-np.inf, np.inf, (NPC_OBS_SIZE,), np.float32)
+        # Finite bounds (envs/spaces.py); observations are clipped to them, a no-op for scenarios
+        # of the config's distribution.
+        ego_obs = ego_observation_space(self.config)
+        npc_obs = npc_observation_space(self.config, npc_start_extent(self.distribution))
         ego_act, npc_act = spaces.Discrete(len(MODE_NAMES)), spaces.Discrete(len(NPC_ACCELERATIONS))
         # Plain dicts (not lru_cache on the method, which would pin every env in a global cache):
         # each call returns the same space object, so seeding a space sticks.
@@ -126,7 +153,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         elif self._npcs and scen.num_npcs > self.num_npcs:
             raise ValueError(f"options['scenarios'] has {scen.num_npcs} NPC slots; "
                              f"this env has {self.num_npcs} NPC agents")
-        obs = self.core.reset(scen)
+        obs = self._clip_egos(self.core.reset(scen))
         self.agents = list(self._egos)
         if self._npcs:
             self.agents += [self._npcs[j] for j in np.flatnonzero(scen.npc_present[0])]
@@ -148,10 +175,13 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         live = self.agents
         if not live:
             raise RuntimeError("step() called with no live agents: call reset() first")
+        unknown = [a for a in actions if a not in self.observation_spaces]
+        if unknown:
+            raise KeyError(f"action for unknown agent {unknown[0]!r} (agents: {', '.join(self.possible_agents)})")
         modes = self.core.mode.copy()  # finished rows are frozen by the core whatever we pass
         for i, a in enumerate(self._egos):
             if a in actions and actions[a] is not None:
-                modes[i] = actions[a]
+                modes[i] = check_action(actions[a], len(MODE_NAMES), a)
             elif not self.core.done[i]:
                 raise KeyError(f"no action for live agent {a!r}")
         live_npcs = [a for a in live if a.startswith("npc_")] if self._npcs else []
@@ -160,15 +190,16 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             npc_accel = np.full((self.num_egos, self.core.scen.num_npcs), np.nan)
             for a in live_npcs:
                 if actions.get(a) is not None:
-                    npc_accel[0, int(a[4:])] = NPC_ACCELERATIONS[int(actions[a])]
+                    npc_accel[0, int(a[4:])] = NPC_ACCELERATIONS[check_action(actions[a], len(NPC_ACCELERATIONS), a)]
         # One env step holds the actions for decision_interval core steps (rewards summed).
         res = hold(self.core, modes, self.config.decision_interval, npc_accel)
 
         obs, rew, term, trunc, infos = {}, {}, {}, {}, {}
+        ego_obs = self._clip_egos(res.obs)
         for a in live:
             if a.startswith("ego_"):
                 i = int(a[4:])
-                obs[a], rew[a] = res.obs[i], float(res.reward[i])
+                obs[a], rew[a] = ego_obs[i], float(res.reward[i])
                 term[a], trunc[a] = bool(res.terminated[i]), bool(res.truncated[i])
                 infos[a] = row_info(res.info, i)
         if live_npcs:
@@ -195,9 +226,17 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         gap = direction * (c.x[0] - c.npc_s[0])  # ego ahead of the NPC along its travel: > 0
         closing = v - direction * ego_vx  # rate at which that distance shrinks
         lateral = (c.y[0] - lane * sc.lane_width[0]) / sc.lane_width[0]
-        return np.stack([v / oc.speed_scale, lane.astype(float), gap / oc.position_scale,
-                         closing / oc.speed_scale, lateral, sc.npc_present[0].astype(float)],
-                        axis=1).astype(np.float32)
+        obs = np.stack([v / oc.speed_scale, lane.astype(float), gap / oc.position_scale,
+                        closing / oc.speed_scale, lateral, sc.npc_present[0].astype(float)],
+                       axis=1).astype(np.float32)
+        space = self.observation_spaces[self._npcs[0]]
+        return np.clip(obs, space.low, space.high)  # a no-op but for scenarios outside the distribution
+
+    def _clip_egos(self, obs: np.ndarray) -> np.ndarray:
+        # A no-op for scenarios of the config's distribution; only scenarios given through
+        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        space = self.observation_spaces[self._egos[0]]
+        return np.clip(obs, space.low, space.high)
 
     # --------------------------------------------------------------- render
     def render(self):

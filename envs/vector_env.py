@@ -1,11 +1,21 @@
 """A natively batched Gymnasium ``VectorEnv``: ``num_envs`` scenarios in one core, one process.
 
-One :class:`~.core.OvertakeCore` with ``auto_reset=True`` steps every row at once; a finished row is
-replaced in the same step by a fresh draw from the config's ``scenario`` distribution
-(``AutoresetMode.SAME_STEP``). As Gymnasium's own vector envs do in that mode, ``infos`` then holds
-``final_obs`` (an object array: the last observation of each finished row, ``None`` elsewhere) and
-``final_info`` (the finished rows' episode info), each with its ``_final_obs`` / ``_final_info``
-mask; the other keys are the per-row info of the (possibly new) episodes, each with its ``_key`` mask.
+One :class:`~.core.OvertakeCore` steps every row at once; a finished row is replaced by a fresh draw
+from the config's ``scenario`` distribution, in one of Gymnasium's two autoreset modes
+(``autoreset_mode=``):
+
+- ``AutoresetMode.NEXT_STEP`` (the default, as Gymnasium's own vector envs): the step that ends an
+  episode returns its last observation; the next step ignores that row's action, starts the new
+  episode and returns its first observation with reward 0 and ``terminated = truncated = False``.
+  Gymnasium's vector observation wrappers (``NormalizeObservation``, ``TransformObservation``,
+  ``FlattenObservation``, ...) accept only this mode (or DISABLED).
+- ``AutoresetMode.SAME_STEP``: the row is replaced in the step that ends it (no step is wasted); as
+  Gymnasium's own vector envs do in that mode, ``infos`` then holds ``final_obs`` (an object array:
+  the last observation of each finished row, ``None`` elsewhere) and ``final_info`` (the finished
+  rows' episode info), each with its ``_final_obs`` / ``_final_info`` mask.
+
+In both modes the other keys of ``infos`` are the per-row info of the current episodes, each with its
+``_key`` mask.
 """
 
 from __future__ import annotations
@@ -19,18 +29,26 @@ from gymnasium.vector.utils import batch_space
 
 from .config import MODE_NAMES, ConfigError, EnvConfig
 from .core import OvertakeCore
-from .pettingzoo_env import as_config, single_ego
+from .pettingzoo_env import as_config, check_actions, single_ego
 from .scenarios import ScenarioDistribution, Scenarios
+from .spaces import ego_observation_space
 
 
 class OvertakeVectorEnv(VectorEnv):
     """``num_envs`` independent single-ego scenarios stepped as one batch (see module docstring)."""
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> None:
+    def __init__(self, num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any) -> None:
+        self._renderer = None  # first: close() runs on an instance whose __init__ raised, too
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+        mode = next((m for m in modes if autoreset_mode in (m, m.value, m.name)), None)
+        if mode is None:
+            raise ValueError(f"autoreset_mode: expected AutoresetMode.NEXT_STEP or SAME_STEP, got {autoreset_mode!r}")
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.config = single_ego(as_config(config, **overrides), "OvertakeVectorEnv")
         if self.config.decision_interval != 1:
             # Auto-reset replaces a row the moment it ends, so repeating an action across that
@@ -42,13 +60,14 @@ class OvertakeVectorEnv(VectorEnv):
         self.render_mode = self.config.render_mode
         self.num_envs = int(num_envs)
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
-        self.core = OvertakeCore(self.config, auto_reset=True, source=self._draw)
-        self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.core.obs_size,), np.float32)
+        # SAME_STEP: the core refills finished rows itself; NEXT_STEP: it holds them until the next step.
+        self.core = OvertakeCore(self.config, auto_reset=mode == AutoresetMode.SAME_STEP, source=self._draw)
+        self.single_observation_space = ego_observation_space(self.config)  # finite bounds, see envs/spaces.py
         self.single_action_space = spaces.Discrete(len(MODE_NAMES))
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._first_reset = True
-        self._renderer = None
+        self._autoreset = np.zeros(self.num_envs, bool)  # NEXT_STEP: rows that restart on the next step
 
     def _draw(self, n: int, rng: np.random.Generator) -> Scenarios:
         return self.distribution.sample(n, rng)
@@ -68,23 +87,44 @@ class OvertakeVectorEnv(VectorEnv):
             scen = self._draw(self.num_envs, self.np_random)
         elif not isinstance(scen, Scenarios) or scen.num != self.num_envs:
             raise ValueError(f"options['scenarios'] must be a Scenarios batch of num_envs={self.num_envs} rows")
-        obs = self.core.reset(scen)
-        return obs, _with_masks(self.core.info())
+        # A private copy: restarting rows rewrites the batch's scenarios in place.
+        obs = self.core.reset(Scenarios.from_arrays({k: v.copy() for k, v in scen.to_arrays().items()}))
+        self._autoreset[:] = False
+        return self._clip(obs), _with_masks(self.core.info())
 
     def step(self, actions: Any):
-        res = self.core.step(np.asarray(actions, dtype=np.int64))
+        if self.core.scen is None:
+            raise RuntimeError("step() before reset(): call reset() first")
+        actions = check_actions(actions, self.num_envs, "actions")
+        res = self.core.step(actions)  # NEXT_STEP: rows ended last step are frozen (reward 0, not done)
         finished = res.info.pop("_finished")
+        if not self.core.auto_reset:
+            obs, infos = res.obs, res.info
+            if self._autoreset.any():
+                rows = np.flatnonzero(self._autoreset)
+                obs = obs.copy()
+                obs[rows] = self.core.restart(rows, self._draw(len(rows), self.core.rng))
+                infos = self.core.info()  # the new episodes' (zeroed) stats in those rows
+            self._autoreset = finished
+            return self._clip(obs), res.reward, res.terminated, res.truncated, _with_masks(infos)
         if finished.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
+            last = self._clip(res.final_obs)
             for i in np.flatnonzero(finished):  # Gymnasium's layout: one array per finished row
-                final_obs[i] = res.final_obs[i]
+                final_obs[i] = last[i]
             infos = _with_masks(self.core.info())  # the new episodes' (zeroed) stats
             infos["final_obs"], infos["_final_obs"] = final_obs, finished
             infos["final_info"] = _with_masks(res.info, finished)
             infos["_final_info"] = finished
         else:
             infos = _with_masks(res.info)
-        return res.obs, res.reward, res.terminated, res.truncated, infos
+        return self._clip(res.obs), res.reward, res.terminated, res.truncated, infos
+
+    def _clip(self, obs: np.ndarray) -> np.ndarray:
+        # A no-op for scenarios of the config's distribution; only scenarios given through
+        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        space = self.single_observation_space
+        return np.clip(obs, space.low, space.high)
 
     def render(self):
         """``(frame of row 0,)`` in ``rgb_array`` mode."""
@@ -114,7 +154,8 @@ def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> 
 
 
 def make_vec(num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
-             **overrides: Any) -> OvertakeVectorEnv:
-    """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv``; keyword
-    arguments are :class:`EnvConfig` keys."""
-    return OvertakeVectorEnv(num_envs, config, **overrides)
+             autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any) -> OvertakeVectorEnv:
+    """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv`` (NEXT_STEP
+    autoreset unless ``autoreset_mode`` says SAME_STEP); other keyword arguments are
+    :class:`EnvConfig` keys."""
+    return OvertakeVectorEnv(num_envs, config, autoreset_mode, **overrides)

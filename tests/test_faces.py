@@ -35,9 +35,9 @@ from overtakezoo.envs import (  # noqa: E402
 from overtakezoo.envs.pettingzoo_env import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
 
 ENV_ID = "overtakezoo/Overtake-v0"
-# The observation is unbounded by design (scaled features, scales are settings): the only checker
-# warnings we accept are the ones saying so, plus (with NPC agents) the two observation sizes.
-INF_WARNINGS = ("infinity",)
+# Observation bounds are finite (envs/spaces.py): no checker warning is accepted, but (with NPC
+# agents) the one about the two observation sizes.
+INF_WARNINGS = ()
 NPC_WARNINGS = INF_WARNINGS + ("different shapes", "different observation space sizes")
 
 
@@ -246,7 +246,7 @@ def test_gymnasium_plugin_entry_point_resolves():
 
 # ---------------------------------------------------------------- vector env
 def test_make_vec_steps_and_autoresets_in_the_same_step():
-    vec = make_vec(num_envs=6, scenario={"time_limit": 1.0})
+    vec = make_vec(num_envs=6, scenario={"time_limit": 1.0}, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
     assert vec.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.SAME_STEP
     assert vec.single_action_space.n == 3 and vec.action_space.shape == (6,)
     assert vec.observation_space.shape == (6, vec.single_observation_space.shape[0])
@@ -269,7 +269,7 @@ def test_make_vec_steps_and_autoresets_in_the_same_step():
 
 
 def test_make_vec_partial_reset_and_seeding():
-    vec = make_vec(num_envs=4, scenario={"time_limit": 0.5})
+    vec = make_vec(num_envs=4, scenario={"time_limit": 0.5}, autoreset_mode="SameStep")
     vec.reset(seed=1)
     vec.core.t[:2] = -10.0  # rows 0 and 1 get 1 s more: rows 2 and 3 finish first
     for _ in range(5):

@@ -1,9 +1,8 @@
-"""What the learned members (dqn, double-dqn, ppo) share: verified weights, model cards, the
-training reward, and the results a model card quotes (measured with the benchmark runner)."""
+"""What the learned members (dqn, double-dqn, ppo) share: verified weights, model cards,
+hyperparameter files (which never change the env's reward), and the results a model card quotes (measured with the benchmark runner)."""
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import tomllib
@@ -13,7 +12,6 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, EnvConfig
-from overtakezoo.envs.config import RewardConfig
 
 
 class WeightsError(ValueError):
@@ -61,19 +59,18 @@ def read_hyperparams(path: str | Path, required: set[str]) -> dict[str, Any]:
     missing = required - set(hp)
     if missing:
         raise ValueError(f"hyperparameter file {path}: missing keys {', '.join(sorted(missing))}")
+    reject_reward_keys(hp, f"hyperparameter file {path}")
     hp["file"] = path.name
     return hp
 
 
-def training_config(base: EnvConfig, hp: dict[str, Any]) -> EnvConfig:
-    """The suite's configuration with the training reward of the hyperparameter file (if any)."""
-    reward = hp.get("reward")
-    if not reward:
-        return base
-    try:
-        return dataclasses.replace(base, reward=RewardConfig(**{**dataclasses.asdict(base.reward), **reward}))
-    except TypeError as exc:
-        raise ValueError(f"hyperparameters [reward]: {exc}") from None
+def reject_reward_keys(hp: dict[str, Any], where: str) -> None:
+    """Every trainer learns from the env's reward (``RewardConfig``, set in a suite's ``[sim.reward]``
+    table): a hyperparameter that would change it for training only is refused, not ignored."""
+    for key in ("reward", "time_penalty"):
+        if key in hp:
+            raise ValueError(f"{where}: {key!r} is not a training setting: every trainer uses the env's reward "
+                             "(RewardConfig); change it in the suite's [sim.reward] table")
 
 
 def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time: np.ndarray) -> dict[str, Any]:

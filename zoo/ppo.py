@@ -31,8 +31,7 @@ from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 
 from .base import Decider, register
-from .common import (WeightsError, evaluate, read_card, read_hyperparams, read_verified,  # noqa: F401
-                     sha256_bytes, training_config)
+from .common import WeightsError, evaluate, read_card, read_hyperparams, read_verified, sha256_bytes  # noqa: F401
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
@@ -200,7 +199,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
             "seed": train_suite.seed, "sha256": train_suite.hash}
     num_envs = int(hp["env"]["num_envs"])
     repeat = int(hp["env"].get("action_repeat", 1))
-    env = OvertakeRslRlEnv(num_envs, training_config(config, hp), scenarios, seed=seed,
+    env = OvertakeRslRlEnv(num_envs, config, scenarios, seed=seed,
                            bootstrap_timeouts=bool(hp["env"].get("bootstrap_timeouts", True)), action_repeat=repeat)
     # Model selection: the greedy (argmax) policy on the first scenarios of the training suite.
     select_every = int(hp["train"].get("select_every", 0))
@@ -274,7 +273,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
                          "activation": hp["actor"]["activation"], "num_modes": NUM_MODES,
                          "distribution": hp["actor"]["distribution_cfg"]["class_name"]},
         "hyperparameters": {"file": hp["file"], **{k: hp[k] for k in ("train", "env", "runner", "algorithm",
-                                                                       "actor", "critic", "reward") if k in hp}},
+                                                                       "actor", "critic") if k in hp}},
         "action_repeat": repeat, "training_reward": dataclasses.asdict(env.cfg.reward),
         "train_suite": meta, "steps": iterations * per_iter, "steps_unit": "decisions (env steps)",
         "iterations": iterations, "seed": seed,

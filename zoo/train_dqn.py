@@ -14,16 +14,15 @@ Double DQN target lets the online net pick and the target net evaluate (:func:`~
 Hyperparameters come from ``zoo/hyperparams/<algo>.toml``; ``steps`` counts decision transitions
 summed over all rows.
 
-Training reward: the suite's reward (the paper's shape) with the ``[reward]`` table of the file
-replacing its values, minus ``time_penalty`` per core step, because the paper's progress reward
-alone makes following forever the safe bet (measured: 0-77 % success, the rest timeouts). A timeout
-ends the episode as a failure (``timeout_terminal``): the observation has no clock, and the time
-limit is part of the task. Evaluation always uses the suite's own configuration.
+Training reward: the env's own (the suite's ``RewardConfig``, which every face and trainer uses;
+the hyperparameter file cannot change it). A timeout ends the episode as a failure
+(``timeout_terminal``): the observation has no clock, and the time limit is part of the task.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import csv
 import io
 import time
@@ -39,7 +38,7 @@ from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
 from overtakezoo.envs.hold import hold
 
-from .common import evaluate, read_card, read_hyperparams, sha256_bytes, training_config
+from .common import evaluate, read_card, read_hyperparams, reject_reward_keys, sha256_bytes
 from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
@@ -114,9 +113,10 @@ class Trainer:
         torch.set_num_threads(int(hp["threads"]))
         self.rng = np.random.default_rng(self.seed)
         try:
-            self.config = training_config(suite.config, hp)
+            reject_reward_keys(hp, "hyperparameters")  # also those given as overrides
         except ValueError as exc:
             raise TrainError(str(exc)) from None
+        self.config = suite.config
         self.obs_dim = observation_size(self.config)
         self.net = QNetwork(self.obs_dim, hp["hidden"], hp["dueling"])
         self.target = copy.deepcopy(self.net)
@@ -159,8 +159,7 @@ class Trainer:
         act = self._choose(self.obs)
         res = hold(self.core, act, int(hp["action_repeat"]))
         self.core_steps += res.steps
-        # An optional cost per core step of a running episode: time spent following is not free.
-        reward = (res.reward - float(hp.get("time_penalty", 0.0)) * res.live_steps).astype(np.float32)
+        reward = res.reward.astype(np.float32)
         finished = res.finished
         next_obs = res.obs if res.final_obs is None else np.where(finished[:, None], res.final_obs, res.obs)
         done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
@@ -306,6 +305,7 @@ def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
         "action_repeat": int(hp["action_repeat"]), "action_mask": bool(hp["action_mask"]),
         "action_mask_version": MASK_VERSION,
         "hyperparameters": {k: v for k, v in hp.items()},
+        "training_reward": dataclasses.asdict(trainer.config.reward),
         "train_suite": trainer.suite.name, "train_suite_hash": trainer.suite.hash,
         "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
         "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
