@@ -427,3 +427,64 @@ def test_non_finite_values_are_written_as_null(tmp_path):
     decoded = [json.loads(m[2]) for m in msgs]
     assert len(decoded) == 2 + 5 * (steps - 1)
     assert decoded[1]["s"] == [None, None] and decoded[6]["reward"] is None and decoded[11]["reward"] == 1.0
+
+
+def _node_packages() -> bool:
+    if shutil.which("node") is None:
+        return False
+    probe = "for (const p of ['@mcap/core', 'fzstd', 'ajv', '@foxglove/schemas/jsonschema']) require(p)"
+    return subprocess.run(["node", "-e", probe], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not _node_packages(), reason="needs node with @mcap/core, fzstd, ajv, @foxglove/schemas "
+                                                 "(e.g. npm i them in a folder and set NODE_PATH to its node_modules)")
+def test_typescript_reader_and_official_foxglove_schemas(run):
+    path, _, _ = run
+    script = os.path.join(os.path.dirname(__file__), "mcap_ts_reader.js")
+    proc = subprocess.run(["node", script, str(path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    entries = list_episodes(path)
+    steps = sum(e.steps for e in entries)
+    assert got["invalid"] == {} and got["time_order"] and got["episodes"] == len(entries) == 20
+    assert got["counts"]["/scene"] == got["counts"]["/tf"] == got["counts"]["/ego"] == steps + len(entries)
+    assert got["chunks"] >= len(entries)  # at least one chunk per episode
+
+
+@pytest.mark.slow  # about 8 s of CPU: run with -m slow
+def test_gif_of_the_246_frame_episode(tmp_path):
+    """rule-fsm, table1 episode 29 (245 steps): every frame rendered, the whole road in the overview."""
+    from PIL import Image
+
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.replay import replay
+
+    suite = load_suite("table1")
+    path, gif = tmp_path / "rule.mcap", tmp_path / "ep29.gif"
+    with ArchiveRecorder(path) as rec:
+        run_suite(suite, zoo.load("rule-fsm", config=suite.config), shard=(29, 3000), progress=False,
+                  recorder=rec)
+    (entry,) = list_episodes(path)
+    assert (entry.index, entry.steps) == (29, 245)
+    replay(path, 29, gif)
+    with Image.open(gif) as im:
+        assert im.n_frames == 246 and im.size[0] == 960
+
+
+def test_foxglove_layout_ships_and_replay_says_how_to_open_it(capsys):
+    from overtakezoo.benchmark.archive_format import FOXGLOVE_SCHEMAS, SCHEMAS
+    from overtakezoo.benchmark.replay import FOXGLOVE_LAYOUT
+
+    layout = json.loads(FOXGLOVE_LAYOUT.read_text())
+    panels = layout["configById"]
+    assert {p.split("!")[0] for p in panels} == {"3D", "Plot", "RawMessages"}
+    scene = next(v for k, v in panels.items() if k.startswith("3D"))
+    assert scene["followTf"] == "ego" and set(scene["topics"]) <= set(FOXGLOVE_SCHEMAS)
+    topics = {p["value"].split(".")[0] for k, v in panels.items() if k.startswith("Plot") for p in v["paths"]}
+    assert topics == {"/decision", "/reward"} and topics <= set(SCHEMAS)
+    assert any(v.get("topicPath") == "/episode/summary" for v in panels.values())
+    tree = json.dumps(layout["layout"])
+    assert all(k in tree for k in panels)  # every panel is placed
+    assert main(["replay", "run.mcap", "--foxglove"]) == 0
+    out = capsys.readouterr().out
+    assert str(FOXGLOVE_LAYOUT) in out and "run.mcap" in out

@@ -54,6 +54,9 @@ def run(args: Any) -> int:
         raise UserError("give --episode K to render, or --list to list the episodes")
     if args.every < 1 or args.fps <= 0:
         raise UserError("--every must be >= 1 and --fps > 0")
+    note = read_index(args.archive).note
+    if note:
+        print(f"warning: {note}", file=sys.stderr)
     out = replay(args.archive, args.episode, args.out or f"episode-{args.episode}.gif", fps=args.fps,
                  every=args.every, progress=not args.no_progress)
     print(f"wrote {out}")
