@@ -124,7 +124,8 @@ def _current_suite(results: Results, source: str) -> Suite:
     current = load_suite(suite["name"])
     reasons = stale_reasons(results, current)
     if reasons:
-        raise UserError(f"{source}: measured on {'; '.join(reasons)}: re-run the evaluation")
+        field, why = reasons[0]
+        raise UserError(f"{source}: {field}: measured on {why}: re-run the evaluation")
     return current
 
 
@@ -201,21 +202,27 @@ def load_submissions(root: Path, suite: str = "*", only: str | None = None) -> d
     return out
 
 
-def stale_reasons(results: Results, suite: Suite | None) -> list[str]:
-    """Why a row no longer measures the current benchmark (empty when it does)."""
-    if suite is None:
-        return [f"suite {results.suite['name']!r}, which is not built in any more"]
-    out = []
+def stale_reasons(results: Results, suite: Suite | None) -> list[tuple[str, str]]:
+    """(field, what it was measured on) for each way a row no longer measures the current benchmark."""
     s = results.suite
+    if suite is None:
+        return [("suite.name", f"suite {s['name']!r}, which is not built in (any more)")]
+    out = []
     if s["hash"] != suite.hash:
-        out.append(f"suite {s['name']} v{s['version']} ({s['hash'][:12]}; now v{suite.version}, {suite.hash[:12]})")
+        out.append(("suite.hash", f"suite {s['name']} v{s['version']} ({s['hash'][:12]}; now v{suite.version}, "
+                                  f"{suite.hash[:12]})"))
     current = config_sha256(suite.config)
     if results.meta["config_sha256"] != current:
-        out.append(f"environment config {results.meta['config_sha256'][:12]} (now {current[:12]})")
+        out.append(("config_sha256", f"environment config {results.meta['config_sha256'][:12]} (now {current[:12]})"))
     sim = results.meta.get("sim_version")
     if sim != SIM_VERSION:
-        out.append(f"simulator {'of unknown version' if sim is None else f'v{sim}'} (now v{SIM_VERSION})")
+        out.append(("sim_version", f"simulator {'of unknown version' if sim is None else f'v{sim}'} "
+                                   f"(now v{SIM_VERSION})"))
     return out
+
+
+def describe(reasons: list[tuple[str, str]]) -> str:
+    return "; ".join(why for _, why in reasons)
 
 
 # ------------------------------------------------------------------ verification
@@ -297,7 +304,7 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
     for row in load_submissions(root, suite_name, only).get(suite_name, []):
         reasons = stale_reasons(row.results, suite)
         if reasons:
-            lines.append(f"skipped {row.rel}: stale (measured on {'; '.join(reasons)})")
+            lines.append(f"skipped {row.rel}: stale (measured on {describe(reasons)})")
             continue
         todo.append((row, sample_indices(suite.count, sample, seed, row.rel), row_policy(row, root, suite.config)))
     for batch in _batches(todo, chunk_size):
