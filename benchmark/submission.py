@@ -65,7 +65,7 @@ def file_sha256(path: str | Path) -> str:
 def builtin_names() -> list[str]:
     from overtakezoo import zoo
 
-    return zoo.names()
+    return zoo.known_names()
 
 
 # ------------------------------------------------------------------ filing
@@ -98,7 +98,7 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
                             "submit your policy under its own name (--name my-policy)")
         if decider["privileged"]:
             raise UserError(f"{source}: decider.privileged: only built-in zoo members may read the simulator state")
-        block = _store_artifact(Path(policy), decider, root)
+        _check_policy_file(Path(policy))
     path = root / "submissions" / suite.name / f"{name}.json"
     clash = [p.name for p in path.parent.glob("*.json") if p.stem.lower() == name.lower() and p.stem != name]
     if clash:
@@ -106,6 +106,8 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
     if path.exists() and not replace:
         raise UserError(f"{path}: a row named {name!r} is already on the {suite.name} leaderboard; "
                         "pass --replace to replace it")
+    if policy is not None:
+        block = _store_artifact(Path(policy), decider, root)
     filed = Results({**results.meta, "submission": {"name": name, "policy": block}}, results.per,
                     results.summary, results.timing)
     filed.save(path)
@@ -141,10 +143,13 @@ def _builtin_block(results: Results, suite: Suite, source: str) -> dict[str, Any
     return {"builtin": d["name"], "version": now[0], "weights_sha256": now[1]}
 
 
-def _store_artifact(policy: Path, decider: dict[str, Any], root: Path) -> dict[str, Any]:
+def _check_policy_file(policy: Path) -> None:
     if not policy.is_file():
         raise UserError(f"--policy {policy}: not a file (a row needs its policy file, e.g. an SB3 .zip, "
                         "a TorchScript .pt or an .onnx file, so that it can be re-run)")
+
+
+def _store_artifact(policy: Path, decider: dict[str, Any], root: Path) -> dict[str, Any]:
     try:
         data = policy.read_bytes()
     except OSError as exc:

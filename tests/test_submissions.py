@@ -50,9 +50,9 @@ def root(tmp_path):
 # ------------------------------------------------------------------ subsets
 @pytest.mark.parametrize("decider", ["rule-fsm", "dqn", "oracle"])
 def test_a_subset_run_equals_the_same_scenarios_of_the_full_run(tmp_path, decider):
-    suite = small_suite(tmp_path, count=40)
+    suite = small_suite(tmp_path, count=24)
     full = run_suite(suite, zoo.load(decider, suite.config), progress=False).per
-    idx = np.array([31, 2, 17, 17, 39, 0])  # any order, repeats allowed
+    idx = np.array([21, 2, 17, 17, 23, 0])  # any order, repeats allowed
     sub = run_indices(suite, zoo.load(decider, suite.config), idx, chunk_size=4)
     for key in PER_SCENARIO:
         np.testing.assert_array_equal(sub[key], full[key][idx], err_msg=key)
