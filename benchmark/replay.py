@@ -18,6 +18,7 @@ from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig
 
 from .archive import Episode, read_archive_meta, read_episode
 from .errors import UserError
+from .io import atomic_path
 
 RUNNING = 0
 
@@ -92,15 +93,16 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
 
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        if suffix == ".png":
-            draw(len(frames) - 1)
-            fig.tight_layout()
-            fig.savefig(out)
-        else:
-            fig.tight_layout()
-            anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
-            writer = PillowWriter(fps=fps) if suffix == ".gif" else FFMpegWriter(fps=fps)
-            anim.save(out, writer=writer)
+        with atomic_path(out) as tmp:  # a temp file beside out, renamed when complete
+            if suffix == ".png":
+                draw(len(frames) - 1)
+                fig.tight_layout()
+                fig.savefig(tmp)
+            else:
+                fig.tight_layout()
+                anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
+                writer = PillowWriter(fps=fps) if suffix == ".gif" else FFMpegWriter(fps=fps)
+                anim.save(tmp, writer=writer)
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
     return out
