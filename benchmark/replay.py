@@ -92,7 +92,6 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
         return []
 
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(out) as tmp:  # a temp file beside out, renamed when complete
             if suffix == ".png":
                 draw(len(frames) - 1)

@@ -55,6 +55,8 @@ def _resolve(path: str | os.PathLike) -> tuple[Path, os.stat_result | None]:
         st = None
     except OSError as exc:  # a parent that is a file, a loop of links, no permission
         raise _fail(path, exc) from None
+    except ValueError as exc:  # a NUL byte in the name
+        raise WriteError(path, str(exc)) from None
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise WriteError(path, "it is a directory")
     if path.is_symlink():
