@@ -42,7 +42,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import UserError
-from .io import atomic_directory, atomic_path
+from .io import atomic_directory, atomic_path, check_writable_dir
 
 REGISTRY_FILE = Path(__file__).with_name("registry") / "datasets.json"
 
@@ -186,6 +186,10 @@ def build_dataset(name: str, suite: Any, decider: Any, epsilon: float = 0.1, cou
 
     if count is not None and not 1 <= count <= suite.count:
         raise UserError(f"--count {count}: suite {suite.name} has {suite.count} scenarios")
+    target = datasets_dir() / name
+    if target.exists() and not overwrite:
+        raise UserError(f"dataset {name} already exists in {datasets_dir()} (use --overwrite to replace it)")
+    check_writable_dir(target.parent)  # fail before recording, not after
     episodes = collect(suite, decider, epsilon=epsilon, seed=seed, count=count, chunk_size=chunk_size)
     num = len(episodes)
     from minari.data_collector import EpisodeBuffer
@@ -194,10 +198,6 @@ def build_dataset(name: str, suite: Any, decider: Any, epsilon: float = 0.1, cou
                              terminations=e["terminations"], truncations=e["truncations"], infos=e["infos"])
                for i, e in enumerate(episodes)]
     obs_dim = episodes[0]["observations"].shape[1]
-    root = datasets_dir()
-    target = root / name
-    if target.exists() and not overwrite:
-        raise UserError(f"dataset {name} already exists in {root} (use --overwrite to replace it)")
     spec = _env_spec(suite.config)
     description = (f"{decider.name} v{decider.version} on suite {suite.name} v{suite.version} "
                    f"({suite.hash[:12]}), first {num} scenarios, epsilon-random {epsilon}, "

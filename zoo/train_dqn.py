@@ -334,6 +334,7 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
     """Train ``algo`` and (unless ``eval_suite`` is None) evaluate it; writes ``log.csv``,
     ``checkpoint.pt``, ``<algo>.pt`` and the model card ``<algo>.json`` into ``out``.
     Returns the model card (dict)."""
+    out_dir = check_writable_dir(out) if out else None  # fail before training, not after it
     hp = load_hyperparams(algo, hyperparams)
     hp.update(overrides or {})
     if steps is not None:
@@ -343,9 +344,6 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
     trainer = Trainer(algo, hp, load_suite(suite), seed)
     if resume:
         trainer.restore(resume)
-    out_dir = Path(out) if out else None
-    if out_dir:
-        check_writable_dir(out_dir)  # fail before training, not after it
     trainer.run(int(hp["steps"]), out_dir, progress)
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
