@@ -122,6 +122,10 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
     ``f`` is a temp file beside ``path``, renamed over it when the block ends without an exception
     and deleted otherwise. ``mode`` is ``"wb"`` or ``"w"`` (text, UTF-8 unless ``encoding``). A
     target that is not a regular file (FIFO, device) is streamed into directly.
+
+    A writer with its own open/close methods keeps the context in a ``contextlib.ExitStack``:
+    ``f = stack.enter_context(atomic_output(path))`` on open; ``stack.close()`` on a clean close
+    renames; ``stack.__exit__(type(exc), exc, exc.__traceback__)`` on failure deletes the temp file.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_output: mode must be 'w' or 'wb', got {mode!r}")

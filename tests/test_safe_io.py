@@ -1,6 +1,7 @@
 """Safe writes (overtakezoo.envs.io): a target is the old file or a complete new one, never partial;
 FIFOs and devices are written in place, never replaced; two writers never mix; no temp file stays."""
 
+import contextlib
 import os
 import stat
 import subprocess
@@ -62,6 +63,34 @@ def test_interrupted_stream_leaves_old_file_and_no_temp(tmp_path):
             f.write("partial")
             raise KeyboardInterrupt
     assert not (tmp_path / "new.json").exists() and leftovers(tmp_path) == []
+
+
+class _StreamingWriter:
+    """A writer with open/close methods (like an archive recorder) on top of atomic_output."""
+
+    def __init__(self, path):
+        self.stack = contextlib.ExitStack()
+        self.f = self.stack.enter_context(atomic_output(path))
+
+    def close(self, exc=None):
+        if exc is None:
+            self.stack.close()
+        else:
+            self.stack.__exit__(type(exc), exc, exc.__traceback__)
+
+
+def test_streaming_writer_with_open_and_close(tmp_path):
+    target = tmp_path / "run.bin"
+    w = _StreamingWriter(target)
+    w.f.write(b"chunk 1;")
+    w.f.write(b"chunk 2")
+    assert not target.exists()
+    w.close()
+    assert target.read_bytes() == b"chunk 1;chunk 2"
+    w = _StreamingWriter(target)
+    w.f.write(b"partial")
+    w.close(KeyboardInterrupt())
+    assert target.read_bytes() == b"chunk 1;chunk 2" and leftovers(tmp_path) == []
 
 
 def test_atomic_path_keeps_suffix_and_cleans_up(tmp_path):
