@@ -73,7 +73,7 @@ def _minari_path(path: Path | None = None) -> Iterator[Path]:
     old = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(path)
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        check_writable_dir(path)
         yield path
     finally:
         if old is None:
@@ -301,8 +301,7 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
     if urllib.parse.urlsplit(url).scheme not in ("http", "https"):
         raise UserError(f"refusing {url!r}: only http(s) URLs are downloaded")
     root = datasets_dir()
-    downloads = cache_dir() / "downloads"
-    downloads.mkdir(parents=True, exist_ok=True)
+    downloads = check_writable_dir(cache_dir() / "downloads")
     final = downloads / (name.replace("/", "__") + ".tar.gz")
     part = final.with_name(final.name + ".part")
     if not (final.exists() and _sha256(final) == sha):

@@ -86,12 +86,17 @@ def archive(tmp_path_factory):
     return path
 
 
-def test_unwritable_out_on_every_command(tmp_path, capsys, archive, monkeypatch):
+def test_unwritable_out_on_every_command(tmp_path, tmp_path_factory, capsys, archive, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     bad = blocker / "sub"
     suite = str(small_suite_file(tmp_path, count=3))
+    registry = tmp_path_factory.mktemp("registry") / "datasets.json"
+    registry.write_text(json.dumps({"datasets": {"o/t/x-v0": {"url": "http://127.0.0.1:9/x.tar.gz", "size": 10,
+                                                               "sha256": "0" * 64}}}))
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(bad))
+    monkeypatch.setenv("OVERTAKEZOO_HOME", str(bad / "home"))
+    monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(registry))
     runs = [
         ["eval", "--suite", suite, "--decider", "always-follow", "--out", f"{bad}/r.json"],
         ["eval", "--suite", suite, "--decider", "always-follow", "--out", str(tmp_path / "r.json"),
@@ -101,6 +106,8 @@ def test_unwritable_out_on_every_command(tmp_path, capsys, archive, monkeypatch)
         ["replay", str(archive), "--episode", "0", "--out", f"{bad}/e.png"],
         ["leaderboard", "--root", f"{bad}/lb"],
         ["dataset", "build", "--suite", suite, "--decider", "always-follow", "--name", "o/t/x-v0", "--count", "1"],
+        ["dataset", "list"],
+        ["dataset", "download", "o/t/x-v0", "--no-progress"],
         ["eval", "--suite", suite, "--decider", "always-follow", "--out", str(tmp_path)],  # a directory
     ]
     for argv in runs:
