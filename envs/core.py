@@ -224,7 +224,7 @@ class OvertakeCore:
         modes = xp.asarray(modes, xp.int).reshape(-1)
         if modes.shape[0] != self.num:
             raise ValueError(f"expected {self.num} modes, got {modes.shape[0]}")
-        if modes.shape[0] and (modes.min() < 0 or modes.max() > 2):
+        if ((modes < 0) | (modes > 2)).any():
             raise ValueError("modes must be 0 (follow), 1 (overtake) or 2 (abort)")
         active = ~self.done
         dt = cfg.dt * xp.astype(active, xp.float)  # finished rows are frozen: their clock does not run
