@@ -302,8 +302,13 @@ def to_markdown(report: dict[str, Any]) -> str:
              f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
              f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
              f"windows of {report['seconds_per_window']} s (whole runs for the `runner-` and `eval-` rows) with "
-             f"the range; the report took {report['report_wall_time_s']} s.", "",
-             "| id | measurement | median | range | simulated s per wall s |", "|---|---|---|---|---|"]
+             f"the range; the report took {report['report_wall_time_s']} s."]
+    loads = [x for key in ("load_average_at_start", "load_average_at_end") for x in (report[key] or [])[:1]]
+    if loads and max(loads) > m["cores"]:
+        lines.append(f"The machine was busy (load above its {m['cores']} cores): absolute figures are low; "
+                     "ratios of figures measured in this run are the robust part.")
+    lines += ["",
+              "| id | measurement | median | range | simulated s per wall s |", "|---|---|---|---|---|"]
     for row in report["figures"]:
         if "of" in row:  # a ratio of two rows' medians
             lines.append(f"| `{row['id']}` | {row['what']} | {row['median']}x | | |")
