@@ -71,7 +71,8 @@ def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
     if m:
         j = xp.arange(m)
         before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
-        rank = xp.sum(before & seen[None, :] & (lanes[None, :] == lanes[:, None]), axis=1)  # (M, N)
+        same_lane = core._sc["pair_same_lane"][..., sel]  # lanes equal, the other vehicle present (cached)
+        rank = xp.sum(before & seen[None, :] & same_lane, axis=1)  # (M, N)
         vj, vn = xp.nonzero2(seen & (rank < k))
         if len(vn):
             # Relative position and velocity of the kept vehicles in the ego frame.
