@@ -42,8 +42,9 @@ class NumpyBackend:
 
     @staticmethod
     def stack(xs: Any, axis: int = 0) -> np.ndarray:
-        # np.array of equal-shape arrays is np.stack on axis 0 without its Python-level checks (4x faster at N = 1).
-        return np.array(xs) if axis == 0 else np.stack(xs, axis)
+        # np.array of small equal-shape arrays is np.stack on axis 0 without its Python-level checks
+        # (4x faster at N = 1); for large arrays np.stack's plain copies are faster.
+        return np.array(xs) if axis == 0 and xs[0].size <= 256 else np.stack(xs, axis)
 
     def full(self, shape: Any, value: Any, dtype: Any = None) -> np.ndarray:
         return np.full(shape, value, dtype or self.float)

@@ -135,7 +135,7 @@ class OvertakeCore:
         T["pair_same_lane"] = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]  # (M, M, N)
         T["pair_half_len"] = (T["length"][:, None] + T["length"][None, :]) / 2
         ego["half_ego_length"], ego["half_ego_width"] = ego["ego_length"] / 2, ego["ego_width"] / 2
-        half_w = w / 2
+        ego["half_lane_width"] = half_w = w / 2
         ego["offroad_low"], ego["offroad_high"] = -half_w - 0.5, 3 * half_w + 0.5
         ego["time_up"] = ego["time_limit"] - 1e-9
         return ego, T
@@ -328,6 +328,8 @@ class OvertakeCore:
         hn_l, hn_w = T["half_length"], T["half_width"]
         dx, dy = geo["dx"], geo["dy"]
         hit = xp.abs(dx) <= hn_l + he_l * c + he_w * s
+        if not hit.any():  # (no vehicle overlaps the ego along the road: no contact, skip the other axes)
+            return hit
         hit &= xp.abs(dy) <= hn_w + he_l * s + he_w * c
         hit &= xp.abs(dx * cs + dy * sn) <= he_l + hn_l * c + hn_w * s
         hit &= xp.abs(-dx * sn + dy * cs) <= he_w + hn_l * s + hn_w * c
@@ -336,7 +338,7 @@ class OvertakeCore:
     def _resolve(self, hit: Any, active: Any) -> tuple[Any, Any]:
         xp, T, E = self.xp, self._sc, self._ego
         crash = active & xp.any(hit, axis=0)
-        half_w = E["lane_width"] / 2
+        half_w = E["half_lane_width"]
         left, right = self.y + E["half_ego_width"], self.y - E["half_ego_width"]
         offroad = active & ~crash & ((right < E["offroad_low"]) | (left > E["offroad_high"]))
         front, rear = self.x + E["half_ego_length"], self.x - E["half_ego_length"]
@@ -361,7 +363,7 @@ class OvertakeCore:
 
     def _update_stats(self, geo: dict[str, Any], active: Any, jerk: Any) -> None:
         xp, st, E = self.xp, self.stats, self._ego
-        in_opposite = self.y + E["ego_width"] / 2 > E["lane_width"] / 2
+        in_opposite = self.y + E["half_ego_width"] > E["half_lane_width"]
         st["opposite_time"] += xp.astype(in_opposite & active, xp.float) * self.cfg.dt
         # Time to collision with vehicles ahead whose lane the ego overlaps.
         gap = geo["dx"] - geo["half_len"]

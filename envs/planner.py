@@ -211,12 +211,14 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     transition = xp.abs(k - current_rollout) / n
     lateral = xp.sum(xp.where(ahead, npc["lat_cost"], 0.0), axis=1)
     longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
+    everywhere = allowed.all()  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
     cost = 0.0
     for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
                          (cfg.weight_lateral, lateral), (cfg.weight_longitudinal, longitudinal)):
-        total = xp.sum(xp.where(allowed, term, 0.0), axis=0)
+        total = xp.sum(term if everywhere else xp.where(allowed, term, 0.0), axis=0)
         cost += weight * term / xp.maximum(total, 1e-9)
-    cost = xp.where(allowed, cost, INF)
+    if not everywhere:
+        cost = xp.where(allowed, cost, INF)
 
     free = allowed & ~blocked
     free_cost = xp.where(free, cost, INF)
