@@ -344,9 +344,10 @@ class OvertakeCore:
         front, rear = self.x + E["half_ego_length"], self.x - E["half_ego_length"]
         passed = xp.all(T["not_must_pass"] | (rear >= self._npc_s + T["half_length"]), axis=0)
         in_lane = left <= half_w
-        success = active & ~crash & ~offroad & (front >= E["goal_s"]) & in_lane & passed
+        going = active & ~crash & ~offroad
+        success = going & (front >= E["goal_s"]) & in_lane & passed
         # Out of time, or out of road (a follower stuck behind the lead past the goal): truncation.
-        timeout = active & ~crash & ~offroad & ~success & ((self.t >= E["time_up"]) | (self.x > E["road_length"]))
+        timeout = going & ~success & ((self.t >= E["time_up"]) | (self.x > E["road_length"]))
         if crash.any():  # (which vehicle was hit matters only in a crash)
             hit_idx = xp.minimum(first_true(hit, 0, xp), max(hit.shape[0] - 1, 0))
             cols = xp.arange(self.num)

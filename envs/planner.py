@@ -144,6 +144,9 @@ def _swept_conflict(y, v, offsets, dj, margin, lane_width, roll_in, tip, t_from,
 def _longitudinal_window(dx, rel_v, reach, xp):
     """Times [t0, t1] (M, N) during which |dx + rel_v t| < reach (constant relative speed)."""
     still = xp.abs(rel_v) < 1e-9
+    if not still.any():  # (every vehicle moves relative to the ego: no special case to mask)
+        a, b = (-reach - dx) / rel_v, (reach - dx) / rel_v
+        return xp.minimum(a, b), xp.maximum(a, b)
     safe_v = xp.where(still, 1.0, rel_v)
     a, b = (-reach - dx) / safe_v, (reach - dx) / safe_v
     inside_now = xp.abs(dx) < reach
