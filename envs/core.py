@@ -230,9 +230,11 @@ class OvertakeCore:
         dt = cfg.dt * xp.astype(active, xp.float)  # finished rows are frozen: their clock does not run
         prev_mode = self.mode
         modes = xp.where(active, modes, prev_mode)
-        switched = active & (modes != prev_mode) & ((modes == OVERTAKE) | (prev_mode == OVERTAKE))
-        self.stats["switches"] += switched
-        self.stats["aborts"] += active & (modes == ABORT) & (prev_mode != ABORT)
+        switched = modes != prev_mode  # (all False on the usual step, where no row changes its mode)
+        if switched.any():
+            self.stats["aborts"] += active & (modes == ABORT) & (prev_mode != ABORT)
+            switched = active & switched & ((modes == OVERTAKE) | (prev_mode == OVERTAKE))
+            self.stats["switches"] += switched
         self.mode = modes
 
         geo = self._geometry()
@@ -298,9 +300,10 @@ class OvertakeCore:
         ego_gap = -direction * geo["dx"] - geo["half_len"]
         ego_in_lane = (xp.abs(geo["dy"]) < half_wid) & (ego_gap > -2 * geo["half_len"])
         self._npc_aware = xp.where(ego_in_lane, self._npc_aware + dt, 0.0)
-        sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
-        gap = xp.where(sees_ego, ego_gap, gap)
-        lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
+        if ego_in_lane.any():  # (the ego in no NPC's lane: every NPC keeps its lead)
+            sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
+            gap = xp.where(sees_ego, ego_gap, gap)
+            lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
         # A speed-up lead raises its desired speed once the ego draws level in the other lane.
         v_des = T["v_des"]
         if T["speedup"].any():  # (no speed-up lead in the batch: nothing to boost)
