@@ -134,6 +134,8 @@ class OvertakeCore:
         T["not_must_pass"] = ~T["must_pass"]
         T["pair_same_lane"] = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]  # (M, M, N)
         T["pair_half_len"] = (T["length"][:, None] + T["length"][None, :]) / 2
+        others = xp.arange(T["lane"].shape[0])[:, None] != xp.arange(T["lane"].shape[0])[None, :]
+        T["lane_mates"] = xp.any(xp.any(T["pair_same_lane"] & others[:, :, None], axis=0), axis=0)  # (N,)
         ego["half_ego_length"], ego["half_ego_width"] = ego["ego_length"] / 2, ego["ego_width"] / 2
         ego["half_lane_width"] = half_w = w / 2
         ego["offroad_low"], ego["offroad_high"] = -half_w - 0.5, 3 * half_w + 0.5
