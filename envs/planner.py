@@ -229,8 +229,9 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     keep = free[current_rollout, cols] & (cost[current_rollout, cols] <= free_cost[best, cols] + cfg.keep_margin)
     choice = xp.where(keep, current_rollout, best)
     none_free = ~xp.any(free, axis=0)
-    fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
-    choice = xp.where(none_free, fallback, choice)
+    if none_free.any():  # (some row has every allowed rollout blocked)
+        fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
+        choice = xp.where(none_free, fallback, choice)
     forced = table.rollout_id[mode]
     choice = xp.where(forced >= 0, forced, choice)
     target_d = offsets[choice, cols]
