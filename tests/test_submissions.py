@@ -1,6 +1,7 @@
 """Verified submissions: rows re-run exactly, edits and swapped artifacts are refused, names are guarded."""
 
 import json
+import re
 import shutil
 import time
 from pathlib import Path
@@ -9,15 +10,16 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark import policy as policies
+from overtakezoo.benchmark import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import generate
 from overtakezoo.benchmark.metrics import summarize
+from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.results import PER_SCENARIO, Results
 from overtakezoo.benchmark.runner import run_indices, run_suite
 from overtakezoo.benchmark.submission import sample_indices, submit, verify
-from overtakezoo.envs import OVERTAKE, SIM_VERSION
+from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
 
 from test_benchmark_results import fake_results
 from test_benchmark_runner import small_suite
@@ -110,34 +112,79 @@ def test_edited_per_scenario_outcome_is_refused_naming_the_scenario(root, capsys
     assert f"scenario {idx[0]}: episode_time: recorded" in err
 
 
-class ConstantPolicy:
-    """A test-only file format for load_policy: a JSON file {"mode": m}."""
+# ------------------------------------------------------------------ a policy file, end to end through the CLI
+@pytest.fixture
+def tiny(tmp_path, monkeypatch):
+    """A built-in suite of 12 short scenarios: the suite registry points at tmp_path (a leaderboard
+    row needs a built-in suite); eval, submit, the policy loader and verify are the real ones."""
+    builtin = tmp_path / "suites"
+    builtin.mkdir()
+    text = (suites.SUITES_DIR / "table1.toml").read_text()
+    for pattern, repl in ((r'(?m)^name = "table1"', 'name = "tiny"'), (r"(?m)^count = \d+", "count = 12"),
+                          (r"(?m)^time_limit = [\d.]+", "time_limit = 20.0")):
+        text, n = re.subn(pattern, repl, text)
+        assert n == 1, pattern
+    (builtin / "tiny.toml").write_text(text)
+    monkeypatch.setattr(suites, "SUITES_DIR", builtin)
+    return "tiny"
 
-    @staticmethod
-    def load(spec, config=None):
-        if not spec.endswith(".json"):
-            raise UserError(f"policy {spec!r}: not a test policy")
-        mode = json.loads(Path(spec).read_text())["mode"]
-        return zoo.ConstantDecider(mode, "const", config)
+
+def scripted_policy(path, seed, favour):
+    """A TorchScript MLP (N, D) float32 -> 3 logits with seeded weights, leaning towards mode ``favour``."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(seed)
+    net = torch.nn.Sequential(torch.nn.Linear(observation_size(EnvConfig()), 16), torch.nn.Tanh(),
+                              torch.nn.Linear(16, 3))
+    with torch.no_grad():
+        net[2].bias.copy_(torch.nn.functional.one_hot(torch.tensor(favour), 3) * 4.0)
+    torch.jit.save(torch.jit.script(net.eval()), str(path))
+    return path
 
 
-def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(root, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(policies, "load_policy", ConstantPolicy.load)  # the real loaders read SB3/TorchScript/ONNX
-    mine = tmp_path / "my-policy.json"
-    mine.write_text(json.dumps({"mode": OVERTAKE}))
-    assert main(["submit", str(_results_file(tmp_path, "always-overtake")), "--policy", str(mine),
-                 "--name", "my-overtaker", "--root", str(root)]) == 0
-    row = Results.load(root / "submissions" / "table1" / "my-overtaker.json")
-    sha = row.meta["submission"]["policy"]["sha256"]
-    artifact = root / "submissions" / "artifacts" / f"{sha}.json"
-    assert artifact.read_bytes() == mine.read_bytes()
-    assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "4", "--only", "*/my-*"]) == 0
-    assert "verified submissions/table1/my-overtaker.json: 4 of 3000" in capsys.readouterr().out
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_path, capsys):
+    a = scripted_policy(tmp_path / "tiny.pt", 0, OVERTAKE)
+    b = scripted_policy(tmp_path / "other.pt", 1, FOLLOW)  # same shapes, other weights, other outcomes
+    root = tmp_path / "lb"
+    for policy, out in ((a, "ra.json"), (b, "rb.json")):
+        assert main(["eval", "--policy", str(policy), "--suite", tiny, "--out", str(tmp_path / out),
+                     "--no-progress"]) == 0
+    ra, rb = Results.load(tmp_path / "ra.json"), Results.load(tmp_path / "rb.json")
+    assert not np.array_equal(ra.per["outcome"], rb.per["outcome"])
+    capsys.readouterr()
 
-    # The stored policy no longer reproduces the row: a mismatch, named.
-    artifact.write_text(json.dumps({"mode": 0}))
-    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "4"])
-    assert "my-overtaker.json: submission.policy.artifact" in err and "sha256" in err and f"{sha[:12]}" in err
+    # Results of policy A filed with policy B: refused at submit time (the results record A's sha256).
+    assert "submit the file that was evaluated" in one_line_error(
+        capsys, ["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(b), "--root", str(root)])
+    assert main(["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(a),
+                 "--root", str(root)]) == 0
+    sha = Results.load(root / "submissions" / tiny / "my-policy.json").meta["submission"]["policy"]["sha256"]
+    artifact = root / "submissions" / "artifacts" / f"{sha}.pt"
+    assert artifact.read_bytes() == a.read_bytes()
+    # The stored file loads under its content name: the kind comes from the bytes, not the file name.
+    stored = load_policy(str(artifact), suites.load_suite(tiny).config)
+    assert stored.policy == {"kind": "torchscript", "file": artifact.name, "sha256": sha}
+    assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
+    assert "verified submissions/tiny/my-policy.json: 12 of 12 scenarios reproduce exactly" in capsys.readouterr().out
+
+    # The stored policy swapped for another one: a sha256 mismatch, named.
+    artifact.write_bytes(b.read_bytes())
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify"])
+    assert f"my-policy.json: submission.policy.artifact: artifacts/{sha}.pt has sha256" in err and sha[:12] in err
+    artifact.write_bytes(a.read_bytes())
+
+    # A consistent forgery: A's outcomes claimed for B (the results' weights sha256 edited to B's)
+    # are filed, and the re-run of B refuses them, naming the first scenario that differs.
+    forged = Results({**ra.meta, "decider": {**ra.decider, "weights_sha256": rb.decider["weights_sha256"]}},
+                     ra.per, ra.summary, ra.timing)
+    forged.save(tmp_path / "forged.json")
+    assert main(["submit", str(tmp_path / "forged.json"), "--name", "forged", "--policy", str(b),
+                 "--root", str(root)]) == 0
+    first = int(np.flatnonzero(ra.per["outcome"] != rb.per["outcome"])[0])
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--only", "*/forged"])
+    assert "submissions/tiny/forged.json: scenario " in err and "not produced by this policy" in err
+    assert int(err.split("scenario ")[1].split(":")[0]) <= first
+    assert main(["leaderboard", "--root", str(root), "--verify", "--only", "*/my-policy"]) == 0
 
 
 def _results_file(tmp_path, name):
