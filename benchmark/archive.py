@@ -38,11 +38,11 @@ of a failure) are written as ``null``; the reader maps them back (inf or NaN by 
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
 import signal
-import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +57,7 @@ from .archive_format import (EPISODE_GAP_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, S
 from .archive_reader import (ArchiveIndex, Episode, EpisodeEntry, list_episodes, read_archive, read_archive_meta,
                              read_episode, read_index)
 from .errors import UserError
+from .io import WriteError, atomic_output
 from .mcap_sink import MessageSink
 
 ROLLOUT_DRAW_M = 30.0  # rollouts are drawn this far ahead of the ego in the Foxglove scene
@@ -81,8 +82,9 @@ class ArchiveRecorder:
     episode in scenario order, so each episode's messages are contiguous (reading one episode
     decompresses only the chunks it spans). ``scene_every`` thins the Foxglove scene (0: none).
 
-    The file is written as ``.<name>.<random>.tmp`` beside ``path`` and renamed to ``path`` by
-    :meth:`close` (two runs writing one archive never mix their bytes: the last to finish wins).
+    The file is written to a temp file beside ``path`` (``tmp_path``, by
+    :func:`overtakezoo.envs.io.atomic_output`) and renamed to ``path`` by :meth:`close` (two runs
+    writing one archive never mix their bytes: the last to finish wins).
     Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open, so an
     interrupted run still finishes the file with its whole episodes.
     """
@@ -95,18 +97,15 @@ class ArchiveRecorder:
         self.scene_every = int(scene_every)
         if self.scene_every < 0:
             raise UserError(f"scene_every must be >= 0 (0: no scene), got {scene_every}")
-        # Temp file + rename (the archive's own few lines; benchmark/io.py does the same for small files).
+        # The file goes through the one atomic-write implementation (temp file beside the target,
+        # renamed by close(); a FIFO or device target is streamed into; a symlink is followed).
+        self._output = contextlib.ExitStack()
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-            mask = os.umask(0)
-            os.umask(mask)
-            os.chmod(fd, 0o666 & ~mask)  # mkstemp creates 0600; the archive gets normal permissions
-            self._stream = os.fdopen(fd, "wb")
-        except OSError as exc:
-            raise UserError(f"cannot write archive {self.path}: {exc.strerror or exc}") from None
-        self.tmp_path = Path(tmp)
-        self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=chunk_size)
+            self._stream = self._output.enter_context(atomic_output(self.path))
+        except WriteError as exc:
+            raise UserError(f"cannot write archive {self.path}: {exc.strerror}") from None
+        self.tmp_path = Path(self._stream.name)  # what a killed run leaves: readable up to its last whole episode
+        self._writer = Writer(_Offsets(self._stream), compression=CompressionType.ZSTD, chunk_size=chunk_size)
         self._writer.start(profile="", library="overtakezoo")
         self._channels: dict[str, int] = {}
         for topic, (name, schema) in {**SCHEMAS, **FOXGLOVE_SCHEMAS}.items():
@@ -178,10 +177,10 @@ class ArchiveRecorder:
                 self._chunk = None
             self._sink.flush()
             self._writer.finish()
-            self._stream.close()
-            os.replace(self.tmp_path, self.path)
-        finally:
-            self._stream.close()
+        except BaseException as exc:  # the file cannot be finished: its temp file goes
+            self._output.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        self._output.close()  # renames the finished file into place
 
     def __enter__(self) -> "ArchiveRecorder":
         if threading.current_thread() is threading.main_thread():
@@ -473,6 +472,25 @@ _UNSEEN, _HIT = _rgba(.6, .6, .6, .3), _rgba(1, 0, 1, 1)  # beyond the sensor / 
 
 def _sigterm_to_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt("SIGTERM")
+
+
+class _Offsets:
+    """The stream mcap's Writer writes to. It asks ``tell()`` for record offsets, which a FIFO
+    target cannot answer: the offset is the number of bytes written (the file starts empty)."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream, self._pos = stream, 0
+
+    def write(self, data: Any) -> int:
+        n = self._stream.write(data)
+        self._pos += n
+        return n
+
+    def tell(self) -> int:
+        return self._pos
+
+    def flush(self) -> None:
+        self._stream.flush()
 
 
 def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1) -> ArchiveRecorder:

@@ -123,6 +123,9 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
     and deleted otherwise. ``mode`` is ``"wb"`` or ``"w"`` (text, UTF-8 unless ``encoding``). A
     target that is not a regular file (FIFO, device) is streamed into directly.
 
+    ``f.name`` is the path written: the temp file (what a killed writer leaves behind) or, in place,
+    the target.
+
     A writer with its own open/close methods keeps the context in a ``contextlib.ExitStack``:
     ``f = stack.enter_context(atomic_output(path))`` on open; ``stack.close()`` on a clean close
     renames; ``stack.__exit__(type(exc), exc, exc.__traceback__)`` on failure deletes the temp file.
@@ -142,7 +145,8 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
         return
     fd, tmp = _open_temp(target)
     try:
-        with os.fdopen(fd, mode, encoding=encoding, newline=newline) as f:
+        # opener: the descriptor _open_temp created; f.name is the temp file's path.
+        with open(tmp, mode, encoding=encoding, newline=newline, opener=lambda *_: fd) as f:
             yield f
             try:
                 f.flush()

@@ -252,7 +252,7 @@ def test_killed_or_terminated_writer(tmp_path, capsys, how):
     target = tmp_path / "run.mcap"
     code = _WRITER.format(tests=os.path.dirname(__file__), path=str(target), how=how)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    temps = list(tmp_path.glob(".run.mcap.*.tmp"))
+    temps = list(tmp_path.glob(".run.mcap.tmp-*"))
     if how == "kill":
         assert proc.returncode == -signal.SIGKILL and not target.exists() and len(temps) == 1
         assert main(["replay", str(temps[0]), "--list"]) == 0
@@ -284,7 +284,7 @@ def test_interrupt_mid_chunk_keeps_finished_episodes(tmp_path):
     assert all(full[i].steps <= 200 for i in late) and all(full[i].steps > 200 for i in set(range(5, 10)) - set(late))
     for ep in cut:
         assert ep.steps == full[ep.index].steps and np.array_equal(ep.ego["x"], full[ep.index].ego["x"])
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob(".*.tmp-*"))
 
 
 def test_two_writers_on_one_archive_never_mix(tmp_path):
@@ -298,7 +298,36 @@ def test_two_writers_on_one_archive_never_mix(tmp_path):
     assert [e.index for e in list_episodes(path)] == list(range(5, 10))
     a.close()  # the last to finish wins, whole
     assert [e.index for e in list_episodes(path)] == list(range(5)) and read_index(path).note is None
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob(".*.tmp-*"))
+
+
+def test_fifo_and_symlink_targets_are_written_like_every_other_file(tmp_path):
+    """The archive goes through envs/io's atomic writes: a FIFO is streamed into (and stays a FIFO),
+    a symlink is followed (the link stays, the file it points to is replaced)."""
+    import stat
+    import threading
+
+    suite = load_suite("table1")
+    fifo, got = tmp_path / "run.fifo", []
+    os.mkfifo(fifo)
+    reader = threading.Thread(target=lambda: got.append(fifo.open("rb").read()), daemon=True)
+    reader.start()
+    with ArchiveRecorder(fifo, scene_every=0) as rec:
+        assert rec.tmp_path == fifo
+        run_suite(suite, MixedDecider(suite.config), shard=(0, 600), progress=False, recorder=rec)
+    reader.join(10)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    (tmp_path / "piped.mcap").write_bytes(got[0])
+    assert [e.index for e in list_episodes(tmp_path / "piped.mcap")] == list(range(5))
+
+    real, link = tmp_path / "real.mcap", tmp_path / "link.mcap"
+    real.write_bytes(b"old")
+    link.symlink_to(real)
+    with ArchiveRecorder(link, scene_every=0) as rec:
+        assert rec.tmp_path.parent == tmp_path and rec.tmp_path.name.startswith(".real.mcap.tmp-")
+        run_suite(suite, MixedDecider(suite.config), shard=(0, 600), progress=False, recorder=rec)
+    assert link.is_symlink() and real.read_bytes() == got[0]
+    assert not list(tmp_path.glob(".*.tmp-*"))
 
 
 def _scene_updates(path):
