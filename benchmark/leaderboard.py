@@ -233,8 +233,11 @@ model.save("my-dqn.zip")
 
 With CleanRL, rsl-rl or your own torch code, save the network with TorchScript
 (`torch.jit.script(net).save("my-dqn.pt")`, observations in, Q-values or logits out; the mode is
-the argmax) or export it to ONNX. A `package.module:factory` policy works with `eval` but is not a
-file: export it to submit it. Tune on `table1-train`, never on the suites you submit to.
+the argmax) or export it to ONNX. `overtakezoo train dqn --out runs/my-dqn` (also `double-dqn`,
+`ppo`) writes `runs/my-dqn/dqn.pt` with its model card `dqn.json` beside it: pass the `.pt` to
+`eval` and `submit`, which finds the card the same way. A `package.module:factory` policy works
+with `eval` but is not a file: export it to submit it. Tune on `table1-train`, never on the suites
+you submit to.
 
 **2. Evaluate** on each suite you want a row on (`overtakezoo suites` lists them):
 
@@ -258,13 +261,15 @@ overtakezoo leaderboard                              # regenerate the tables
 version, a policy file whose sha256 differs from the one the results recorded, a reserved name,
 and a name already on that suite's leaderboard unless you pass `--replace`. Your policy file is
 stored once, by content, as `submissions/artifacts/<sha256>.<ext>`, whatever number of suites
-you submit it to. Keep it small (a few MB).
+you submit it to (weights from `overtakezoo train` with their model card as
+`artifacts/<sha256>.json`; the row records the sha256 of both). Keep it small (a few MB).
 
 **4. Open a pull request** that contains exactly:
 
 - `leaderboards/submissions/<suite>/my-dqn.json` for each suite (your results, with the
   `submission` block `submit` adds);
-- `leaderboards/submissions/artifacts/<sha256>.<ext>` (your policy);
+- `leaderboards/submissions/artifacts/<sha256>.<ext>` (your policy; and `<sha256>.json`, its model
+  card, for weights from `overtakezoo train`);
 - the regenerated `leaderboards/README.md`, `leaderboards/index.json`, `leaderboards/<suite>.md`
   and `leaderboards/<suite>.png`.
 

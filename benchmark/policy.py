@@ -8,7 +8,8 @@ A SPEC is one of:
   ``action_repeat``);
 - a file:
   - ``<name>.pt`` with its model card ``<name>.json`` beside it: what ``overtakezoo train dqn |
-    double-dqn | ppo`` writes (sha256 checked against the card, as for the zoo's own weights);
+    double-dqn | ppo`` writes (sha256 checked against the card, as for the zoo's own weights; the
+    leaderboard stores the pair as ``artifacts/<sha256>.pt`` + ``artifacts/<sha256>.json``);
   - a TorchScript file (``torch.jit.save``): a module mapping float32 observations (N, D) to
     Q-values or logits (N, 3), argmax taken (or to modes (N,));
   - an ONNX file (extra ``[onnx]``: onnxruntime), the same contract;
@@ -127,8 +128,8 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     except OSError as exc:
         raise UserError(f"policy {path}: cannot read ({exc.strerror or exc})") from None
     sha = hashlib.sha256(data).hexdigest()
-    card = path.with_suffix(".json")
-    if path.suffix in (".pt", ".pth") and card.is_file():
+    card = model_card(path)
+    if card is not None:
         dec = _load_trained(path, card, config)
         kind = dec.policy_kind
     elif path.suffix == ".zip" and _is_sb3(path):
@@ -138,7 +139,8 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     elif zipfile.is_zipfile(path) and _is_torchscript(path):
         dec, kind = _load_torchscript(path, config), "torchscript"
     else:
-        hint = (f" (a plain state_dict needs its model card {card.name} beside it, as `overtakezoo train` writes)"
+        hint = (f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
+                "`overtakezoo train` writes)"
                 if path.suffix in (".pt", ".pth") else "")
         raise UserError(f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a "
                         f"model card{hint}")
@@ -147,6 +149,13 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     dec.policy = {"kind": kind, "file": path.name, "sha256": sha}
     _probe(dec, config, path)
     return dec
+
+
+def model_card(path: Path) -> Path | None:
+    """The model card of weights in the format `overtakezoo train` writes (<name>.pt beside
+    <name>.json), or None: the file is a policy on its own."""
+    card = path.with_suffix(".json")
+    return card if path.suffix in (".pt", ".pth") and card.is_file() else None
 
 
 def _slug(stem: str) -> str:

@@ -4,8 +4,11 @@ Layout under ``<root>/submissions/``:
 
 - ``<suite>/<name>.json``: one row, a results file with a ``submission`` block naming the row and
   its policy: a built-in zoo member (``{"builtin", "version", "weights_sha256"}``) or a policy file
-  (``{"artifact": "artifacts/<sha256>.<ext>", "sha256"}``);
-- ``artifacts/<sha256>.<ext>``: policy files, stored once by content, shared by every suite they run on.
+  (``{"artifact": "artifacts/<sha256>.<ext>", "sha256"}``, plus ``"card_sha256"`` for weights
+  ``overtakezoo train`` wrote, whose model card is stored beside them);
+- ``artifacts/<sha256>.<ext>``: policy files, stored once by content, shared by every suite they run
+  on; ``artifacts/<sha256>.json`` beside ``artifacts/<sha256>.pt``: the weights' model card, found
+  by :func:`~.policy.load_policy` as beside any trained weights.
 
 ``verify`` re-runs each row's policy on (a seeded sample of) its scenarios and requires every
 per-scenario value to equal the recorded one, so a results file edited by hand, or one whose
@@ -107,7 +110,7 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         raise UserError(f"{path}: a row named {name!r} is already on the {suite.name} leaderboard; "
                         "pass --replace to replace it")
     if policy is not None:
-        block = _store_artifact(Path(policy), decider, root)
+        block = _store_artifact(Path(policy), decider, root, path)
     filed = Results({**results.meta, "submission": {"name": name, "policy": block}}, results.per,
                     results.summary, results.timing)
     filed.save(path)
@@ -149,35 +152,73 @@ def _check_policy_file(policy: Path) -> None:
                         "a TorchScript .pt or an .onnx file, so that it can be re-run)")
 
 
-def _store_artifact(policy: Path, decider: dict[str, Any], root: Path) -> dict[str, Any]:
-    try:
-        data = policy.read_bytes()
-    except OSError as exc:
-        raise UserError(f"--policy {policy}: cannot read it: {exc.strerror or exc}") from None
+def _store_artifact(policy: Path, decider: dict[str, Any], root: Path, row: Path) -> dict[str, Any]:
+    from .policy import model_card
+
+    data = _read_policy(policy)
     sha = hashlib.sha256(data).hexdigest()
     if decider["weights_sha256"] not in (None, sha):
         raise UserError(f"--policy {policy}: sha256 {sha[:12]}..., but the results were measured with weights "
                         f"{decider['weights_sha256'][:12]}...: submit the file that was evaluated")
+    card = model_card(policy)  # weights from `overtakezoo train`: their model card is needed to load them
     ext = policy.suffix.lower()
     if not _SHA_NAME.match(sha + ext):
         ext = ""
-    rel = f"{ARTIFACTS}/{sha}{ext}"
-    target = root / "submissions" / rel
-    if not target.is_file() or file_sha256(target) != sha:
-        atomic_write_bytes(target, data)
-    return {"artifact": rel, "sha256": sha}
+    block = {"artifact": f"{ARTIFACTS}/{sha}{ext}", "sha256": sha}
+    todo = [(block["artifact"], data)]
+    if card is not None:
+        card_data = _read_policy(card)
+        block["card_sha256"] = hashlib.sha256(card_data).hexdigest()
+        card_rel = f"{ARTIFACTS}/{sha}.json"
+        stored = root / "submissions" / card_rel
+        refs = _references(root, row)
+        if stored.is_file() and file_sha256(stored) != block["card_sha256"] and (refs is None or card_rel in refs):
+            raise UserError(f"--policy {policy}: another model card for these weights is already stored "
+                            f"({card_rel}, used by another row): submit the weights with that card")
+        todo.append((card_rel, card_data))
+    for rel, content in todo:
+        target = root / "submissions" / rel
+        if not target.is_file() or file_sha256(target) != hashlib.sha256(content).hexdigest():
+            atomic_write_bytes(target, content)
+    return block
+
+
+def _read_policy(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"--policy {path}: cannot read it: {exc.strerror or exc}") from None
+
+
+def stored_files(policy: dict[str, Any]) -> dict[str, str]:
+    """The files under ``submissions/`` a row's policy block stores, with their recorded sha256."""
+    if "artifact" not in policy:
+        return {}
+    out = {policy["artifact"]: policy["sha256"]}
+    if "card_sha256" in policy:
+        out[Path(policy["artifact"]).with_suffix(".json").as_posix()] = policy["card_sha256"]
+    return out
+
+
+def _references(root: Path, skip: Path | None = None) -> set[str] | None:
+    """The stored files some row (other than ``skip``) references; None when a row is unreadable."""
+    used: set[str] = set()
+    for path in (root / "submissions").glob("*/*.json"):  # only the references: no need to validate every row
+        if path.parent.name == ARTIFACTS or path == skip:
+            continue
+        try:
+            used |= set(stored_files(json.loads(path.read_bytes()).get("submission", {})["policy"]))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return None
+    return used
 
 
 def prune_artifacts(root: str | Path) -> list[Path]:
     """Remove stored policy files no row references any more (after a --replace)."""
     base = Path(root) / "submissions"
-    used = set()
-    for path in base.glob("*/*.json"):  # only the references: no need to validate (and summarize) every row
-        try:
-            policy = json.loads(path.read_bytes()).get("submission", {})["policy"]
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            return []  # a row we cannot read might reference anything: remove nothing
-        used.add(policy.get("artifact"))
+    used = _references(Path(root))
+    if used is None:
+        return []  # a row we cannot read might reference anything: remove nothing
     gone = [p for p in sorted((base / ARTIFACTS).glob("*")) if _SHA_NAME.match(p.name)
             and f"{ARTIFACTS}/{p.name}" not in used]
     for p in gone:
@@ -201,8 +242,9 @@ def load_submissions(root: Path, suite: str = "*", only: str | None = None) -> d
         if row.name != path.stem:
             raise UserError(f"{rel}: submission.name: {row.name!r} filed as {path.stem!r}")
         sub = row.results.meta.get("submission")
-        if sub and "artifact" in sub["policy"] and not (base / sub["policy"]["artifact"]).is_file():
-            raise UserError(f"{rel}: submission.policy.artifact: {sub['policy']['artifact']} is missing")
+        for stored in stored_files(sub["policy"]) if sub else ():
+            if not (base / stored).is_file():
+                raise UserError(f"{rel}: submission.policy.artifact: {stored} is missing")
         out.setdefault(path.parent.name, []).append(row)
     return out
 
@@ -255,18 +297,18 @@ def row_policy(row: Row, root: Path, config: Any) -> Any:
                             f"(weights {str(policy['weights_sha256'])[:12]}), the zoo now has v{d.version} (weights "
                             f"{str(d.weights_sha256)[:12]}): re-measure the row (scripts/reproduce-leaderboard.sh)")
         return d
-    path = root / "submissions" / policy["artifact"]
-    try:
-        sha = file_sha256(path)
-    except OSError as exc:
-        raise UserError(f"{row.rel}: submission.policy.artifact: cannot read {policy['artifact']}: "
-                        f"{exc.strerror or exc}") from None
-    if sha != policy["sha256"]:
-        raise UserError(f"{row.rel}: submission.policy.artifact: {policy['artifact']} has sha256 {sha[:12]}..., "
-                        f"the row recorded {policy['sha256'][:12]}... (artifact swapped or corrupted)")
+    for rel, recorded in stored_files(policy).items():  # the policy file, and a trained one's model card
+        try:
+            sha = file_sha256(root / "submissions" / rel)
+        except OSError as exc:
+            raise UserError(f"{row.rel}: submission.policy.artifact: cannot read {rel}: "
+                            f"{exc.strerror or exc}") from None
+        if sha != recorded:
+            raise UserError(f"{row.rel}: submission.policy.artifact: {rel} has sha256 {sha[:12]}..., "
+                            f"the row recorded {recorded[:12]}... (artifact swapped or corrupted)")
     from . import policy as policies
 
-    return policies.load_policy(str(path), config)
+    return policies.load_policy(str(root / "submissions" / policy["artifact"]), config)
 
 
 def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: int = 0, only: str | None = None,

@@ -18,7 +18,7 @@ from overtakezoo.benchmark.metrics import summarize
 from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.results import PER_SCENARIO, Results
 from overtakezoo.benchmark.runner import run_indices, run_suite
-from overtakezoo.benchmark.submission import sample_indices, submit, verify
+from overtakezoo.benchmark.submission import file_sha256, sample_indices, submit, verify
 from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
 
 from test_benchmark_results import fake_results
@@ -185,6 +185,44 @@ def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_pat
     assert "submissions/tiny/forged.json: scenario " in err and "not produced by this policy" in err
     assert int(err.split("scenario ")[1].split(":")[0]) <= first
     assert main(["leaderboard", "--root", str(root), "--verify", "--only", "*/my-policy"]) == 0
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys):
+    """`overtakezoo train` writes weights plus their model card: the pair is stored (artifacts/<sha256>.pt
+    + artifacts/<sha256>.json), the row records both sha256s and re-runs; a swapped card is refused."""
+    pretrained = Path(zoo.__file__).parent / "pretrained"
+    mine = tmp_path / "run" / "mine.pt"
+    mine.parent.mkdir()
+    shutil.copy(pretrained / "dqn.pt", mine)
+    shutil.copy(pretrained / "dqn.json", mine.with_suffix(".json"))
+    root, results = tmp_path / "lb", tmp_path / "r.json"
+    assert main(["eval", "--policy", str(mine), "--suite", tiny, "--out", str(results), "--no-progress"]) == 0
+    assert main(["submit", str(results), "--name", "my-dqn", "--policy", str(mine), "--root", str(root)]) == 0
+    policy = Results.load(root / "submissions" / tiny / "my-dqn.json").meta["submission"]["policy"]
+    sha = policy["sha256"]
+    store = root / "submissions" / "artifacts"
+    assert sorted(p.name for p in store.iterdir()) == [f"{sha}.json", f"{sha}.pt"]
+    assert (store / f"{sha}.json").read_bytes() == mine.with_suffix(".json").read_bytes()
+    assert policy["card_sha256"] == file_sha256(mine.with_suffix(".json"))
+    capsys.readouterr()
+    assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
+    assert "verified submissions/tiny/my-dqn.json: 12 of 12" in capsys.readouterr().out
+
+    # The card is part of the policy (architecture, action repeat): an edited one is refused, named.
+    card = json.loads((store / f"{sha}.json").read_text())
+    (store / f"{sha}.json").write_text(json.dumps({**card, "action_repeat": 1}))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify"])
+    assert f"my-dqn.json: submission.policy.artifact: artifacts/{sha}.json has sha256" in err
+    (store / f"{sha}.json").unlink()
+    assert f"artifacts/{sha}.json is missing" in one_line_error(capsys, ["leaderboard", "--root", str(root)])
+
+    # Replaced by another policy: the pair is pruned together.
+    other = scripted_policy(tmp_path / "other.pt", 1, FOLLOW)
+    assert main(["eval", "--policy", str(other), "--suite", tiny, "--out", str(results), "--no-progress"]) == 0
+    assert main(["submit", str(results), "--name", "my-dqn", "--policy", str(other), "--replace",
+                 "--root", str(root)]) == 0
+    assert [p.name for p in store.iterdir()] == [f"{file_sha256(other)}.pt"]
 
 
 def _results_file(tmp_path, name):

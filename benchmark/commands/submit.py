@@ -19,12 +19,14 @@ def register(subparsers: Any) -> None:
                    "`overtakezoo leaderboard --verify --only SUITE/NAME` and `overtakezoo leaderboard`.",
                    ["overtakezoo submit results/table1/rule-fsm.json",
                     "overtakezoo submit results/table1/my-ppo.json --policy my-ppo.zip --name my-ppo",
+                    "overtakezoo submit results/table1/mine.json --policy runs/dqn/dqn.pt --name my-dqn  # + dqn.json",
                     "overtakezoo submit results/table1/dqn.shard-0-of-2.json results/table1/dqn.shard-1-of-2.json",
                     "overtakezoo submit --replace --root /tmp/lb results.json"])
     p.add_argument("results", nargs="+", help="a results file, or every shard of one run")
     p.add_argument("--name", help="the row's name (default: the decider's name; zoo names are reserved for the zoo)")
     p.add_argument("--policy", metavar="FILE", help="the policy file the results were measured with (as given to "
-                   "`eval --policy`); needed for every decider that is not a built-in zoo member")
+                   "`eval --policy`; weights from `overtakezoo train` are stored with their model card); "
+                   "needed for every decider that is not a built-in zoo member")
     p.add_argument("--replace", action="store_true", help="replace an existing row of the same name")
     p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
     p.set_defaults(handler=run)
