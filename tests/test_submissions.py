@@ -208,6 +208,12 @@ def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys):
     capsys.readouterr()
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
     assert "verified submissions/tiny/my-dqn.json: 12 of 12" in capsys.readouterr().out
+    # The same weights with another card would overwrite the card the row uses: refused.
+    noted = tmp_path / "noted.pt"
+    shutil.copy(mine, noted)
+    noted.with_suffix(".json").write_text(json.dumps({**json.loads(mine.with_suffix(".json").read_text()), "n": 1}))
+    assert "another model card for these weights" in one_line_error(
+        capsys, ["submit", str(results), "--name", "noted", "--policy", str(noted), "--root", str(root)])
 
     # The card is part of the policy (architecture, action repeat): an edited one is refused, named.
     card = json.loads((store / f"{sha}.json").read_text())
