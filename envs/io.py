@@ -115,6 +115,19 @@ def _discard(tmp: Path) -> None:
 
 
 @contextlib.contextmanager
+def _replacing(target: Path, st: os.stat_result | None) -> Iterator[tuple[int, Path]]:
+    """A new temp file beside ``target`` (descriptor, path): renamed over it when the block ends
+    without an exception, deleted otherwise."""
+    fd, tmp = _open_temp(target)
+    try:
+        yield fd, tmp
+        _commit(tmp, target, st)
+    except BaseException:
+        _discard(tmp)
+        raise
+
+
+@contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | None = None,
                   newline: str | None = None) -> Iterator[IO[Any]]:
     """Stream into ``path``: ``with atomic_output(p) as f: f.write(...)``.
@@ -143,8 +156,7 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
         with f:
             yield f
         return
-    fd, tmp = _open_temp(target)
-    try:
+    with _replacing(target, st) as (fd, tmp):
         # opener: the descriptor _open_temp created; f.name is the temp file's path.
         with open(tmp, mode, encoding=encoding, newline=newline, opener=lambda *_: fd) as f:
             yield f
@@ -153,10 +165,6 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
                 os.fsync(f.fileno())  # the data is on disk before the name points at it
             except OSError as exc:  # a full disk shows here at the latest
                 raise _fail(target, exc) from None
-        _commit(tmp, target, st)
-    except BaseException:
-        _discard(tmp)
-        raise
 
 
 @contextlib.contextmanager
@@ -181,15 +189,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         finally:
             _discard(tmp)
         return
-    fd, tmp = _open_temp(target)
-    os.close(fd)
-    try:
+    with _replacing(target, st) as (fd, tmp):
+        os.close(fd)
         yield tmp
         _sync(tmp)
-        _commit(tmp, target, st)
-    except BaseException:
-        _discard(tmp)
-        raise
 
 
 @contextlib.contextmanager
