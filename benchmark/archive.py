@@ -3,21 +3,30 @@
 File layout (JSON messages, ``jsonschema`` schemas, zstd-compressed chunks):
 
 - ``/episode/spec``    one message per episode at its start: the scenario row (every ``Scenarios`` field).
+- ``/episode/index``   one message per episode at its start: its time range, steps and outcome.
 - ``/ego``             per step: x, y, psi, v, a, steer (step 0 is the state after reset).
 - ``/npcs``            per step: s, v, lane of every NPC slot (padding slots have ``present`` false in the spec).
 - ``/decision``        per step >= 1: the mode applied during the step that ended at this time.
 - ``/planner``         per step >= 1: rollout end offsets, blocked flags, chosen rollout.
 - ``/reward``          per step >= 1: reward of that step (the return is in the summary).
 - ``/episode/summary`` one message per episode at its end: outcome and episode statistics.
-- ``/scene`` (``foxglove.SceneUpdate``) and ``/tf`` (``foxglove.FrameTransform``) every
-  ``scene_every``-th step, so Foxglove's 3D panel shows road, vehicles and rollouts.
+- ``/scene`` (``foxglove.SceneUpdate``) and ``/tf`` (``foxglove.FrameTransform``) at steps 0,
+  K, 2K, ... (``scene_every`` = K, default 1: every step) and always at the episode's final step,
+  so Foxglove's 3D panel shows road, vehicles and rollouts; vehicles the sensor does not see are
+  grey and translucent, and the final update shows the outcome (a text, the vehicle hit in magenta).
 
-Times: ``log_time = episode * EPISODE_STRIDE_NS + step * dt_ns``: each episode gets its own
-1000 s window of simulated time, so times are monotonic through the file as long as chunks
-arrive in increasing scenario order (the runner's contiguous chunks do). Every message carries
-``episode`` (the global scenario index) and ``step``. Episode boundaries are findable without
-reading any chunk: one ``episode`` metadata record per episode (index, time range, outcome) sits
-in the summary section's metadata index; ``/episode/summary`` repeats them in the data.
+Times: episodes lie back to back on one simulated-time line in the order they are written, each
+starting ``EPISODE_GAP_NS`` after the previous one ends: ``log_time = start_ns + step * dt_ns``.
+Every message carries ``episode`` (the global scenario index) and ``step``. Episode boundaries are
+findable without reading any chunk: one ``episode`` metadata record per episode (index, time
+range, outcome) sits in the summary section's metadata index; ``/episode/index`` and
+``/episode/summary`` repeat them in the data.
+
+Cut files: every episode is closed by a chunk of its own (``Writer.flush``) followed by its
+``episode`` metadata record, so a file cut anywhere (a killed writer) holds whole episodes up to
+the last metadata record; :mod:`.archive_reader` recovers them. The recorder writes to a temp file
+beside the target and renames it when finished (also on Ctrl-C or SIGTERM, with the whole
+episodes), so the target is always either absent, the previous file, or complete.
 
 Modules: this one records (capture per step, serialize per chunk); :mod:`.archive_reader` reads
 (re-exported here); :mod:`.archive_format` holds topics and schemas; :mod:`.mcap_sink` is the
@@ -32,18 +41,21 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import signal
+import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
+from overtakezoo.envs import CRASH, MODE_NAMES, OUTCOME_NAMES
 
-from .archive_format import (EPISODE_STRIDE_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, SCHEMAS, STATE_TOPICS,
+from .archive_format import (EPISODE_GAP_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, SCHEMAS, STATE_TOPICS,
                              SUMMARY_FIELDS, json_number, json_ready)
-from .archive_reader import (Episode, EpisodeEntry, list_episodes, read_archive, read_archive_meta,
-                             read_episode)
+from .archive_reader import (ArchiveIndex, Episode, EpisodeEntry, list_episodes, read_archive, read_archive_meta,
+                             read_episode, read_index)
 from .errors import UserError
 from .mcap_sink import MessageSink
 
@@ -68,19 +80,32 @@ class ArchiveRecorder:
     are kept (compact numpy arrays); messages are serialized at :meth:`end_chunk`, episode by
     episode in scenario order, so each episode's messages are contiguous (reading one episode
     decompresses only the chunks it spans). ``scene_every`` thins the Foxglove scene (0: none).
+
+    The file is written as ``.<name>.<random>.tmp`` beside ``path`` and renamed to ``path`` by
+    :meth:`close` (two runs writing one archive never mix their bytes: the last to finish wins).
+    Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open, so an
+    interrupted run still finishes the file with its whole episodes.
     """
 
-    def __init__(self, path: str | os.PathLike, scene_every: int = 5, chunk_size: int = 4 << 20,
+    def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
                  metadata: dict[str, Any] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
         self.scene_every = int(scene_every)
+        if self.scene_every < 0:
+            raise UserError(f"scene_every must be >= 0 (0: no scene), got {scene_every}")
+        # Temp file + rename (the archive's own few lines; benchmark/io.py does the same for small files).
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._stream = open(self.path, "wb")
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+            mask = os.umask(0)
+            os.umask(mask)
+            os.chmod(fd, 0o666 & ~mask)  # mkstemp creates 0600; the archive gets normal permissions
+            self._stream = os.fdopen(fd, "wb")
         except OSError as exc:
             raise UserError(f"cannot write archive {self.path}: {exc.strerror or exc}") from None
+        self.tmp_path = Path(tmp)
         self._writer = Writer(self._stream, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         self._writer.start(profile="", library="overtakezoo")
         self._channels: dict[str, int] = {}
@@ -93,19 +118,19 @@ class ArchiveRecorder:
         self._chunk: _Chunk | None = None
         self._core: Any = None
         self._dt_ns = 0
+        self._clock_ns = 0  # where the next episode starts on the timeline
         self.episodes = 0
         self._closed = False
+        self._old_sigterm: Any = None
 
     # -- runner hooks
     def begin_chunk(self, core: Any, scenario_index: np.ndarray) -> None:
         if self._dt_ns == 0:
             self._dt_ns = int(round(core.cfg.dt * 1e9))
             self._meta.setdefault("config", json.dumps(_clean_tree(core.cfg.to_dict()), sort_keys=True))
-            self._meta.update({"format_version": FORMAT_VERSION, "episode_stride_ns": str(EPISODE_STRIDE_NS),
-                               "dt_ns": str(self._dt_ns)})
+            self._meta.update({"format_version": FORMAT_VERSION, "episode_gap_ns": str(EPISODE_GAP_NS),
+                               "dt_ns": str(self._dt_ns), "scene_every": str(self.scene_every)})
             self._writer.add_metadata("overtakezoo", self._meta)
-        if np.any(core.scen.time_limit * 1e9 + 2 * self._dt_ns >= EPISODE_STRIDE_NS):
-            raise UserError("archives support episodes up to 1000 s of simulated time")
         if getattr(core, "auto_reset", False):
             raise ValueError("archives record evaluation cores (auto_reset=False): rows must not be replaced")
         self._core = core
@@ -129,8 +154,10 @@ class ArchiveRecorder:
             return
         step = ch.step
         ch.steps.append(self._snapshot(core, rows, core.mode, core.last_plan, step_result.reward) | {"step": step})
-        if self.scene_every and step % self.scene_every == 0:
-            ch.scenes.append(self._scene_state(core, rows) | {"step": step})
+        if self.scene_every:  # every K-th step, and the final step of each row
+            scene_rows = rows if step % self.scene_every == 0 else rows[ch.prev_done[rows]]
+            if scene_rows.size:
+                ch.scenes.append(self._scene_state(core, scene_rows) | {"step": step})
 
     def end_chunk(self, core: Any) -> None:
         ch = self._chunk
@@ -140,22 +167,34 @@ class ArchiveRecorder:
         self._chunk = None
 
     def close(self) -> None:
+        """Finish the file and rename it to ``path``. A chunk still open (an interrupted run)
+        contributes its finished episodes only."""
         if self._closed:
             return
         self._closed = True
         try:
             if self._chunk is not None and self._core is not None:
-                self.end_chunk(self._core)
+                self._write_chunk(self._core, self._chunk, whole=self._chunk.prev_done)
+                self._chunk = None
             self._sink.flush()
             self._writer.finish()
+            self._stream.close()
+            os.replace(self.tmp_path, self.path)
         finally:
             self._stream.close()
 
     def __enter__(self) -> "ArchiveRecorder":
+        if threading.current_thread() is threading.main_thread():
+            self._old_sigterm = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.close()
+        try:
+            self.close()
+        finally:
+            if self._old_sigterm is not None:
+                signal.signal(signal.SIGTERM, self._old_sigterm)
+                self._old_sigterm = None
 
     # -- capture (numpy, no per-row Python)
     @staticmethod
@@ -190,8 +229,9 @@ class ArchiveRecorder:
                 "mode": core.mode[rows], "rollout": core.rollout[rows]}
 
     # -- serialization
-    def _write_chunk(self, core: Any, ch: _Chunk) -> None:
-        """Write each episode of the chunk contiguously, in global scenario order."""
+    def _write_chunk(self, core: Any, ch: _Chunk, whole: np.ndarray | None = None) -> None:
+        """Write each episode of the chunk contiguously, in global scenario order (only the rows
+        ``whole`` marks, when given), each closed by its own chunk and metadata record."""
         n = len(ch.index)
         # Flatten the per-step captures to records ordered by (row, step): one lexsort for the chunk.
         rows = np.concatenate([s["rows"] for s in ch.steps])
@@ -214,34 +254,43 @@ class ArchiveRecorder:
         scenes, sbounds = self._flatten_scenes(ch, n)
         sink = self._sink
         for r in np.argsort(ch.index, kind="stable").tolist():
+            if whole is not None and not whole[r]:
+                continue
             ep = int(ch.index[r])
-            base = ep * EPISODE_STRIDE_NS
+            base = self._clock_ns
             a, b = int(bounds[r]), int(bounds[r + 1])
             last = b - a - 1  # the final step of this episode
+            end = base + last * self._dt_ns
+            outcome = int(info["outcome"][r])
             spec = {"episode": ep, "step": 0, "t": 0.0,
                     "scenario": {name: json_ready(arr[r]) for name, arr in scen.items()}}
             self._add("/episode/spec", base, json.dumps(spec, separators=(",", ":")))
+            self._add("/episode/index", base, json.dumps({
+                "episode": ep, "step": 0, "start_ns": base, "end_ns": end, "steps": last,
+                "outcome_name": OUTCOME_NAMES[outcome]}, separators=(",", ":")))
             msgs = self._state_messages(ep, base, lanes[r], t[a:b], ego[a:b], npc_s[a:b], npc_v[a:b], mode[a:b],
                                         rollout[a:b], offsets[a:b], blocked[a:b], reward[a:b])
             sa, sb = int(sbounds[r]), int(sbounds[r + 1])
             if sb > sa:
                 sl = {k: v[sa:sb] for k, v in scenes.items()}
                 ks = sl["step"]
-                msgs.extend(self._scene_messages(ep, base, r, scen, ks, ego[a + ks], npc_s[a + ks], sl))
+                msgs.extend(self._scene_messages(ep, base, r, scen, ks, ego[a + ks], npc_s[a + ks], sl,
+                                                 (outcome, int(info["crash_npc"][r])) if ks[-1] == last else None))
                 msgs.sort(key=lambda m: m[1])  # stable: a step's scene and tf after its state messages
             sink.pending.extend(msgs)
             sink.flush()
             summary = {k: json_ready(info[k][r]) for k in SUMMARY_FIELDS}
-            outcome = int(info["outcome"][r])
-            end = base + last * self._dt_ns
             summary.update(episode=ep, step=last, t=json_ready(t[b - 1]), outcome_name=OUTCOME_NAMES[outcome],
                            start_ns=base, end_ns=end)
             self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
             sink.flush()
+            self._writer.flush()  # the episode's last chunk is on disk before its metadata record
             self._writer.add_metadata("episode", {
                 "episode": str(ep), "start_ns": str(base), "end_ns": str(end), "steps": str(last),
                 "outcome": OUTCOME_NAMES[outcome], "episode_return": json_number(float(info["episode_return"][r]))})
+            self._stream.flush()  # the episode is whole on disk (a killed writer keeps it)
             self.episodes += 1
+            self._clock_ns = end + EPISODE_GAP_NS
 
     def _state_messages(self, ep: int, base: int, lanes: list[int], t: np.ndarray, ego: np.ndarray,
                         npc_s: np.ndarray, npc_v: np.ndarray, mode: np.ndarray, rollout: np.ndarray,
@@ -305,9 +354,12 @@ class ArchiveRecorder:
         return flat, np.searchsorted(rows[order], np.arange(n + 1))
 
     def _scene_messages(self, ep: int, base: int, r: int, scen: dict[str, np.ndarray], ks: np.ndarray,
-                        ego: np.ndarray, npc_s: np.ndarray, cap: dict[str, np.ndarray]) -> list[tuple[int, int, bytes]]:
+                        ego: np.ndarray, npc_s: np.ndarray, cap: dict[str, np.ndarray],
+                        final: tuple[int, int] | None) -> list[tuple[int, int, bytes]]:
         """foxglove.SceneUpdate + FrameTransform of one episode's scene steps ``ks``, through one
-        %-template per episode (its road and vehicle sizes built in; display precision: mm)."""
+        %-template per episode (its road and vehicle sizes built in; display precision: mm).
+        ``final`` (outcome, crash_npc) when ``ks`` ends at the episode's final step: that update
+        shows the outcome and the vehicle hit."""
         w, length, goal = float(scen["lane_width"][r]), float(scen["road_length"][r]), float(scen["goal_s"][r])
         lo = min(-20.0, float(np.min(scen["npc_s"][r])) - 20.0)
         mid, span = (lo + length) / 2, length - lo
@@ -315,17 +367,16 @@ class ArchiveRecorder:
                          _CUBE_FMT % (mid, w, -0.05, 0.0, 1.0, span, w, 0.1, _ROAD_OPP),
                          _CUBE_FMT % (mid, w / 2, 0.0, 0.0, 1.0, span, 0.15, 0.02, _WHITE),
                          _CUBE_FMT % (goal, 0.0, 0.01, 0.0, 1.0, 0.3, w, 0.02, _GOAL)])
-        # Vehicles: the ego (x, y, yaw vary), then each present NPC (only x varies).
+        # Vehicles: the ego (x, y, yaw vary), then each present NPC (x and colour vary).
         size = f'"size":{{"x":{float(scen["ego_length"][r]):.3f},"y":{float(scen["ego_width"][r]):.3f},"z":1.500}}'
         cubes = ['{"pose":{"position":{"x":%.3f,"y":%.3f,"z":0.750},"orientation":{"x":0.0,"y":0.0,"z":%.6f,'
                  f'"w":%.6f}}}},{size},"color":{_BLUE}}}']
-        present = np.flatnonzero(scen["npc_present"][r]).tolist()
-        for j in present:
-            lane = int(scen["npc_lane"][r][j])
-            cubes.append('{"pose":{"position":{"x":%.3f,' + f'"y":{lane * w:.3f},"z":0.750}},"orientation":{_QID}}},'
-                         f'"size":{{"x":{float(scen["npc_length"][r][j]):.3f},'
-                         f'"y":{float(scen["npc_width"][r][j]):.3f},"z":1.500}},'
-                         f'"color":{_ORANGE if lane == 0 else _RED_CAR}}}')
+        present = np.flatnonzero(scen["npc_present"][r])
+        lanes = scen["npc_lane"][r][present]
+        for j in present.tolist():
+            cubes.append('{"pose":{"position":{"x":%.3f,' + f'"y":{int(scen["npc_lane"][r][j]) * w:.3f},"z":0.750}},'
+                         f'"orientation":{_QID}}},"size":{{"x":{float(scen["npc_length"][r][j]):.3f},'
+                         f'"y":{float(scen["npc_width"][r][j]):.3f},"z":1.500}},"color":%s}}')
         n_ro = cap["blocked"].shape[1]
         line = ('{"type":0,"pose":{"position":{"x":0.0,"y":0.0,"z":0.0},"orientation":' + _QID + '},'
                 '"thickness":%s,"scale_invariant":false,"points":[' + _POINTS_FMT + '],"color":%s,'
@@ -343,6 +394,17 @@ class ArchiveRecorder:
         sec, nsec = (ns // 10**9).tolist(), (ns % 10**9).tolist()
         step = ks.tolist()
         x, y, psi = ego[:, 0], ego[:, 1], ego[:, 2]
+        # NPC colours per step: own lane orange, oncoming red, out of the ego's sight grey and translucent.
+        s = npc_s[:, present]
+        reach = np.minimum(float(scen["sensor_range"][r]), scen["npc_reveal"][r][present])
+        seen = np.abs(s - x[:, None]) <= reach
+        npc_col = np.where(seen, np.where(lanes == 0, _ORANGE, _RED_CAR)[None, :].astype(object), _UNSEEN)
+        label = [MODE_NAMES[m] for m in cap["mode"].tolist()]
+        if final is not None:
+            outcome, hit = final
+            label[-1] = f"{label[-1]} -> {OUTCOME_NAMES[outcome].upper()}"
+            if hit >= 0 and outcome == CRASH:
+                npc_col[-1, present == hit] = _HIT
         qz, qw = np.sin(psi / 2).tolist(), np.cos(psi / 2).tolist()
         x, y = x.tolist(), y.tolist()
         deletions = [f'[{{"timestamp":{{"sec":{s_},"nsec":{n_}}},"type":1,"id":""}}]' if k == 0 else "[]"
@@ -356,10 +418,12 @@ class ArchiveRecorder:
             line_cols += [thick[:, ro].tolist(), *pts.T.tolist(), color[:, ro].tolist()]
         stamp = [sec, nsec, step]
         t = (ks * (self._dt_ns / 1e9)).tolist()
-        modes = [MODE_NAMES[m] for m in cap["mode"].tolist()]
-        cols = [deletions, *stamp, *stamp, x, y, qz, qw, *npc_s[:, present].T.tolist(), *stamp, *line_cols,
-                *stamp, x, y, t, modes]
+        npc_cols = [c for j in range(len(present)) for c in (s[:, j].tolist(), npc_col[:, j].tolist())]
+        cols = [deletions, *stamp, *stamp, x, y, qz, qw, *npc_cols, *stamp, *line_cols, *stamp, x, y, t, label]
         scene_b = ((scene_t * len(ks)) % tuple(itertools.chain.from_iterable(zip(*cols)))).encode().split(b"\n")
+        if final is not None:  # the final update adds an "outcome" entity (cleared by the next episode's deletion)
+            scene_b[len(ks) - 1] = scene_b[len(ks) - 1][:-2] + b"," + self._outcome_entity(
+                ep, sec[-1], nsec[-1], step[-1], x[-1], y[-1], final).encode() + b"]}"
         tf_b = ((tf_t * len(ks)) % tuple(itertools.chain.from_iterable(zip(sec, nsec, x, y, qz, qw)))
                 ).encode().split(b"\n")
         sc_ch, tf_ch = self._channels["/scene"], self._channels["/tf"]
@@ -367,6 +431,16 @@ class ArchiveRecorder:
         for tm, sb, tb in zip(ns.tolist(), scene_b, tf_b):
             out += [(sc_ch, tm, sb), (tf_ch, tm, tb)]
         return out
+
+    @staticmethod
+    def _outcome_entity(ep: int, sec: int, nsec: int, step: int, x: float, y: float, final: tuple[int, int]) -> str:
+        outcome, hit = final
+        words = OUTCOME_NAMES[outcome].upper() + (f" with NPC{hit + 1}" if outcome == CRASH and hit >= 0 else "")
+        colour = _HIT if outcome == CRASH else (_GREEN if OUTCOME_NAMES[outcome] == "success" else _ORANGE)
+        text = ('{"pose":{"position":{"x":%.3f,"y":%.3f,"z":5.0},"orientation":' % (x, y) + _QID + '},'
+                '"billboard":true,"font_size":28.0,"scale_invariant":true,"color":' + colour + ',"text":"'
+                + words + '"}')
+        return _entity(ep, "outcome", texts=text) % (sec, nsec, step)
 
     def _add(self, topic: str, log_time: int, text: str) -> None:
         self._sink.append((self._channels[topic], log_time, text.encode()))
@@ -394,9 +468,14 @@ _rgba = lambda r, g, b, a: '{"r":%g,"g":%g,"b":%g,"a":%g}' % (r, g, b, a)  # noq
 _ROAD, _ROAD_OPP, _WHITE, _GOAL = _rgba(.25, .25, .25, 1), _rgba(.3, .3, .3, 1), _rgba(1, 1, 1, 1), _rgba(.1, .8, .1, 1)
 _BLUE, _ORANGE, _RED_CAR = _rgba(.1, .4, 1, 1), _rgba(1, .6, .1, 1), _rgba(.9, .1, .1, 1)
 _GREEN, _RED, _GREY_LINE = _rgba(.1, .9, .1, 1), _rgba(.9, .2, .2, .6), _rgba(.8, .8, .8, .5)
+_UNSEEN, _HIT = _rgba(.6, .6, .6, .3), _rgba(1, 0, 1, 1)  # beyond the sensor / not yet revealed; the vehicle hit
 
 
-def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 5) -> ArchiveRecorder:
+def _sigterm_to_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt("SIGTERM")
+
+
+def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1) -> ArchiveRecorder:
     """An :class:`ArchiveRecorder` for ``run_suite(suite, decider, recorder=...)``; the file's
     ``overtakezoo`` metadata names the suite (with its hash) and the decider."""
     return ArchiveRecorder(path, scene_every=scene_every, metadata={
@@ -412,5 +491,5 @@ def _clean_tree(obj: Any) -> Any:
     return json_ready(obj)
 
 
-__all__ = ["ArchiveRecorder", "recorder_for_run", "Episode", "EpisodeEntry", "list_episodes", "read_archive",
-           "read_episode", "read_archive_meta", "EPISODE_STRIDE_NS", "STATE_TOPICS"]
+__all__ = ["ArchiveRecorder", "recorder_for_run", "ArchiveIndex", "Episode", "EpisodeEntry", "list_episodes",
+           "read_archive", "read_episode", "read_archive_meta", "read_index", "EPISODE_GAP_NS", "STATE_TOPICS"]

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-EPISODE_STRIDE_NS = 1_000 * 10**9  # 1000 s of simulated time per episode window
-FORMAT_VERSION = "1"
+EPISODE_GAP_NS = 1 * 10**9  # episodes follow each other on the timeline with this gap (the last scene stays up)
+FORMAT_VERSION = "2"
 STATE_TOPICS = ("/episode/spec", "/ego", "/npcs", "/decision", "/planner", "/reward", "/episode/summary")
 SUMMARY_FIELDS = ("outcome", "crash_npc", "crash_lane", "t", "episode_return", "episode_steps", "completion_time",
                   "aborts", "switches", "opposite_time", "min_ttc", "peak_lat_accel", "peak_jerk")
@@ -42,6 +42,8 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/planner": ("overtakezoo.Planner", _obj({**_HEAD, "offsets": _ARR(_NUM), "blocked": _ARR(_BOOL),
                                               "rollout": _INT})),
     "/reward": ("overtakezoo.Reward", _obj({**_HEAD, "reward": _NUM})),
+    "/episode/index": ("overtakezoo.EpisodeIndex", _obj({
+        **_HEAD, "start_ns": _INT, "end_ns": _INT, "steps": _INT, "outcome_name": _STR})),
     "/episode/summary": ("overtakezoo.EpisodeSummary", _obj({
         **_HEAD, **_T, "outcome_name": _STR, "start_ns": _INT, "end_ns": _INT,
         **{k: _NUM_NULL for k in SUMMARY_FIELDS}})),

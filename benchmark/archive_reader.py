@@ -1,14 +1,19 @@
 """Reading OvertakeZoo MCAP archives back: the episode index, one episode, or all of them.
 
-Every failure of the mcap reader (a truncated file, a damaged chunk, bad JSON) becomes one
-:class:`~overtakezoo.benchmark.errors.UserError` line.
+Every failure of the mcap reader (a damaged chunk, bad JSON, a file with no whole episode)
+becomes one :class:`~overtakezoo.benchmark.errors.UserError` line. A file without a readable
+summary section (cut by a killed writer, truncated in a copy) is read by a scan of its records: its
+whole episodes are those closed by their ``episode`` metadata record (the writer puts that record
+after the episode's last chunk), and :attr:`ArchiveIndex.note` says in one line what was lost.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -56,6 +61,16 @@ class EpisodeEntry:
     episode_return: float
 
 
+@dataclass
+class ArchiveIndex:
+    """What :func:`read_index` finds: the whole episodes, the run's metadata, and ``note`` (None
+    for a complete file; one line saying what was recovered and what was lost otherwise)."""
+
+    entries: list[EpisodeEntry]
+    meta: dict[str, str]
+    note: str | None
+
+
 def _restore(key: str, value: Any) -> Any:
     if value is None:
         return math.inf if key in INF_FIELDS else math.nan
@@ -89,20 +104,23 @@ class _Archive:
             self._f = open(self.path, "rb")
         except OSError as exc:
             raise UserError(f"cannot read archive {self.path}: {exc.strerror or exc}") from None
+        self.note: str | None = None
+        self._chunks: list[tuple[int, int, int]] | None = None  # scanned (offset, start, end): no summary
         try:
             self.reader = make_reader(self._f, validate_crcs=True, decoder_factories=[_JsonDecoderFactory()])
-            self.summary = self.reader.get_summary()
-            if self.summary is None:
-                raise ValueError("no summary section (the writer did not finish)")
-            meta = {}
-            entries = []
-            for rec in self.reader.iter_metadata():
-                if rec.name == "episode":
-                    m = rec.metadata
-                    entries.append(EpisodeEntry(int(m["episode"]), int(m["start_ns"]), int(m["end_ns"]),
-                                                int(m["steps"]), m["outcome"], float(m["episode_return"])))
-                elif rec.name == "overtakezoo":
-                    meta = dict(rec.metadata)
+            try:
+                summary = self.reader.get_summary()
+            except Exception:  # a cut file: its end is not a footer
+                summary = None
+            if summary is None:
+                meta, entries = self._scan()
+            else:
+                meta, entries = {}, []
+                for rec in self.reader.iter_metadata():
+                    if rec.name == "episode":
+                        entries.append(_entry(rec.metadata))
+                    elif rec.name == "overtakezoo":
+                        meta = dict(rec.metadata)
         except UserError:
             self._f.close()
             raise
@@ -115,6 +133,51 @@ class _Archive:
         self.meta = meta
         self.entries = sorted(entries, key=lambda e: e.index)
         self.by_index = {e.index: e for e in self.entries}
+
+    def _scan(self) -> tuple[dict[str, str], list[EpisodeEntry]]:
+        """Index a file without a summary section record by record (chunks are skipped, not read)."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Metadata
+        from mcap.stream_reader import read_magic
+
+        f, size = self._f, os.fstat(self._f.fileno()).st_size
+        f.seek(0)
+        read_magic(ReadDataStream(f))
+        meta: dict[str, str] = {}
+        entries: list[EpisodeEntry] = []
+        chunks: list[tuple[int, int, int]] = []
+        complete = False
+        while True:
+            pos = f.tell()
+            head = f.read(9)
+            if len(head) < 9:
+                break
+            opcode, length = struct.unpack("<BQ", head)
+            if pos + 9 + length > size:
+                break  # the record runs past the end: the cut
+            if opcode == Opcode.CHUNK:
+                chunks.append((pos, *struct.unpack("<QQ", f.read(16))))
+                f.seek(pos + 9 + length)
+            elif opcode == Opcode.METADATA:
+                rec = Metadata.read(ReadDataStream(io.BytesIO(f.read(length))))
+                if rec.name == "episode":
+                    entries.append(_entry(rec.metadata))
+                elif rec.name == "overtakezoo":
+                    meta = dict(rec.metadata)
+            elif opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                complete = True
+                break
+            else:
+                f.seek(pos + 9 + length)
+        self._chunks = chunks
+        if not entries:
+            raise UserError(f"{self.path}: archive cut before its first whole episode: nothing to read")
+        last = entries[-1].index  # in file order: the last episode closed before the cut
+        self.note = (f"archive index damaged, rebuilt from the data: {len(entries)} whole episodes, none lost"
+                     if complete else
+                     f"archive cut after episode {last}: {len(entries)} whole episodes, the rest lost")
+        return meta, entries
 
     def close(self) -> None:
         self._f.close()
@@ -129,11 +192,36 @@ class _Archive:
         """Decoded state messages in file order (the writer wrote them in time order)."""
         loads = json.loads
         try:
+            if self._chunks is not None:
+                yield from self._scanned_messages(start, end)
+                return
             for _, channel, msg in self.reader.iter_messages(
                     topics=list(STATE_TOPICS), starting_at=start, ending_before=end, log_time_order=False):
                 yield channel.topic, loads(msg.data)
+        except UserError:
+            raise
         except Exception as exc:
             raise _corrupt(self.path, exc) from None
+
+    def _scanned_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, dict]]:
+        """:meth:`messages` of a scanned file: the chunks overlapping [start, end), CRCs checked."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Channel, Chunk, Message
+        from mcap.stream_reader import breakup_chunk
+
+        lo, hi = (start or 0), (end if end is not None else 1 << 64)
+        topics: dict[int, str] = {}
+        wanted = set(STATE_TOPICS)
+        for k, (pos, first, last) in enumerate(self._chunks):
+            # Channels are defined in the first chunk; later chunks overlapping the range hold the data.
+            if k and (last < lo or first >= hi):
+                continue
+            self._f.seek(pos + 9)
+            for rec in breakup_chunk(Chunk.read(ReadDataStream(self._f)), validate_crc=True):
+                if isinstance(rec, Channel):
+                    topics[rec.id] = rec.topic
+                elif isinstance(rec, Message) and lo <= rec.log_time < hi and topics.get(rec.channel_id) in wanted:
+                    yield topics[rec.channel_id], json.loads(rec.data)
 
     def episode_range(self, k: int) -> tuple[int, int]:
         if k not in self.by_index:
@@ -182,10 +270,21 @@ class _Builder:
         )
 
 
-def list_episodes(path: str | os.PathLike) -> list[EpisodeEntry]:
-    """Episode index, time range and outcome of every episode, from the summary section only."""
+def _entry(m: dict[str, str]) -> EpisodeEntry:
+    return EpisodeEntry(int(m["episode"]), int(m["start_ns"]), int(m["end_ns"]), int(m["steps"]), m["outcome"],
+                        float(m["episode_return"]))
+
+
+def read_index(path: str | os.PathLike) -> ArchiveIndex:
+    """The whole episodes (index, time range, outcome), the run's metadata, and a note if the file
+    was cut; from the summary section only (or a scan of the record headers of a cut file)."""
     with _Archive(path) as ar:
-        return list(ar.entries)
+        return ArchiveIndex(list(ar.entries), dict(ar.meta), ar.note)
+
+
+def list_episodes(path: str | os.PathLike) -> list[EpisodeEntry]:
+    """Episode index, time range and outcome of every (whole) episode."""
+    return read_index(path).entries
 
 
 def read_archive_meta(path: str | os.PathLike) -> dict[str, str]:
@@ -205,11 +304,13 @@ def read_episode(path: str | os.PathLike, k: int) -> Episode:
 
 
 def read_archive(path: str | os.PathLike) -> list[Episode]:
-    """Every episode of the archive, in scenario order."""
+    """Every (whole) episode of the archive, in scenario order."""
     with _Archive(path) as ar:
         builders: dict[int, _Builder] = {}
         for topic, msg in ar.messages():
             ep = msg["episode"]
+            if ep not in ar.by_index:  # the part of an episode a cut file lost
+                continue
             if ep not in builders:
                 builders[ep] = _Builder(ep)
             builders[ep].add(topic, msg)

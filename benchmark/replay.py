@@ -1,16 +1,18 @@
 """Replay an archived episode from the MCAP file alone: frames for the render-mode top view.
 
-Frames are the dicts :func:`overtakezoo.envs.render.draw_frame` draws (the same view as
-``render_mode``); a GIF goes through matplotlib's pillow writer, an MP4 needs ``ffmpeg`` on PATH,
-a PNG is the final frame.
+Frames are the dicts :class:`overtakezoo.envs.render.TopView` draws (the same view as
+``render_mode``), here with an overview of the whole road above it. One figure is drawn per
+frame with its artists moved, not rebuilt; a GIF goes from the Agg buffer through Pillow, an MP4
+through ``ffmpeg`` (needed on PATH), a PNG is the final frame.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -20,6 +22,7 @@ from .archive import Episode, read_archive_meta, read_episode
 from .errors import UserError
 
 RUNNING = 0
+FOXGLOVE_LAYOUT = Path(__file__).parent / "foxglove" / "overtakezoo-layout.json"  # shipped as package data
 
 
 def _planner(meta: dict[str, str]) -> dict[str, float]:
@@ -61,8 +64,21 @@ def episode_frames(ep: Episode, meta: dict[str, str], every: int = 1) -> list[di
     return frames
 
 
-def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, every: int = 1) -> Path:
-    """Render episode ``episode`` of archive ``path`` to ``out`` (.gif, .mp4 or .png)."""
+def road_extent(ep: Episode) -> tuple[float, float]:
+    """The x range of the overview: the whole road from the start to the goal, with every vehicle at
+    every step of the episode (the oncoming car is in view long before the sensor sees it)."""
+    sc = ep.scenario
+    present = np.asarray(sc["npc_present"], dtype=bool)
+    xs = [ep.ego["x"], ep.npc_s[:, present].ravel(), [float(sc["goal_s"])]]
+    lo, hi = min(float(np.min(x)) for x in xs if len(x)), max(float(np.max(x)) for x in xs if len(x))
+    pad = 0.03 * (hi - lo) + 5.0
+    return lo - pad, hi + pad
+
+
+def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, every: int = 1,
+           progress: bool = False) -> Path:
+    """Render episode ``episode`` of archive ``path`` to ``out`` (.gif, .mp4 or .png): an overview of
+    the whole road above the view that follows the ego. One figure; its artists move per frame."""
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4", ".png"):
@@ -72,35 +88,95 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
     ep = read_episode(path, episode)
     frames = episode_frames(ep, read_archive_meta(path), every=1 if suffix == ".png" else every)
 
-    from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from tqdm import tqdm
 
-    from overtakezoo.envs.render import draw_frame
+    from overtakezoo.envs.render import TopView
 
-    fig = Figure(figsize=(12.0, 3.2), dpi=80)
+    fig = Figure(figsize=(12.0, 3.4), dpi=DPI)
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    top = fig.add_axes((0.01, 0.56, 0.98, 0.3))
+    follow = fig.add_axes((0.01, 0.02, 0.98, 0.46))
+    views = [TopView(top, extent=road_extent(ep), title=False), TopView(follow)]
+    top.tick_params(labelsize=7, pad=1)
+    follow.set_xticks([])  # the follow view moves; the overview above carries the s axis
+    follow.set_xlabel("")
 
-    def draw(i: int) -> list:
-        ax.clear()
-        draw_frame(ax, frames[i])
-        for text in ax.texts:  # labels of vehicles off-screen would otherwise land beside the axes
-            text.set_clip_on(True)
-        ax.set_title(ax.get_title(loc="left") + f"    episode {ep.index}", fontsize=10, loc="left")
-        return []
+    def draw(i: int) -> None:
+        for view in views:
+            view.update(frames[i])
+        top.set_title(f"episode {ep.index}    s (m): whole road, start to goal", fontsize=9, loc="left")
 
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         if suffix == ".png":
             draw(len(frames) - 1)
-            fig.tight_layout()
             fig.savefig(out)
+            return out
+        bar = tqdm(total=len(frames), unit="frame", desc=out.name, leave=False,
+                   disable=not progress or not sys.stderr.isatty())
+        images = _blit_frames(fig, views, draw, len(frames))
+        if suffix == ".gif":
+            _write_gif(images, out, fps, bar)
         else:
-            fig.tight_layout()
-            anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
-            writer = PillowWriter(fps=fps) if suffix == ".gif" else FFMpegWriter(fps=fps)
-            anim.save(out, writer=writer)
+            _write_mp4(images, out, fps, bar)
+        bar.close()
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
     return out
+
+
+def _blit_frames(fig: Any, views: list[Any], draw: Any, n: int) -> Iterator[memoryview]:
+    """RGBA frames (the canvas buffer, valid until the next frame): the still parts of the figure drawn once, the moving artists drawn over a copy
+    of it per frame (matplotlib's blitting), so a frame costs the vehicles and lines, not the axes."""
+    draw(0)
+    for view in views:
+        for artist in view.moving():
+            artist.set_animated(True)
+    canvas = fig.canvas
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    for i in range(n):
+        draw(i)
+        canvas.restore_region(background)
+        for view in views:
+            for artist in view.moving():
+                view.ax.draw_artist(artist)
+        yield canvas.buffer_rgba()
+
+
+def _write_gif(images: Iterator[memoryview], out: Path, fps: float, bar: Any) -> None:
+    """Frames into Pillow, each on its own palette (fast octree: the drawing uses few colours), one save."""
+    from PIL import Image
+
+    frames = []
+    for rgb in images:
+        rgba = Image.fromarray(np.asarray(rgb))  # a view of the canvas: quantize copies it
+        frames.append(rgba.quantize(colors=64, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE))
+        bar.update()
+    frames[0].save(out, save_all=True, append_images=frames[1:], duration=int(round(1000 / fps)), loop=0)
+
+
+def _write_mp4(images: Iterator[memoryview], out: Path, fps: float, bar: Any) -> None:
+    """Raw RGB frames piped to ffmpeg (H.264, yuv420p: plays everywhere)."""
+    import subprocess
+
+    proc = None
+    for rgba in images:
+        rgb = np.asarray(rgba)[..., :3]
+        if proc is None:
+            h, w = rgb.shape[:2]
+            proc = subprocess.Popen(
+                ["ffmpeg", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
+                 "-r", str(fps), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p",
+                 str(out)], stdin=subprocess.PIPE)
+        proc.stdin.write(np.ascontiguousarray(rgb).tobytes())
+        bar.update()
+    if proc is not None:
+        proc.stdin.close()
+        if proc.wait() != 0:
+            raise UserError(f"ffmpeg failed writing {out}")
+
+
+DPI = 80

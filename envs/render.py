@@ -2,8 +2,8 @@
 
 The drawing works on a *frame*: a dict of plain numbers and numpy arrays (:func:`frame_from_core`
 builds one from a row of the core), so a replay tool can draw recorded frames with the same
-:func:`draw_frame`. :class:`Renderer` owns one figure and turns frames into ``rgb_array`` images
-(Agg canvas, no pyplot state) or shows them (``human``, pyplot).
+:class:`TopView` (artists made once, moved per frame). :class:`Renderer` owns one figure and turns
+frames into ``rgb_array`` images (Agg canvas, no pyplot state) or shows them (``human``, pyplot).
 """
 
 from __future__ import annotations
@@ -52,73 +52,160 @@ def frame_from_core(core: "OvertakeCore", row: int = 0) -> dict[str, Any]:
     return frame
 
 
-def draw_frame(ax: "Axes", frame: dict[str, Any]) -> None:
-    """Draw ``frame`` on ``ax``: road, lanes and centre line, goal, sensor range, rollouts (the
-    chosen one bold, blocked ones red), vehicles as oriented boxes (ego highlighted), mode and time."""
-    w, x0, y0 = frame["lane_width"], frame["ego_x"], frame["ego_y"]
-    sensor = frame["sensor_range"]
-    left, right = x0 - 15.0, x0 + min(max(sensor, 30.0), 100.0) + 5.0
-    bottom, top = -w / 2 - 1.0, 1.5 * w + 1.0
-    ax.set_xlim(left, right)
-    ax.set_ylim(bottom, top)
-    ax.set_aspect("equal")
-    ax.set_facecolor("#6b8e4e")  # verge
-
-    # Road: both lanes, edges and the dashed centre line; the goal line.
-    ax.add_patch(Rectangle((left, -w / 2), right - left, 2 * w, color="#555555", zorder=0))
-    ax.hlines([-w / 2, 1.5 * w], left, right, colors="white", linewidth=1.5, zorder=1)
-    ax.hlines([w / 2], left, right, colors="#f2c200", linestyles=(0, (6, 6)), linewidth=1.5, zorder=1)
-    if left <= frame["goal_s"] <= right:
-        ax.vlines(frame["goal_s"], -w / 2, w / 2, colors="white", linewidth=3, zorder=1)
-        ax.text(frame["goal_s"], -w / 2 - 0.2, "goal", ha="center", va="top", fontsize=8, color="white")
-    # Sensor range: vehicles farther than this (along the road) are invisible to decider and planner.
-    for edge in (x0 - sensor, x0 + sensor):
-        if left <= edge <= right:
-            ax.vlines(edge, bottom, top, colors="cyan", linestyles="dotted", linewidth=1.2, zorder=2)
-            ax.text(edge - 0.3, top - 0.1, "sensor\nrange", ha="right", va="top", fontsize=7, color="cyan")
-
-    # Rollouts ahead of the ego: each one's lateral profile, the chosen one bold.
-    if "plan_offsets" in frame:
-        reach = max(frame["roll_in"] + frame["tip_margin"] + 10.0, frame["ego_v"] * frame["horizon_time"])
-        ahead = np.linspace(0.0, reach, 40)
-        for k, (end, blocked) in enumerate(zip(frame["plan_offsets"], frame["plan_blocked"])):
-            ys = lateral_profile(y0, end, ahead, w, frame["roll_in"], frame["tip_margin"])
-            chosen = k == frame["plan_rollout"]
-            ax.plot(x0 + ahead, ys, color="black" if chosen else ("#e04040" if blocked else "#60d060"),
-                    linewidth=3.0 if chosen else 1.0, alpha=1.0 if chosen else 0.8, zorder=3)
-        # An abort waiting for a gap tracks its current offset, not the chosen rollout's end (optional key).
-        target = frame.get("plan_target")
-        if target is not None and abs(target - frame["plan_offsets"][frame["plan_rollout"]]) > 0.01:
-            ys = lateral_profile(y0, target, ahead, w, frame["roll_in"], frame["tip_margin"])
-            ax.plot(x0 + ahead, ys, color="black", linewidth=2.0, linestyle="--", zorder=3)
-
-    # Vehicles: NPCs (faded when outside the sensor range), then the ego.
-    for j in np.flatnonzero(frame["npc_present"]):
-        s, lane = float(frame["npc_s"][j]), int(frame["npc_lane"][j])
-        length, width = float(frame["npc_length"][j]), float(frame["npc_width"][j])
-        visible = abs(s - x0) <= min(sensor, float(frame["npc_reveal"][j]))
-        crashed = frame["outcome"] == CRASH and frame["crash_npc"] == j
-        heading = np.pi if lane == OPPOSITE_LANE else 0.0
-        _box(ax, s, lane * w, heading, length, width, "#d62728" if crashed else "#bbbbbb", visible)
-        arrow = "\u2190" if lane == OPPOSITE_LANE else "\u2192"
-        ax.text(s, lane * w, f"NPC{j + 1} {arrow}", ha="center", va="center", fontsize=7,
-                alpha=1.0 if visible else 0.4, zorder=6)
-    _box(ax, x0, y0, frame["ego_psi"], frame["ego_length"], frame["ego_width"],
-         MODE_COLOURS[frame["mode"]], True, edge="yellow")
-    ax.text(x0, y0, "ego", ha="center", va="center", fontsize=7, color="white", zorder=6)
-
-    outcome = OUTCOME_NAMES[frame["outcome"]]
-    ax.set_title(f"t = {frame['t']:5.1f} s    mode: {MODE_NAMES[frame['mode']].upper()}    "
-                 f"v = {frame['ego_v']:.2f} m/s    {outcome}", fontsize=10, loc="left")
-    ax.set_xlabel("s (m)")
-    ax.set_yticks([0.0, w], ["ego lane", "opposite"], fontsize=8)
+def draw_frame(ax: "Axes", frame: dict[str, Any]) -> "TopView":
+    """Draw ``frame`` on ``ax`` (a one-off :class:`TopView`; reuse the view to animate)."""
+    view = TopView(ax)
+    view.update(frame)
+    return view
 
 
-def _box(ax: "Axes", x: float, y: float, psi: float, length: float, width: float, colour: str,
-         visible: bool, edge: str = "black") -> None:
-    ax.add_patch(Rectangle((x - length / 2, y - width / 2), length, width, angle=float(np.degrees(psi)),
-                           rotation_point="center", facecolor=colour, edgecolor=edge,
-                           linewidth=1.5, alpha=1.0 if visible else 0.35, zorder=5))
+class TopView:
+    """The top view on one axes, as persistent artists that :meth:`update` moves (no redraw of the
+    axes per frame): road, lanes and centre line, goal, sensor range, rollouts (the chosen one bold,
+    blocked ones red), vehicles as boxes (ego highlighted; vehicles the sensor does not see faded,
+    the vehicle hit red), mode and time in the title.
+
+    ``extent`` (left, right) fixes the x range (an overview of the whole road: ``aspect="auto"``
+    stretches the lanes, boxes are not rotated); None follows the ego at equal aspect.
+    """
+
+    def __init__(self, ax: "Axes", extent: tuple[float, float] | None = None, title: bool = True) -> None:
+        from matplotlib.collections import LineCollection
+
+        self.ax, self.extent, self.title = ax, extent, title
+        self.rollouts: list[Any] = []  # Line2D per rollout, made at the first frame with a plan
+        self.npcs: list[tuple[Rectangle, Any]] = []
+        ax.set_facecolor("#6b8e4e")  # verge
+        ax.set_aspect("auto" if extent else "equal")
+        ax.set_yticks([])
+        self.road = ax.add_patch(Rectangle((-1e5, 0.0), 2e5, 1.0, color="#555555", zorder=0))
+        self.edges = ax.add_collection(LineCollection([], colors="white", linewidths=1.5, zorder=1))
+        self.centre = ax.add_collection(LineCollection([], colors="#f2c200", linestyles=(0, (6, 6)),
+                                                       linewidths=1.5, zorder=1))
+        self.goal = ax.add_collection(LineCollection([], colors="white", linewidths=3, zorder=1))
+        self.sensor = ax.add_collection(LineCollection([], colors="cyan", linestyles="dotted", linewidths=1.2,
+                                                       zorder=2))
+        self.target = ax.add_collection(LineCollection([], colors="black", linestyles="--", linewidths=2.0,
+                                                       zorder=3))
+        text = dict(fontsize=7, clip_on=True)
+        self.goal_text = ax.text(0, 0, "goal", ha="center", va="top", color="white", **text)
+        self.sensor_text = ax.text(0, 0, "sensor\nrange", ha="right", va="top", color="cyan", **text)
+        # Lane names inside the axes (axes-fraction x, data y), so no label is cut at the figure edge.
+        ytx = ax.get_yaxis_transform()
+        self.lane_text = [ax.text(0.005, 0.0, "ego lane", transform=ytx, ha="left", va="center", color="white",
+                                  fontsize=7, zorder=7),
+                          ax.text(0.005, 0.0, "opposite lane", transform=ytx, ha="left", va="center",
+                                  color="white", fontsize=7, zorder=7)]
+        self.ego = ax.add_patch(Rectangle((0, 0), 1, 1, rotation_point="center", edgecolor="yellow",
+                                          linewidth=1.5, zorder=5))
+        self.ego_text = ax.text(0, 0, "ego", ha="center", va="center", fontsize=7, color="white", zorder=6,
+                                clip_on=True)
+        self.title_text = ax.set_title("", fontsize=10, loc="left")  # the artist update() rewrites
+        if extent:
+            ax.set_xlim(*extent)
+        if title:
+            ax.set_xlabel("s (m)")
+
+    def moving(self) -> list[Any]:
+        """The artists :meth:`update` changes; the rest of the axes is the same in every frame of an
+        episode (road, edges, lane names; in the overview also the ticks), so an animation can draw
+        it once and blit these over it."""
+        out = [] if self.extent else [self.centre, self.goal, self.goal_text]  # still in the overview
+        out += [self.sensor, self.sensor_text, self.target, *self.rollouts]
+        for box, label in self.npcs:
+            out += [box, label]
+        return out + [self.ego, self.ego_text, self.title_text]
+
+    def _ensure(self, frame: dict[str, Any]) -> None:
+        """Artists per NPC slot and per rollout (the counts are fixed for a given scenario layout)."""
+        m = len(frame["npc_present"])
+        while len(self.npcs) < m:
+            box = self.ax.add_patch(Rectangle((0, 0), 1, 1, rotation_point="center", edgecolor="black",
+                                              linewidth=1.5, zorder=5))
+            self.npcs.append((box, self.ax.text(0, 0, "", ha="center", va="center", fontsize=7, zorder=6,
+                                                clip_on=True)))
+        for box, label in self.npcs[m:]:
+            box.set_visible(False)
+            label.set_visible(False)
+        r = len(frame.get("plan_offsets", ()))
+        while len(self.rollouts) < r:
+            self.rollouts.append(self.ax.plot([], [], zorder=3)[0])
+
+    def update(self, frame: dict[str, Any]) -> None:
+        self._ensure(frame)
+        ax = self.ax
+        w, x0, y0 = frame["lane_width"], frame["ego_x"], frame["ego_y"]
+        sensor = frame["sensor_range"]
+        if self.extent:
+            left, right = self.extent
+        else:
+            left, right = x0 - 15.0, x0 + min(max(sensor, 30.0), 100.0) + 5.0
+            ax.set_xlim(left, right)
+        bottom, top = -w / 2 - 1.0, 1.5 * w + 1.0
+        ax.set_ylim(bottom, top)
+        self.road.set_y(-w / 2)
+        self.road.set_height(2 * w)
+        span = (left - 1e4, right + 1e4)
+        self.edges.set_segments([[(span[0], -w / 2), (span[1], -w / 2)], [(span[0], 1.5 * w), (span[1], 1.5 * w)]])
+        self.centre.set_segments([[(span[0], w / 2), (span[1], w / 2)]])
+        g = frame["goal_s"]
+        self.goal.set_segments([[(g, -w / 2), (g, w / 2)]])
+        self.goal_text.set_position((g, -w / 2 - 0.2))
+        # Sensor range: vehicles farther than this (along the road) are invisible to decider and planner.
+        self.sensor.set_segments([[(e, bottom), (e, top)] for e in (x0 - sensor, x0 + sensor)])
+        self.sensor_text.set_position((x0 + sensor - 0.3, top - 0.1))
+        for text, y in zip(self.lane_text, (0.0, w)):
+            text.set_y(y)
+
+        # Rollouts ahead of the ego: each one's lateral profile, the chosen one bold.
+        plan = "plan_offsets" in frame
+        segments = []
+        if plan:
+            reach = max(frame["roll_in"] + frame["tip_margin"] + 10.0, frame["ego_v"] * frame["horizon_time"])
+            ahead = np.linspace(0.0, reach, 40)
+            ends = np.asarray(frame["plan_offsets"], dtype=float)
+            ys = lateral_profile(y0, ends[:, None], ahead[None, :], w, frame["roll_in"], frame["tip_margin"])
+            for k, (line, blocked) in enumerate(zip(self.rollouts, frame["plan_blocked"])):
+                chosen = k == frame["plan_rollout"]
+                line.set_data(x0 + ahead, ys[k])
+                line.set(color="black" if chosen else ("#e04040" if blocked else "#60d060"),
+                         linewidth=3.0 if chosen else 1.0, alpha=1.0 if chosen else 0.8, visible=True)
+            # An abort waiting for a gap tracks its current offset, not the chosen rollout's end (optional key).
+            target = frame.get("plan_target")
+            if target is not None and abs(target - ends[frame["plan_rollout"]]) > 0.01:
+                ty = lateral_profile(y0, target, ahead, w, frame["roll_in"], frame["tip_margin"])
+                segments = [np.stack([x0 + ahead, ty], axis=1)]
+        else:
+            for line in self.rollouts:
+                line.set_visible(False)
+        self.target.set_segments(segments)
+
+        # Vehicles: NPCs (faded when the sensor does not see them, red when hit), then the ego.
+        crash = frame["outcome"] == CRASH
+        turn = 0.0 if self.extent else 1.0  # the stretched overview draws boxes unrotated
+        for j, (box, label) in enumerate(self.npcs[:len(frame["npc_present"])]):
+            if not frame["npc_present"][j]:
+                box.set_visible(False)
+                label.set_visible(False)
+                continue
+            s, lane = float(frame["npc_s"][j]), int(frame["npc_lane"][j])
+            length, width = float(frame["npc_length"][j]), float(frame["npc_width"][j])
+            visible = abs(s - x0) <= min(sensor, float(frame["npc_reveal"][j]))
+            hit = crash and frame["crash_npc"] == j
+            box.set(xy=(s - length / 2, lane * w - width / 2), width=length, height=width,
+                    angle=float(np.degrees(np.pi if lane == OPPOSITE_LANE else 0.0)) * turn,
+                    facecolor="#d62728" if hit else "#bbbbbb", alpha=1.0 if visible or hit else 0.35, visible=True)
+            arrow = "\u2190" if lane == OPPOSITE_LANE else "\u2192"
+            label.set(position=(s, lane * w), text=f"NPC{j + 1} {arrow}",
+                      alpha=1.0 if visible else 0.4, visible=True)
+        length, width = frame["ego_length"], frame["ego_width"]
+        self.ego.set(xy=(x0 - length / 2, y0 - width / 2), width=length, height=width,
+                     angle=float(np.degrees(frame["ego_psi"])) * turn, facecolor=MODE_COLOURS[frame["mode"]])
+        self.ego_text.set_position((x0, y0))
+
+        if self.title:
+            ax.set_title(f"t = {frame['t']:5.1f} s    mode: {MODE_NAMES[frame['mode']].upper()}    "
+                         f"v = {frame['ego_v']:.2f} m/s    {OUTCOME_NAMES[frame['outcome']]}", fontsize=10, loc="left")
 
 
 class Renderer:
@@ -141,11 +228,15 @@ class Renderer:
             self.fig = Figure(figsize=size, dpi=dpi)
             FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_subplot()
+        self.view: TopView | None = None
 
     def render(self, frame: dict[str, Any]) -> np.ndarray | None:
-        self.ax.clear()
-        draw_frame(self.ax, frame)
-        self.fig.tight_layout()
+        if self.view is None:
+            self.view = TopView(self.ax)
+            self.view.update(frame)
+            self.fig.tight_layout()
+        else:
+            self.view.update(frame)
         if self.mode == "human":
             import matplotlib.pyplot as plt
 

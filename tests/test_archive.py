@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
 
 import jsonschema
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from overtakezoo.benchmark.archive import (EPISODE_STRIDE_NS, ArchiveRecorder, list_episodes, read_archive,
-                                           read_episode)
+from overtakezoo.benchmark.archive import (EPISODE_GAP_NS, ArchiveRecorder, list_episodes, read_archive,
+                                           read_episode, read_index)
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.runner import run_suite
@@ -74,7 +78,7 @@ class Tee:
 def run(tmp_path_factory):
     path = tmp_path_factory.mktemp("archive") / "run.mcap"
     suite = load_suite("table1")
-    with ArchiveRecorder(path, scene_every=5) as rec:
+    with ArchiveRecorder(path) as rec:  # the default: the Foxglove scene at every step
         tee = Tee(rec)
         results = run_suite(suite, MixedDecider(suite.config), shard=SHARD, chunk_size=8, progress=False,
                             recorder=tee)  # 3 chunks: 8, 8, 4
@@ -107,7 +111,10 @@ def test_index_and_single_episode(run):
     path, results, _ = run
     entries = list_episodes(path)
     assert [e.index for e in entries] == list(range(60, 80))
-    assert all(e.start_ns == e.index * EPISODE_STRIDE_NS for e in entries)
+    # A compact timeline: episodes back to back, EPISODE_GAP_NS apart, each as long as its steps.
+    assert entries[0].start_ns == 0
+    assert all(b.start_ns == a.end_ns + EPISODE_GAP_NS for a, b in zip(entries, entries[1:]))
+    assert all(e.end_ns - e.start_ns == e.steps * 100_000_000 for e in entries)
     ep = read_episode(path, 71)
     full = {e.index: e for e in read_archive(path)}[71]
     assert ep.outcome == full.outcome and np.array_equal(ep.ego["x"], full.ego["x"])
@@ -123,6 +130,7 @@ def test_messages_follow_their_schemas_and_times_are_monotonic(run):
         summary = reader.get_summary()
         assert all(c.compression == "zstd" for c in summary.chunk_indexes)
         seen: dict[str, int] = {}
+        ranges = {e.index: (e.start_ns, e.end_ns) for e in list_episodes(path)}
         last = -1
         for schema, channel, msg in reader.iter_messages(log_time_order=False):
             assert msg.log_time >= last  # written in time order through the whole file
@@ -132,33 +140,219 @@ def test_messages_follow_their_schemas_and_times_are_monotonic(run):
                 jsonschema.validate(data, json.loads(schema.data))
             seen[channel.topic] = seen.get(channel.topic, 0) + 1
             if channel.topic not in ("/scene", "/tf"):
-                assert data["episode"] == msg.log_time // EPISODE_STRIDE_NS
+                lo, hi = ranges[data["episode"]]
+                assert lo <= msg.log_time <= hi
     assert summary.schemas[summary.channels[next(c for c, ch in summary.channels.items()
                                                   if ch.topic == "/scene")].schema_id].name == "foxglove.SceneUpdate"
-    assert {"/ego", "/npcs", "/decision", "/planner", "/reward", "/episode/spec", "/episode/summary",
-            "/scene", "/tf"} <= set(seen)
+    assert {"/ego", "/npcs", "/decision", "/planner", "/reward", "/episode/spec", "/episode/index",
+            "/episode/summary", "/scene", "/tf"} <= set(seen)
 
 
-def test_truncated_or_corrupt_archive_is_one_clear_error(run, tmp_path, capsys):
+def test_corrupt_archive_is_one_clear_error(run, tmp_path, capsys):
     path, _, _ = run
     data = path.read_bytes()
     with open(path, "rb") as f:
         chunk = make_reader(f).get_summary().chunk_indexes[1]
     flipped = bytearray(data)
     flipped[chunk.chunk_start_offset + chunk.chunk_length // 2] ^= 0x5A  # inside a compressed chunk
-    for name, blob in (("cut.mcap", data[: len(data) // 2]), ("tail.mcap", data[:-100]), ("junk.mcap", b"x" * 50),
-                       ("flip.mcap", bytes(flipped))):
+    for name, blob in (("junk.mcap", b"x" * 50), ("flip.mcap", bytes(flipped)), ("head.mcap", data[:200])):
         bad = tmp_path / name
         bad.write_bytes(blob)
-        with pytest.raises(UserError, match="truncated or corrupt"):
+        with pytest.raises(UserError, match="truncated or corrupt|cut before its first whole episode"):
             read_archive(bad)
         if name == "flip.mcap":  # the index is intact: listing works, reading the damaged chunk does not
-            episode = chunk.message_start_time // EPISODE_STRIDE_NS
+            episode = next(e.index for e in list_episodes(bad) if e.start_ns <= chunk.message_start_time <= e.end_ns)
             assert main(["replay", str(bad), "--episode", str(episode), "--out", str(tmp_path / "x.png")]) == 2
         else:
             assert main(["replay", str(bad), "--list"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error:") and err.count("\n") == 1
+
+
+def test_cut_archive_gives_its_whole_episodes(run, tmp_path, capsys):
+    """A file cut anywhere reads back as the episodes closed before the cut, each exactly as in the
+    whole file; `replay --list` lists them and says in one line what was lost."""
+    path, _, _ = run
+    data = path.read_bytes()
+    full = {e.index: e for e in read_archive(path)}
+    bad = tmp_path / "cut.mcap"
+    counts = []
+    for frac in (0.15, 0.4, 0.6, 0.8, 0.95, 0.9995):
+        bad.write_bytes(data[: int(len(data) * frac)])
+        index = read_index(bad)
+        episodes = read_archive(bad)
+        assert [e.index for e in episodes] == [e.index for e in index.entries] == list(range(60, 60 + len(episodes)))
+        for ep in episodes:
+            assert np.array_equal(ep.ego["x"], full[ep.index].ego["x"]) and ep.summary == full[ep.index].summary
+        if len(episodes) < 20:  # else the cut fell in the summary section (the last case below)
+            assert index.note == (f"archive cut after episode {episodes[-1].index}: {len(episodes)} whole episodes, "
+                                  "the rest lost")
+        counts.append(len(episodes))
+        assert read_episode(bad, episodes[-1].index).steps == full[episodes[-1].index].steps
+    assert counts == sorted(counts) and counts[0] < counts[-1]
+    bad.write_bytes(data[: len(data) // 2])
+    assert main(["replay", str(bad), "--list"]) == 0
+    out, err = capsys.readouterr()
+    assert f"\n{len(list_episodes(bad))} episodes\n" in out
+    assert err.startswith("warning: archive cut after episode") and err.count("\n") == 1
+    # Only the summary section lost: every episode is whole, the note says the index was rebuilt.
+    bad.write_bytes(data[:-100])
+    index = read_index(bad)
+    assert len(index.entries) == 20 and "none lost" in index.note
+
+
+class _Stop:
+    """Forwards to a recorder; after ``chunks`` chunks (or at ``step`` of the next one) it interrupts
+    the run: ``how`` is "kill" (SIGKILL to this process), "term" (SIGTERM) or "raise" (KeyboardInterrupt)."""
+
+    def __init__(self, inner, how, chunks, step=None):
+        self.inner, self.how, self.chunks, self.step, self.k = inner, how, chunks, step, 0
+
+    def begin_chunk(self, core, index):
+        self.inner.begin_chunk(core, index)
+        self.t = 0
+
+    def record_step(self, core, modes, result):
+        self.inner.record_step(core, modes, result)
+        self.t += 1
+        if self.k == self.chunks and self.t == self.step:
+            self.stop()
+
+    def end_chunk(self, core):
+        self.inner.end_chunk(core)
+        self.k += 1
+        if self.k == self.chunks and self.step is None:
+            self.stop()
+
+    def stop(self):
+        if self.how == "raise":
+            raise KeyboardInterrupt
+        os.kill(os.getpid(), signal.SIGKILL if self.how == "kill" else signal.SIGTERM)
+        signal.pause() if self.how == "kill" else None
+
+
+_WRITER = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_archive import MixedDecider, _Stop
+from overtakezoo.benchmark.archive import ArchiveRecorder
+from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.suites import load_suite
+suite = load_suite("table1")
+with ArchiveRecorder({path!r}) as rec:
+    run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=4, progress=False,
+              recorder=_Stop(rec, {how!r}, 2))
+"""
+
+
+@pytest.mark.parametrize("how", ["kill", "term"])
+def test_killed_or_terminated_writer(tmp_path, capsys, how):
+    """SIGKILL leaves the temp file (the target is never half-written), readable up to its last whole
+    episode; SIGTERM finishes the file with its whole episodes and renames it into place."""
+    target = tmp_path / "run.mcap"
+    code = _WRITER.format(tests=os.path.dirname(__file__), path=str(target), how=how)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    temps = list(tmp_path.glob(".run.mcap.*.tmp"))
+    if how == "kill":
+        assert proc.returncode == -signal.SIGKILL and not target.exists() and len(temps) == 1
+        assert main(["replay", str(temps[0]), "--list"]) == 0
+        out, err = capsys.readouterr()
+        assert "8 episodes" in out and err == "warning: archive cut after episode 7: 8 whole episodes, the rest lost\n"
+        assert [e.index for e in read_archive(temps[0])] == list(range(8))
+    else:
+        assert proc.returncode != 0 and "KeyboardInterrupt" in proc.stderr
+        assert target.exists() and not temps
+        index = read_index(target)
+        assert index.note is None and [e.index for e in index.entries] == list(range(8))
+
+
+def test_interrupt_mid_chunk_keeps_finished_episodes(tmp_path):
+    """Ctrl-C in the middle of a chunk: the file gets the whole chunks and the rows of the open chunk
+    that had finished, each identical to the same episode of an uninterrupted run."""
+    suite = load_suite("table1")
+    full_path, cut_path = tmp_path / "full.mcap", tmp_path / "cut.mcap"
+    with ArchiveRecorder(full_path) as rec:
+        run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=5, progress=False, recorder=rec)
+    with pytest.raises(KeyboardInterrupt):
+        with ArchiveRecorder(cut_path) as rec:
+            run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=5, progress=False,
+                      recorder=_Stop(rec, "raise", 1, step=200))
+    full = {e.index: e for e in read_archive(full_path)}
+    cut = read_archive(cut_path)
+    late = [e.index for e in cut if e.index >= 5]
+    assert [e.index for e in cut][:5] == list(range(5)) and late  # chunk 0 whole, some rows of chunk 1
+    assert all(full[i].steps <= 200 for i in late) and all(full[i].steps > 200 for i in set(range(5, 10)) - set(late))
+    for ep in cut:
+        assert ep.steps == full[ep.index].steps and np.array_equal(ep.ego["x"], full[ep.index].ego["x"])
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_two_writers_on_one_archive_never_mix(tmp_path):
+    suite = load_suite("table1")
+    path = tmp_path / "run.mcap"
+    a, b = ArchiveRecorder(path), ArchiveRecorder(path)
+    assert a.tmp_path != b.tmp_path
+    run_suite(suite, MixedDecider(suite.config), shard=(0, 600), progress=False, recorder=a)
+    run_suite(suite, MixedDecider(suite.config), shard=(1, 600), progress=False, recorder=b)
+    b.close()
+    assert [e.index for e in list_episodes(path)] == list(range(5, 10))
+    a.close()  # the last to finish wins, whole
+    assert [e.index for e in list_episodes(path)] == list(range(5)) and read_index(path).note is None
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def _scene_updates(path):
+    """The /scene messages of each episode, decoded, with their log times."""
+    entries = list_episodes(path)
+    out = {e.index: [] for e in entries}
+    starts = [e.start_ns for e in entries]
+    with open(path, "rb") as f:
+        for _, channel, msg in make_reader(f, validate_crcs=True).iter_messages(topics=["/scene"]):
+            ep = entries[int(np.searchsorted(starts, msg.log_time, side="right")) - 1]
+            assert ep.start_ns <= msg.log_time <= ep.end_ns
+            out[ep.index].append((msg.log_time, json.loads(msg.data)))
+    return entries, out
+
+
+def test_scene_at_every_step_ends_with_the_outcome(run):
+    """Default scene: one SceneUpdate per state, steps 0..T (T + 1 for T steps), the last one at the
+    episode's end showing the outcome; a crash highlights the vehicle hit; unseen vehicles are faded."""
+    path, results, _ = run
+    entries, scenes = _scene_updates(path)
+    crashes = 0
+    faded = 0
+    for e in entries:
+        updates = scenes[e.index]
+        assert len(updates) == e.steps + 1
+        assert updates[0][0] == e.start_ns and updates[-1][0] == e.end_ns
+        last = {ent["id"]: ent for ent in updates[-1][1]["entities"]}
+        assert last["label"]["texts"][0]["text"].endswith(e.outcome.upper())
+        assert e.outcome.upper() in last["outcome"]["texts"][0]["text"]
+        assert all("outcome" not in {x["id"] for x in u["entities"]} for _, u in updates[:-1])
+        colours = [c["color"] for c in last["vehicles"]["cubes"][1:]]  # the ego is the first cube
+        hit = [c for c in colours if (c["r"], c["g"], c["b"]) == (1, 0, 1)]
+        if e.outcome == "crash":
+            crashes += 1
+            ep = read_episode(path, e.index)
+            present = np.flatnonzero(ep.scenario["npc_present"]).tolist()
+            assert len(hit) == 1 and colours.index(hit[0]) == present.index(int(ep.summary["crash_npc"]))
+            assert f"NPC{int(ep.summary['crash_npc']) + 1}" in last["outcome"]["texts"][0]["text"]
+        else:
+            assert not hit
+        faded += sum(c["color"]["a"] < 1 for _, u in updates for ent in u["entities"] if ent["id"] == "vehicles"
+                     for c in ent["cubes"])
+    assert crashes >= 1 and faded > 0
+
+
+def test_scene_every_k_keeps_the_final_step(tmp_path):
+    suite = load_suite("table1")
+    path = tmp_path / "thin.mcap"
+    with ArchiveRecorder(path, scene_every=7) as rec:
+        run_suite(suite, MixedDecider(suite.config), shard=(0, 600), progress=False, recorder=rec)
+    entries, scenes = _scene_updates(path)
+    for e in entries:
+        steps = sorted({*range(0, e.steps + 1, 7), e.steps})
+        assert [t for t, _ in scenes[e.index]] == [e.start_ns + k * 100_000_000 for k in steps]
 
 
 def test_replay_cli(run, tmp_path, capsys):
@@ -226,10 +420,71 @@ def test_non_finite_values_are_written_as_null(tmp_path):
     rec._dt_ns = 100_000_000
     steps = 4
     msgs = rec._state_messages(
-        7, 7 * EPISODE_STRIDE_NS, [0, 1], np.arange(steps) * 0.1, np.ones((steps, 6)), np.full((steps, 2), np.inf),
+        7, 700 * EPISODE_GAP_NS, [0, 1], np.arange(steps) * 0.1, np.ones((steps, 6)), np.full((steps, 2), np.inf),
         np.zeros((steps, 2)), np.ones(steps, np.int8), np.zeros(steps, np.int8), np.ones((steps, 5)),
         np.zeros((steps, 5), bool), np.array([0.0, np.nan, 1.0, 2.0]))
     rec.close()
     decoded = [json.loads(m[2]) for m in msgs]
     assert len(decoded) == 2 + 5 * (steps - 1)
     assert decoded[1]["s"] == [None, None] and decoded[6]["reward"] is None and decoded[11]["reward"] == 1.0
+
+
+def _node_packages() -> bool:
+    if shutil.which("node") is None:
+        return False
+    probe = "for (const p of ['@mcap/core', 'fzstd', 'ajv', '@foxglove/schemas/jsonschema']) require(p)"
+    return subprocess.run(["node", "-e", probe], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not _node_packages(), reason="needs node with @mcap/core, fzstd, ajv, @foxglove/schemas "
+                                                 "(e.g. npm i them in a folder and set NODE_PATH to its node_modules)")
+def test_typescript_reader_and_official_foxglove_schemas(run):
+    path, _, _ = run
+    script = os.path.join(os.path.dirname(__file__), "mcap_ts_reader.js")
+    proc = subprocess.run(["node", script, str(path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    entries = list_episodes(path)
+    steps = sum(e.steps for e in entries)
+    assert got["invalid"] == {} and got["time_order"] and got["episodes"] == len(entries) == 20
+    assert got["counts"]["/scene"] == got["counts"]["/tf"] == got["counts"]["/ego"] == steps + len(entries)
+    assert got["chunks"] >= len(entries)  # at least one chunk per episode
+
+
+@pytest.mark.slow  # about 8 s of CPU: run with -m slow
+def test_gif_of_the_246_frame_episode(tmp_path):
+    """rule-fsm, table1 episode 29 (245 steps): every frame rendered, the whole road in the overview."""
+    from PIL import Image
+
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.replay import replay
+
+    suite = load_suite("table1")
+    path, gif = tmp_path / "rule.mcap", tmp_path / "ep29.gif"
+    with ArchiveRecorder(path) as rec:
+        run_suite(suite, zoo.load("rule-fsm", config=suite.config), shard=(29, 3000), progress=False,
+                  recorder=rec)
+    (entry,) = list_episodes(path)
+    assert (entry.index, entry.steps) == (29, 245)
+    replay(path, 29, gif)
+    with Image.open(gif) as im:
+        assert im.n_frames == 246 and im.size[0] == 960
+
+
+def test_foxglove_layout_ships_and_replay_says_how_to_open_it(capsys):
+    from overtakezoo.benchmark.archive_format import FOXGLOVE_SCHEMAS, SCHEMAS
+    from overtakezoo.benchmark.replay import FOXGLOVE_LAYOUT
+
+    layout = json.loads(FOXGLOVE_LAYOUT.read_text())
+    panels = layout["configById"]
+    assert {p.split("!")[0] for p in panels} == {"3D", "Plot", "RawMessages"}
+    scene = next(v for k, v in panels.items() if k.startswith("3D"))
+    assert scene["followTf"] == "ego" and set(scene["topics"]) <= set(FOXGLOVE_SCHEMAS)
+    topics = {p["value"].split(".")[0] for k, v in panels.items() if k.startswith("Plot") for p in v["paths"]}
+    assert topics == {"/decision", "/reward"} and topics <= set(SCHEMAS)
+    assert any(v.get("topicPath") == "/episode/summary" for v in panels.values())
+    tree = json.dumps(layout["layout"])
+    assert all(k in tree for k in panels)  # every panel is placed
+    assert main(["replay", "run.mcap", "--foxglove"]) == 0
+    out = capsys.readouterr().out
+    assert str(FOXGLOVE_LAYOUT) in out and "run.mcap" in out

@@ -22,8 +22,8 @@ the hyperparameter file cannot change it). A timeout ends the episode as a failu
 from __future__ import annotations
 
 import copy
-import dataclasses
 import csv
+import dataclasses
 import io
 import time
 from collections import deque

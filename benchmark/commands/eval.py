@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--archive", metavar="RUN.mcap", help="also record every episode to an MCAP archive "
                    "(Foxglove-ready; see `overtakezoo replay`)")
+    p.add_argument("--scene-every", type=int, default=1, metavar="K",
+                   help="with --archive: the Foxglove scene every K-th step and at each episode's end "
+                        "(default 1: every step; 0: no scene)")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="fan shards over Ray (a local instance, or ADDRESS such as ray://head:10001 or auto) "
                         "and merge them into one results file; needs the [ray] extra")
@@ -59,17 +63,21 @@ def run(args: Any) -> int:
         spec = args.decider or (str(Path(args.policy).resolve()) if Path(args.policy).is_file() else args.policy)
         results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
         return _report(results, suite, decider, out)
-    recorder = None
-    if args.archive:  # MCAP archive of every episode (benchmark/archive.py)
-        from ..archive import recorder_for_run
+    if not args.archive:
+        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress)
+        return _report(results, suite, decider, out)
+    from ..archive import recorder_for_run  # MCAP archive of every episode (benchmark/archive.py)
 
-        recorder = recorder_for_run(check_writable(args.archive), suite, decider)
+    if args.scene_every < 0:
+        raise UserError(f"--scene-every {args.scene_every}: must be >= 0")
+    recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every)
     try:
-        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress,
-                            recorder=recorder)
-    finally:
-        if recorder is not None:
-            recorder.close()
+        with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
+            results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size,
+                                progress=not args.no_progress, recorder=recorder)
+    except KeyboardInterrupt:
+        print(f"interrupted: {args.archive} holds the {recorder.episodes} whole episodes", file=sys.stderr)
+        raise
     return _report(results, suite, decider, out)
 
 
