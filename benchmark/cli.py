@@ -2,18 +2,34 @@
 
 Each subcommand lives in its own module under ``benchmark/commands/`` exposing
 ``register(subparsers)``; modules are discovered, so adding a command touches no other file.
-Bad input raises :class:`~overtakezoo.benchmark.errors.UserError`: one line on stderr, exit 2.
+Bad input raises :class:`~overtakezoo.benchmark.errors.UserError` (or, from the layers below, a
+``ConfigError`` or an unwritable path's ``WriteError``): one line on stderr, exit 2. SIGTERM is raised
+like Ctrl-C so cleanup runs and no half-written file is left; a closed stdout pipe ends quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import signal
 import sys
+import threading
+
+from overtakezoo.envs import ConfigError
 
 from . import commands
 from .errors import UserError
+from .io import WriteError
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so ``finally`` blocks run and temp files are removed."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,11 +53,34 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
-        return int(args.handler(args) or 0)
-    except UserError as exc:
+        return _run(args)
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        code = int(args.handler(args) or 0)
+        sys.stdout.flush()  # a reader that went away shows here, not as a traceback at exit
+        return code
+    except BrokenPipeError:
+        # `overtakezoo replay run.mcap --list | head`: the recipe of Python's signal docs (note on
+        # SIGPIPE): point stdout at devnull so the final flush cannot fail again, exit 1 quietly.
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):  # stdout without a file descriptor (captured)
+            pass
+        return 1
+    except (UserError, ConfigError, WriteError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
-from pathlib import Path
 from typing import Any
 
-from .errors import UserError
+from .io import check_writable, check_writable_dir  # noqa: F401 - re-exported for the commands
 
 
 def add_parser(subparsers: Any, name: str, help: str, description: str, examples: list[str]) -> argparse.ArgumentParser:
@@ -41,18 +38,3 @@ def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:
 
         return load_policy(args.policy, config)
     return load_decider(args.decider, config)
-
-
-def check_writable(path: str | Path) -> Path:
-    """Fail before a long run, not after it, when ``path`` cannot be written."""
-    path = Path(path)
-    if path.is_dir():
-        raise UserError(f"cannot write {path}: it is a directory")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
-    except OSError as exc:
-        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from None
-    os.close(fd)
-    os.unlink(tmp)
-    return path

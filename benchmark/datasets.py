@@ -29,9 +29,9 @@ import hashlib
 import http.client
 import json
 import os
-import shutil
 import sys
 import tarfile
+import tempfile
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -42,6 +42,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import UserError
+from .io import atomic_directory, atomic_path, check_writable_dir
 
 REGISTRY_FILE = Path(__file__).with_name("registry") / "datasets.json"
 
@@ -66,13 +67,13 @@ def datasets_dir() -> Path:
 
 
 @contextlib.contextmanager
-def _minari_path() -> Iterator[Path]:
-    """Point Minari at our datasets folder for the duration of a call."""
-    path = datasets_dir()
+def _minari_path(path: Path | None = None) -> Iterator[Path]:
+    """Point Minari at our datasets folder (or ``path``) for the duration of a call."""
+    path = datasets_dir() if path is None else path
     old = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(path)
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        check_writable_dir(path)
         yield path
     finally:
         if old is None:
@@ -185,6 +186,10 @@ def build_dataset(name: str, suite: Any, decider: Any, epsilon: float = 0.1, cou
 
     if count is not None and not 1 <= count <= suite.count:
         raise UserError(f"--count {count}: suite {suite.name} has {suite.count} scenarios")
+    target = datasets_dir() / name
+    if target.exists() and not overwrite:
+        raise UserError(f"dataset {name} already exists in {datasets_dir()} (use --overwrite to replace it)")
+    check_writable_dir(target.parent)  # fail before recording, not after
     episodes = collect(suite, decider, epsilon=epsilon, seed=seed, count=count, chunk_size=chunk_size)
     num = len(episodes)
     from minari.data_collector import EpisodeBuffer
@@ -193,23 +198,40 @@ def build_dataset(name: str, suite: Any, decider: Any, epsilon: float = 0.1, cou
                              terminations=e["terminations"], truncations=e["truncations"], infos=e["infos"])
                for i, e in enumerate(episodes)]
     obs_dim = episodes[0]["observations"].shape[1]
-    with _minari_path() as root:
-        target = root / name
-        if target.exists():
-            if not overwrite:
-                raise UserError(f"dataset {name} already exists in {root} (use --overwrite to replace it)")
-            shutil.rmtree(target)
-        spec = _env_spec(suite.config)
-        description = (f"{decider.name} v{decider.version} on suite {suite.name} v{suite.version} "
-                       f"({suite.hash[:12]}), first {num} scenarios, epsilon-random {epsilon}, "
-                       f"seed {seed}. One transition per simulator step (dt={suite.config.dt} s).")
-        with warnings.catch_warnings():  # Minari nags about optional metadata (author e-mail)
+    spec = _env_spec(suite.config)
+    description = (f"{decider.name} v{decider.version} on suite {suite.name} v{suite.version} "
+                   f"({suite.hash[:12]}), first {num} scenarios, epsilon-random {epsilon}, "
+                   f"seed {seed}. One transition per simulator step (dt={suite.config.dt} s).")
+    with _staging(target) as staging:  # Minari writes a scratch root; the finished folder is swapped in
+        with _minari_path(staging), warnings.catch_warnings():  # Minari nags about optional metadata
             warnings.simplefilter("ignore", UserWarning)
-            return minari.create_dataset_from_buffers(
+            minari.create_dataset_from_buffers(
                 dataset_id=name, buffer=buffers, env=spec, eval_env=spec,
                 observation_space=spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
                 action_space=spaces.Discrete(3), algorithm_name=f"{decider.name} (epsilon={epsilon})",
                 author="OvertakeZoo", description=description, data_format="hdf5", requirements=["overtakezoo"])
+        _install(staging, name, target)
+    return load(name)
+
+
+@contextlib.contextmanager
+def _staging(target: Path) -> Iterator[Path]:
+    """A scratch datasets root beside ``target``, removed afterwards (also on Ctrl-C or an error)."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=f".{target.name}.build-", dir=target.parent) as staging:
+            yield Path(staging)
+    except OSError as exc:
+        raise UserError(f"cannot write dataset {target}: {exc.strerror or exc}") from None
+
+
+def _install(staging: Path, name: str, target: Path) -> None:
+    """Swap ``staging/name`` in as ``target`` whole: readers see the old dataset or the new one."""
+    if not (staging / name).is_dir():
+        raise UserError(f"dataset {name}: nothing was written for it")
+    with atomic_directory(target) as tmp:
+        tmp.rmdir()
+        os.replace(staging / name, tmp)
 
 
 def _env_spec(config: Any) -> Any:
@@ -279,8 +301,7 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
     if urllib.parse.urlsplit(url).scheme not in ("http", "https"):
         raise UserError(f"refusing {url!r}: only http(s) URLs are downloaded")
     root = datasets_dir()
-    downloads = cache_dir() / "downloads"
-    downloads.mkdir(parents=True, exist_ok=True)
+    downloads = check_writable_dir(cache_dir() / "downloads")
     final = downloads / (name.replace("/", "__") + ".tar.gz")
     part = final.with_name(final.name + ".part")
     if not (final.exists() and _sha256(final) == sha):
@@ -358,11 +379,12 @@ def _extract(archive: Path, root: Path, name: str) -> None:
                 parent_dir = m.isdir() and dest in target.parents and root in (dest, *dest.parents)
                 if dest != target and target not in dest.parents and not parent_dir:
                     raise UserError(f"refusing {archive.name}: member {m.name!r} is outside {name}/")
-            root.mkdir(parents=True, exist_ok=True)
-            if hasattr(tarfile, "data_filter"):  # Python >= 3.11.4: the stdlib's own safety net too
-                tar.extractall(root, members=members, filter="data")
-            else:
-                tar.extractall(root, members=members)
+            with _staging(target) as staging:  # unpacked beside, swapped in whole
+                if hasattr(tarfile, "data_filter"):  # Python >= 3.11.4: the stdlib's own safety net too
+                    tar.extractall(staging, members=members, filter="data")
+                else:
+                    tar.extractall(staging, members=members)
+                _install(staging, name, target)
     except tarfile.TarError as exc:
         raise UserError(f"{archive}: not a readable .tar.gz dataset archive ({exc})") from None
 
@@ -374,8 +396,9 @@ def pack(name: str, out: str | Path) -> tuple[Path, int, str]:
     if not (root / name).is_dir():
         raise UserError(f"no local dataset {name!r} in {root}")
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tarfile.open(out, "w:gz") as tar:
-        tar.add(root / name, arcname=name)
-    return out, out.stat().st_size, _sha256(out)
+    with atomic_path(out) as tmp:
+        with tarfile.open(tmp, "w:gz") as tar:
+            tar.add(root / name, arcname=name)
+        size, sha = tmp.stat().st_size, _sha256(tmp)
+    return out, size, sha
 

@@ -1,7 +1,8 @@
 """The leaderboard: submissions in, Markdown tables + a JSON index + PNG plots out, byte-identical.
 
-Layout under the root (``leaderboards/``): ``submissions/<suite>/<decider>.json`` (results files,
-the input), ``reference/paper.json`` (the paper's reported numbers, input), and the generated files
+Layout under the root (``leaderboards/``): ``submissions/<suite>/<name>.json`` (results files
+with the policy that re-runs them, and ``submissions/artifacts/``: see submission.py; the input),
+``reference/paper.json`` (the paper's reported numbers, input), and the generated files
 ``README.md``, ``index.json``, ``<suite>.md`` and ``<suite>.png``. Generated files are never edited by
 hand; ``leaderboard --check`` fails when they differ from what the submissions give.
 """
@@ -16,7 +17,7 @@ from typing import Any
 from .errors import UserError
 from .io import atomic_write_bytes
 from .metrics import TABLE, format_metric, render_table
-from .results import Results
+from .submission import Row, describe, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
 from .suites import load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"
@@ -28,41 +29,7 @@ _RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("t
 _LABELS = {k: label for k, label, _, _ in TABLE}
 
 
-# ------------------------------------------------------------------ submit
-def submit(results: Results, root: str | Path = "leaderboards", source: str = "results") -> Path:
-    """Validate ``results`` against the current built-in suite and file it; returns the path."""
-    suite = results.suite
-    if not results.complete:
-        raise UserError(f"{source}: range: covers scenarios {results.meta['range']} of {suite['count']}; "
-                        "submit every shard of the run together")
-    if suite["name"] not in suite_names():
-        raise UserError(f"{source}: suite.name: {suite['name']!r} is not a built-in suite "
-                        f"(leaderboards exist for: {', '.join(suite_names())})")
-    current = load_suite(suite["name"])
-    if suite["hash"] != current.hash:
-        raise UserError(f"{source}: suite.hash: measured on {suite['name']} v{suite['version']} "
-                        f"({suite['hash'][:12]}), the current suite file is v{current.version} "
-                        f"({current.hash[:12]}): re-run the evaluation")
-    path = Path(root) / "submissions" / suite["name"] / f"{results.decider['name']}.json"
-    atomic_write_bytes(path, results.to_json().encode())
-    return path
-
-
 # ------------------------------------------------------------------ generate
-def load_submissions(root: Path) -> dict[str, list[tuple[str, Results]]]:
-    out: dict[str, list[tuple[str, Results]]] = {}
-    base = root / "submissions"
-    for path in sorted(base.glob("*/*.json")) if base.is_dir() else []:
-        results = Results.load(path)
-        rel = path.relative_to(root).as_posix()
-        if results.suite["name"] != path.parent.name:
-            raise UserError(f"{rel}: suite.name: {results.suite['name']!r} filed under {path.parent.name!r}")
-        if results.decider["name"] != path.stem:
-            raise UserError(f"{rel}: decider.name: {results.decider['name']!r} filed as {path.stem!r}")
-        out.setdefault(path.parent.name, []).append((rel, results))
-    return out
-
-
 def load_reference(root: Path) -> dict[str, Any] | None:
     path = root / REFERENCE
     if not path.is_file():
@@ -83,28 +50,38 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     index: dict[str, Any] = {"generated_by": "overtakezoo leaderboard", "suites": {}}
     for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
-        builtin = name in suite_names()
-        suite = load_suite(name) if builtin else None
+        suite = load_suite(name) if name in suite_names() else None
         rows = subs.get(name, [])
-        live = [(p, r) for p, r in rows if suite is not None and r.suite["hash"] == suite.hash]
-        stale = [(p, r) for p, r in rows if (p, r) not in live]
-        live.sort(key=lambda pr: _rank_key(pr[1]))
+        reasons = {row.rel: stale_reasons(row.results, suite) for row in rows}
+        live = sorted((row for row in rows if not reasons[row.rel]), key=_rank_key)
+        ranked = [row for row in live if not row.privileged]
+        bounds = [row for row in live if row.privileged]  # they see the future: shown apart, never ranked
+        stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
         suite_ref = ref if ref and ref["suite"] == name else None
-        files[f"{name}.md"] = _markdown(name, suite, live, stale, suite_ref).encode()
+        files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref).encode()
         if live:
-            files[f"{name}.png"] = _plot(name, live)
+            files[f"{name}.png"] = _plot(name, ranked, bounds)
         index["suites"][name] = {
             "version": suite.version if suite else None, "hash": suite.hash if suite else None,
             "count": suite.count if suite else None, "table": f"{name}.md",
             "plot": f"{name}.png" if live else None,
-            "entries": [{"decider": r.decider["name"], "version": r.decider["version"], "file": p,
-                         **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}} for p, r in live],
-            "stale": [p for p, _ in stale],
+            "entries": [_entry(row) for row in ranked],
+            "upper_bounds": [_entry(row) for row in bounds],
+            "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
+                      for row, why in stale],
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
     files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
     files["README.md"] = _readme(index).encode()
     return files
+
+
+def _entry(row: Row) -> dict[str, Any]:
+    r = row.results
+    return {"name": row.name, "decider": r.decider["name"], "version": r.decider["version"], "file": row.rel,
+            "policy": (r.meta.get("submission") or {}).get("policy"), "privileged": row.privileged,
+            "overtakezoo": r.meta["package"]["version"], "sim_version": r.meta.get("sim_version"),
+            **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}}
 
 
 def write(root: str | Path = "leaderboards") -> list[str]:
@@ -130,12 +107,38 @@ def stale_files(root: str | Path, files: dict[str, bytes] | None = None) -> list
 
 
 # ------------------------------------------------------------------ rendering
-def _rank_key(r: Results) -> tuple:
-    s = r.summary
-    return (-(s["success_rate"]["value"] or 0.0), s["crash_rate"]["value"] or 0.0, r.decider["name"])
+def _rank_key(row: Row) -> tuple:
+    s = row.results.summary
+    return (-(s["success_rate"]["value"] or 0.0), s["crash_rate"]["value"] or 0.0, row.name)
 
 
-def _markdown(name: str, suite: Any, live: list, stale: list, ref: dict[str, Any] | None) -> str:
+def _policy_cell(row: Row) -> str:
+    """What re-runs the row: a built-in (version, weights) or a stored policy file (its sha256)."""
+    policy = (row.results.meta.get("submission") or {}).get("policy")
+    if policy is None:
+        return f"v{row.results.decider['version']}"
+    if "artifact" in policy:
+        return f"file `{policy['sha256'][:10]}`"
+    weights = f" `{policy['weights_sha256'][:10]}`" if policy["weights_sha256"] else ""
+    return f"built-in v{policy['version']}{weights}"
+
+
+def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
+    head = (["rank"] if ranked else []) + ["name", "policy", *[_LABELS[k] for k, _, _ in _RANK_COLUMNS],
+                                           "overtakezoo", "commit"]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for i, row in enumerate(rows, 1):
+        r = row.results
+        cells = ([str(i)] if ranked else []) + [
+            f"[{row.name}]({row.rel})", _policy_cell(row),
+            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS],
+            r.meta["package"]["version"], (r.meta["git_commit"] or "-")[:10]]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale: list,
+              ref: dict[str, Any] | None) -> str:
     out = [f"# Leaderboard: {name}", "",
            "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", ""]
     if suite is not None:
@@ -145,19 +148,23 @@ def _markdown(name: str, suite: Any, live: list, stale: list, ref: dict[str, Any
     else:
         out += [f"`{name}` is not a built-in suite.", ""]
     out += ["## Measured", ""]
-    if live:
+    if ranked or bounds:
         out.append("Sorted by success rate, then crash rate. Values with 95 % confidence intervals "
-                   "(Wilson for rates, seeded bootstrap for means).")
+                   "(Wilson for rates, seeded bootstrap for means). Every row re-runs with "
+                   "`overtakezoo leaderboard --verify`.")
         out.append("")
-        head = ["rank", "decider", "version", *[_LABELS[k] for k, _, _ in _RANK_COLUMNS], "commit"]
-        out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for i, (path, r) in enumerate(live, 1):
-            commit = (r.meta["git_commit"] or "-")[:10]
-            cells = [str(i), f"[{r.decider['name']}]({path})", r.decider["version"],
-                     *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS], commit]
-            out.append("| " + " | ".join(cells) + " |")
-        out += ["", f"![success vs crash rate]({name}.png)", "", "### Table I, every metric", ""]
-        out.append(render_table([(r.decider["name"], r.summary) for _, r in live], markdown=True).rstrip())
+        out += _rows_table(ranked, ranked=True) if ranked else ["No ranked submissions yet."]
+        out += ["", f"![success vs crash rate]({name}.png)", ""]
+        if bounds:
+            out += ["## Upper bounds (privileged deciders, not ranked)", "",
+                    "These deciders read the simulator's state, the future included (`privileged = True`): "
+                    "they show what a decision could reach, not what a decider that sees only observations "
+                    "achieves, so they are never ranked with the rows above.", ""]
+            out += _rows_table(bounds, ranked=False) + [""]
+        out += ["### Table I, every metric", ""]
+        cols = [(row.name, row.results.summary) for row in ranked]
+        cols += [(f"{row.name} (upper bound)", row.results.summary) for row in bounds]
+        out.append(render_table(cols, markdown=True).rstrip())
         out.append("")
     else:
         out += ["No measured submissions yet.", ""]
@@ -174,9 +181,9 @@ def _markdown(name: str, suite: Any, live: list, stale: list, ref: dict[str, Any
         out.append("")
     if stale:
         out += ["## Stale submissions", "",
-                "Measured on an older version of this suite file (different hash); re-run to list them above.", ""]
-        out += [f"- [{r.decider['name']}]({p}): suite v{r.suite['version']} `{r.suite['hash'][:12]}`"
-                for p, r in stale]
+                "Measured on another suite file, environment config or simulator version than the current "
+                "ones; re-run the evaluation and re-submit (`--replace`) to list them above.", ""]
+        out += [f"- [{row.name}]({row.rel}): measured on {describe(why)}" for row, why in stale]
         out.append("")
     return "\n".join(out)
 
@@ -191,18 +198,85 @@ def _reported(value: Any, kind: str, unit: str) -> str:
 def _readme(index: dict[str, Any]) -> str:
     out = ["# OvertakeZoo leaderboards", "",
            "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", "",
-           "Submit with `overtakezoo submit results.json`, regenerate with `overtakezoo leaderboard`; "
-           "CI runs `overtakezoo leaderboard --check`.", "",
-           "| suite | version | scenarios | submissions | best success rate |", "|---|---|---|---|---|"]
+           "One table per suite, generated from `submissions/`. CI runs `overtakezoo leaderboard --check` "
+           "(the files are current) and `overtakezoo leaderboard --verify --sample 1` (a sample of every "
+           "row re-runs exactly). Privileged deciders (the oracle) are listed apart as upper bounds and "
+           "not ranked; the best success rate below is among the ranked rows.", "",
+           "| suite | version | scenarios | ranked rows | best success rate |", "|---|---|---|---|---|"]
     for name, s in index["suites"].items():
         best = s["entries"][0] if s["entries"] else None
-        best_txt = f"{best['success_rate'] * 100:.1f} % ({best['decider']})" if best else "-"
+        best_txt = f"{best['success_rate'] * 100:.1f} % ({best['name']})" if best else "-"
         out.append(f"| [{name}]({s['table']}) | {s['version'] or '-'} | {s['count'] or '-'} | "
                    f"{len(s['entries'])} | {best_txt} |")
-    return "\n".join(out) + "\n"
+    return "\n".join(out) + "\n\n" + GUIDE
 
 
-def _plot(name: str, live: list) -> bytes:
+GUIDE = """## Submit your policy
+
+A row is a results file plus the policy that produced it, so anyone can re-run it:
+`overtakezoo leaderboard --verify` runs every row's policy again and requires every per-scenario
+value (outcome, times, aborts, ...) to equal the recorded one. A hand-edited results file, or one
+whose policy does not reproduce it, is refused with one line naming the first scenario that differs.
+
+**1. Train.** Any library works; the policy maps one observation of `overtakezoo/Overtake-v0` to a
+mode (0 follow, 1 overtake, 2 abort). With Stable-Baselines3 (`pip install 'overtakezoo[sb3]'`):
+
+```python
+import gymnasium as gym
+import overtakezoo.envs  # registers overtakezoo/Overtake-v0
+from stable_baselines3 import DQN
+
+model = DQN("MlpPolicy", gym.make("overtakezoo/Overtake-v0"), seed=0)
+model.learn(200_000)
+model.save("my-dqn.zip")
+```
+
+With CleanRL, rsl-rl or your own torch code, save the network with TorchScript
+(`torch.jit.script(net).save("my-dqn.pt")`, observations in, Q-values or logits out; the mode is
+the argmax) or export it to ONNX. A `package.module:factory` policy works with `eval` but is not a
+file: export it to submit it. Tune on `table1-train`, never on the suites you submit to.
+
+**2. Evaluate** on each suite you want a row on (`overtakezoo suites` lists them):
+
+```bash
+overtakezoo eval --suite table1 --policy my-dqn.zip --out results/table1/my-dqn.json
+```
+
+The results file records the suite's sha256, the environment config's sha256, the simulator
+version (`overtakezoo.envs.SIM_VERSION`), the OvertakeZoo version and commit, and your policy's
+sha256.
+
+**3. Submit** under a name of your own (the zoo's names, `overtakezoo zoo list`, are reserved):
+
+```bash
+overtakezoo submit results/table1/my-dqn.json --policy my-dqn.zip --name my-dqn
+overtakezoo leaderboard --verify --only '*/my-dqn'   # every scenario of your rows re-runs exactly
+overtakezoo leaderboard                              # regenerate the tables
+```
+
+`submit` refuses a results file measured on another suite file, environment config or simulator
+version, a policy file whose sha256 differs from the one the results recorded, a reserved name,
+and a name already on that suite's leaderboard unless you pass `--replace`. Your policy file is
+stored once, by content, as `submissions/artifacts/<sha256>.<ext>`, whatever number of suites
+you submit it to. Keep it small (a few MB).
+
+**4. Open a pull request** that contains exactly:
+
+- `leaderboards/submissions/<suite>/my-dqn.json` for each suite (your results, with the
+  `submission` block `submit` adds);
+- `leaderboards/submissions/artifacts/<sha256>.<ext>` (your policy);
+- the regenerated `leaderboards/README.md`, `leaderboards/index.json`, `leaderboards/<suite>.md`
+  and `leaderboards/<suite>.png`.
+
+CI checks that the tables are current and re-runs a sample of every row; reviewers run
+`overtakezoo leaderboard --verify --only '*/my-dqn'` on every scenario before merging.
+
+A row goes *stale* (listed apart, under its suite's table) when the suite file, the environment
+config or the simulator version changes; re-run step 2 and submit again with `--replace`.
+"""
+
+
+def _plot(name: str, ranked: list[Row], bounds: list[Row]) -> bytes:
     """Success vs crash rate with Wilson CIs; Agg canvas, no pyplot state, no timestamps in the PNG."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -212,15 +286,16 @@ def _plot(name: str, live: list) -> bytes:
         fig = Figure(figsize=(6.0, 4.5), dpi=100)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot(1, 1, 1)
-        for i, (_, r) in enumerate(live):
+        for i, row in enumerate(ranked + bounds):
+            r, label = row.results, row.name + (" (upper bound)" if row.privileged else "")
             s, c = r.summary["success_rate"], r.summary["crash_rate"]
             x, y = 100 * s["value"], 100 * c["value"]
             # max(0, .): a Wilson bound can sit a rounding error beyond the rate it brackets.
             xerr = [[max(0.0, x - 100 * s["lo"])], [max(0.0, 100 * s["hi"] - x)]]
             yerr = [[max(0.0, y - 100 * c["lo"])], [max(0.0, 100 * c["hi"] - y)]]
-            ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="o", capsize=3, color=f"C{i % 10}",
-                        label=r.decider["name"])
-            ax.annotate(r.decider["name"], (x, y), textcoords="offset points", xytext=(5, 5))
+            ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="s" if row.privileged else "o", capsize=3,
+                        color=f"C{i % 10}", label=label, mfc="none" if row.privileged else None)
+            ax.annotate(row.name, (x, y), textcoords="offset points", xytext=(5, 5))
         ax.set_xlim(-5, 105)
         ax.set_ylim(-5, 105)
         ax.set_xlabel("success rate (%)")

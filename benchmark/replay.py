@@ -20,6 +20,7 @@ from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig
 
 from .archive import Episode, read_archive_meta, read_episode
 from .errors import UserError
+from .io import atomic_path
 
 RUNNING = 0
 FOXGLOVE_LAYOUT = Path(__file__).parent / "foxglove" / "overtakezoo-layout.json"  # shipped as package data
@@ -109,19 +110,19 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
         top.set_title(f"episode {ep.index}    s (m): whole road, start to goal", fontsize=9, loc="left")
 
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if suffix == ".png":
-            draw(len(frames) - 1)
-            fig.savefig(out)
-            return out
-        bar = tqdm(total=len(frames), unit="frame", desc=out.name, leave=False,
-                   disable=not progress or not sys.stderr.isatty())
-        images = _blit_frames(fig, views, draw, len(frames))
-        if suffix == ".gif":
-            _write_gif(images, out, fps, bar)
-        else:
-            _write_mp4(images, out, fps, bar)
-        bar.close()
+        with atomic_path(out) as tmp:  # a temp file beside out, renamed when complete
+            if suffix == ".png":
+                draw(len(frames) - 1)
+                fig.savefig(tmp)
+                return out
+            bar = tqdm(total=len(frames), unit="frame", desc=out.name, leave=False,
+                       disable=not progress or not sys.stderr.isatty())
+            images = _blit_frames(fig, views, draw, len(frames))
+            if suffix == ".gif":
+                _write_gif(images, tmp, fps, bar)
+            else:
+                _write_mp4(images, tmp, fps, bar)
+            bar.close()
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
     return out

@@ -21,12 +21,15 @@ from typing import Any
 import jsonschema
 import numpy as np
 
+from overtakezoo.envs import SIM_VERSION
+
 from .errors import UserError
 from .io import atomic_write_text
 from .metrics import summarize
 
 SCHEMA_ID = "overtakezoo-results/1"
 SCHEMA_PATH = Path(__file__).with_name("schemas") / "results.schema.json"
+_OPTIONAL = ("sim_version", "submission")  # absent from older files / until submitted
 DECIMALS = 4  # per-scenario floats: 0.1 mm / 0.1 ms resolution, and compact files
 
 # Per-scenario arrays: name -> (dtype, value a JSON null stands for).
@@ -78,7 +81,8 @@ def config_sha256(config: Any) -> str:
 
 @dataclass
 class Results:
-    meta: dict[str, Any]  # suite, decider, package, git_commit, seed, shard, range, config_sha256
+    meta: dict[str, Any]  # suite, decider, package, git_commit, seed, sim_version, shard, range, config_sha256,
+    #                       submission (the leaderboard row: name and policy; None until submitted)
     per: dict[str, np.ndarray]
     summary: dict[str, Any]
     timing: dict[str, Any] = field(default_factory=dict)
@@ -98,8 +102,10 @@ class Results:
             "package": {"name": "overtakezoo", "version": package_version()},
             "git_commit": git_commit(),
             "seed": suite.seed,
+            "sim_version": SIM_VERSION,
             "shard": list(shard) if shard is not None else None,
             "range": [start, stop],
+            "submission": None,
         }
         per = round_per_scenario(per)
         return cls(meta, per, summarize(per, suite.seed), timing)
@@ -129,7 +135,8 @@ class Results:
 
     # ------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
-        return {"schema": SCHEMA_ID, **self.meta,
+        meta = {k: v for k, v in self.meta.items() if v is not None or k not in _OPTIONAL}
+        return {"schema": SCHEMA_ID, **meta,
                 "scenarios": {k: _to_list(v) for k, v in self.per.items()},
                 "summary": self.summary, "timing": self.timing}
 
@@ -168,6 +175,7 @@ class Results:
         validate(doc, where)
         meta = {k: doc[k] for k in ("suite", "config_sha256", "decider", "package", "git_commit", "seed",
                                     "shard", "range")}
+        meta.update({k: doc.get(k) for k in _OPTIONAL})
         start, stop = meta["range"]
         if not 0 <= start < stop <= meta["suite"]["count"]:
             raise UserError(f"{where}: range: {meta['range']} is not inside [0, {meta['suite']['count']}]")
@@ -199,7 +207,7 @@ def merge(parts: list[Results]) -> Results:
         raise UserError("merge: no results given")
     first = parts[0]
     for p in parts[1:]:
-        for key in ("suite", "config_sha256", "decider", "package", "git_commit", "seed"):
+        for key in ("suite", "config_sha256", "decider", "package", "git_commit", "seed", "sim_version"):
             if p.meta[key] != first.meta[key]:
                 raise UserError(f"merge: {key}: shards differ ({first.meta[key]!r} vs {p.meta[key]!r})")
     parts = sorted(parts, key=lambda p: p.meta["range"][0])
@@ -213,7 +221,7 @@ def merge(parts: list[Results]) -> Results:
     if edge != first.suite["count"]:
         raise UserError(f"merge: range: shards cover {edge} of {first.suite['count']} scenarios")
     per = {k: np.concatenate([p.per[k] for p in parts]) for k in PER_SCENARIO}
-    meta = {**first.meta, "shard": None, "range": [0, edge]}
+    meta = {**first.meta, "shard": None, "range": [0, edge], "submission": None}
     timing = {"wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
               "started": min(str(p.timing.get("started", "")) for p in parts),
               "steps": sum(int(p.timing.get("steps", 0)) for p in parts), "shards": len(parts)}
@@ -225,7 +233,9 @@ def _validator() -> jsonschema.protocols.Validator:
     schema = json.loads(SCHEMA_PATH.read_text())
     cls = jsonschema.validators.validator_for(schema)
     cls.check_schema(schema)
-    return cls(schema)
+    # JSON Schema counts 0.0 as an integer; numpy seeds, counts and indices need a real int.
+    strict = cls.TYPE_CHECKER.redefine("integer", lambda _, v: isinstance(v, int) and not isinstance(v, bool))
+    return jsonschema.validators.extend(cls, type_checker=strict)(schema)
 
 
 def validate(doc: Any, where: str = "results") -> None:

@@ -31,19 +31,39 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     step_result)`` after every step and ``end_chunk(core)``; its creator closes it. ``limit`` keeps
     only the first ``limit`` scenarios of the (shard's) range.
     """
-    if chunk_size < 1:
-        raise ValueError("chunk_size must be >= 1")
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
     if limit is not None:
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
+    t0, started = time.perf_counter(), datetime.now(timezone.utc)
+    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder)
+    timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
+              "started": started.isoformat(timespec="seconds"), "steps": total_steps}
+    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing)
+
+
+def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = 4096) -> dict[str, np.ndarray]:
+    """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
+
+    The whole suite is drawn and the rows taken, and rows never interact, so each value equals the
+    same scenario's value in a full run (what ``leaderboard --verify`` relies on)."""
+    indices = np.asarray(indices, dtype=np.int64)
+    if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
+        raise ValueError(f"scenario indices must lie in [0, {suite.count})")
+    return _run(suite, decider, suite.scenarios().take(indices), indices, chunk_size, False, None)[0]
+
+
+def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,
+         recorder: Any) -> tuple[dict[str, np.ndarray], int]:
+    """Step ``scenarios`` (suite rows ``index``) in chunks; returns (per-scenario arrays, steps)."""
+    if chunk_size < 1:
+        raise ValueError("chunk_size must be >= 1")
     cfg = suite.config
     held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
-    max_steps = int(math.ceil(float(np.max(scenarios.time_limit)) / cfg.dt)) + 10
-    parts: list[dict[str, np.ndarray]] = []
-    t0, started = time.perf_counter(), datetime.now(timezone.utc)
+    max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10
+    parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
     bar = tqdm(total=scenarios.num, unit="scen", desc=f"{suite.name}/{decider.name}", leave=False,
                disable=not progress or not sys.stderr.isatty())
@@ -56,7 +76,7 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
             if getattr(decider, "privileged", False):
                 decider.bind(core)
             if recorder is not None:
-                recorder.begin_chunk(core, np.arange(start + lo, start + lo + chunk.num))
+                recorder.begin_chunk(core, index[lo:lo + chunk.num])
             record = None if recorder is None else (lambda modes, res: recorder.record_step(core, modes, res))
             step = 0
             while not core.done.all():
@@ -73,9 +93,11 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     finally:
         bar.close()
     per = round_per_scenario({k: np.concatenate([p[k] for p in parts]) for k in PER_SCENARIO})
-    timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
-              "started": started.isoformat(timespec="seconds"), "steps": total_steps}
-    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing)
+    return per, total_steps
+
+
+def _per_scenario_empty() -> dict[str, np.ndarray]:
+    return {k: np.zeros(0, dtype) for k, (dtype, _) in PER_SCENARIO.items()}
 
 
 def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:

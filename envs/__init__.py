@@ -4,11 +4,13 @@ from .config import ABORT, FOLLOW, MODE_NAMES, OVERTAKE, ConfigError, EnvConfig,
 from .core import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, OvertakeCore, StepResult
 from .observation import observation_layout, observation_size
 from .scenarios import ScenarioDistribution, Scenarios, make_scenario
+from .version import SIM_VERSION
 
 __all__ = [
     "ABORT", "FOLLOW", "OVERTAKE", "MODE_NAMES", "ConfigError", "EnvConfig", "ModeParams", "PlannerConfig",
     "CRASH", "OFFROAD", "OUTCOME_NAMES", "RUNNING", "SUCCESS", "TIMEOUT", "OvertakeCore", "StepResult",
     "observation_layout", "observation_size", "ScenarioDistribution", "Scenarios", "make_scenario",
+    "SIM_VERSION",
 ]
 
 # The env faces (thin adapters over the core). Importing this package registers

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,8 +46,8 @@ class ModeParams:
         _check(f"{prefix}.acceleration", self.acceleration, 0.0, 10.0)
         _check(f"{prefix}.following_distance", self.following_distance, 0.0, 200.0)
         _check(f"{prefix}.avoiding_distance", self.avoiding_distance, 0.0, 200.0)
-        _check(f"{prefix}.rollout_number", self.rollout_number, 0, num_rollouts)
-        _check(f"{prefix}.rollout_id", self.rollout_id, -1, num_rollouts)
+        _check(f"{prefix}.rollout_number", self.rollout_number, 0, num_rollouts, integer=True)
+        _check(f"{prefix}.rollout_id", self.rollout_id, -1, num_rollouts, integer=True)
 
 
 def _default_modes() -> dict[str, ModeParams]:
@@ -102,7 +103,7 @@ class PlannerConfig:
         return self.modes[MODE_NAMES[index]]
 
     def validate(self) -> None:
-        _check("planner.num_rollouts", self.num_rollouts, 1, 16)
+        _check("planner.num_rollouts", self.num_rollouts, 1, 16, integer=True)
         _check("planner.horizon_time", self.horizon_time, 0.1, 60.0)
         for key in ("car_tip_margin", "roll_in_margin", "horizontal_safety", "vertical_safety",
                     "keep_margin", "abort_clearance", "abort_drop_back"):
@@ -176,7 +177,7 @@ class ObservationConfig:
     speed_scale: float = 5.0
 
     def validate(self) -> None:
-        _check("observation.vehicles_per_lane", self.vehicles_per_lane, 1, 16)
+        _check("observation.vehicles_per_lane", self.vehicles_per_lane, 1, 16, integer=True)
         _check("observation.position_scale", self.position_scale, 1e-6, 1e6)
         _check("observation.speed_scale", self.speed_scale, 1e-6, 1e6)
 
@@ -202,8 +203,8 @@ class EnvConfig:
 
     def validate(self) -> None:
         _check("dt", self.dt, 1e-3, 1.0)
-        _check("decision_interval", self.decision_interval, 1, 1000)
-        _check("num_egos", self.num_egos, 1, 4096)
+        _check("decision_interval", self.decision_interval, 1, 1000, integer=True)
+        _check("num_egos", self.num_egos, 1, 4096, integer=True)
         if self.render_mode not in (None, "rgb_array", "human"):
             raise ConfigError(f"render_mode: {self.render_mode!r} is not one of None, 'rgb_array', 'human'")
         self.planner.validate()
@@ -224,10 +225,13 @@ class EnvConfig:
         return dataclasses.asdict(self)
 
 
-def _check(key: str, value: Any, lo: float, hi: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{key}: expected a number, got {value!r}")
-    if not (lo <= value <= hi) or (isinstance(value, float) and math.isnan(value)):
+def _check(key: str, value: Any, lo: float, hi: float, integer: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ConfigError(f"{key}: expected {'an integer' if integer else 'a number'}, got {value!r}")
+    # Counts and indices must be integers: 2.0 is refused (not rounded) so a typo cannot pass silently.
+    if integer and not isinstance(value, numbers.Integral):
+        raise ConfigError(f"{key}: expected an integer, got {value!r}")
+    if not (lo <= value <= hi) or math.isnan(value):
         raise ConfigError(f"{key}: {value!r} is out of range [{lo}, {hi}]")
 
 

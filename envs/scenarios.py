@@ -167,6 +167,18 @@ class ScenarioDistribution:
         return dist
 
     def validate(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, str):
+                continue
+            values = value if isinstance(value, tuple) else (value,)
+            # inf/NaN would overflow the sampler or the step count; the one exception is
+            # oncoming_reveal = [inf, inf], the default: the oncoming car is seen from the start.
+            if f.name == "oncoming_reveal" and all(v == math.inf for v in values):
+                continue
+            if not all(math.isfinite(v) for v in values):
+                raise ConfigError(f"scenario.{f.name}: must be finite, got {value!r}"
+                                  + (" ([inf, inf] means never hidden)" if f.name == "oncoming_reveal" else ""))
         positive = ("speed_limit", "lane_width", "goal", "sensor_range", "time_limit", "ego_length",
                     "ego_width", "vehicle_length", "vehicle_width")
         for key in positive:

@@ -11,7 +11,7 @@ for suite in "${suites[@]}"; do
   for decider in "${deciders[@]}"; do
     out="results/$suite/$decider.json"
     overtakezoo eval --suite "$suite" --decider "$decider" --out "$out" --no-progress | tail -n 1
-    overtakezoo submit "$out"
+    overtakezoo submit --replace "$out"
   done
 done
 overtakezoo leaderboard

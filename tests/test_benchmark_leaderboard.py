@@ -25,7 +25,9 @@ def root(tmp_path):
     for seed, name in ((1, "alpha"), (2, "beta")):
         r = fake_results(seed=seed)
         r.meta["decider"] = {**r.meta["decider"], "name": name}
-        submit(r, root)
+        policy = tmp_path / f"{name}.bin"
+        policy.write_bytes(name.encode())  # filed, hashed and stored; never run by these tests
+        submit(r, root, policy=policy)
     return root
 
 

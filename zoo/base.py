@@ -108,6 +108,11 @@ def names() -> list[str]:
     return sorted(set(_REGISTRY) | {n for n, mod in _MEMBER_OF.items() if mod not in _UNAVAILABLE})
 
 
+def known_names() -> list[str]:
+    """Every built-in name, members whose optional dependency is missing included (all reserved)."""
+    return sorted(set(_REGISTRY) | set(_MEMBER_OF))
+
+
 def load(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Decider:
     """A ready decider by registry name (pretrained weights included, checked by sha256)."""
     if name in _MEMBER_OF and name not in _REGISTRY:

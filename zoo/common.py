@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, EnvConfig
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 
 
 class WeightsError(ValueError):

@@ -29,6 +29,7 @@ from tensordict import TensorDict
 
 from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
+from overtakezoo.envs.io import atomic_path, atomic_write_bytes, check_writable_dir
 
 from .base import Decider, register
 from .common import WeightsError, evaluate, read_card, read_hyperparams, read_verified, sha256_bytes  # noqa: F401
@@ -190,7 +191,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     hp = load_hyperparams(hyperparams)
     steps = int(steps if steps is not None else hp["train"]["steps"])
     out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
-    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    check_writable_dir(out / "checkpoints")  # fail before training, not after it
     torch.set_num_threads(int(hp["train"].get("threads", 1)))
     torch.manual_seed(seed)
     train_suite = load_suite(suite)
@@ -254,9 +255,9 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
                     bar.write(f"iteration {it + 1}: greedy success - crash on {select_set.num} training "
                               f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})")
             if (it + 1) % int(hp["train"]["checkpoint_every"]) == 0 or it + 1 == iterations:
-                runner.save(str(out / "checkpoints" / f"ppo_{it + 1:05d}.pt"),
-                            infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed, "suite": meta,
-                                   "best": best})
+                with atomic_path(out / "checkpoints" / f"ppo_{it + 1:05d}.pt") as tmp:  # complete or absent
+                    runner.save(str(tmp), infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed,
+                                                 "suite": meta, "best": best})
     if bar is not None:
         bar.close()
     wall = wall_before + time.perf_counter() - t0
@@ -284,18 +285,9 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "results": {},
     }
     weights = out / "ppo.pt"
-    _write(weights, blob)
+    atomic_write_bytes(weights, blob)
     if eval_suite:
         decider = PPODecider(*load_weights(weights, card), config=config, card=card)
         card["results"][eval_suite] = evaluate(decider, eval_suite, progress=progress)[0]
-    _write(out / "ppo.json", (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
+    atomic_write_bytes(out / "ppo.json", (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
     return weights
-
-
-def _write(path: Path, data: bytes) -> None:
-    try:
-        from overtakezoo.benchmark.io import atomic_write_bytes
-    except ImportError:  # benchmark is part of the same distribution; this is only belt and braces
-        path.write_bytes(data)
-        return
-    atomic_write_bytes(path, data)

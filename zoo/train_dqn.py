@@ -37,6 +37,7 @@ from torch import nn
 from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
 from overtakezoo.envs.hold import hold
+from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir
 
 from .common import evaluate, read_card, read_hyperparams, reject_reward_keys, sha256_bytes
 from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
@@ -241,8 +242,6 @@ class Trainer:
 
     # --- persistence
     def checkpoint(self, path: Path) -> None:
-        from overtakezoo.benchmark.io import atomic_write_bytes
-
         state = {"algo": self.algo, "hp": self.hp, "seed": self.seed, "net": self.net.state_dict(),
                  "target": self.target.state_dict(), "optim": self.optim.state_dict(),
                  "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
@@ -326,6 +325,7 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
     """Train ``algo`` and (unless ``eval_suite`` is None) evaluate it; writes ``log.csv``,
     ``checkpoint.pt``, ``<algo>.pt`` and the model card ``<algo>.json`` into ``out``.
     Returns the model card (dict)."""
+    out_dir = check_writable_dir(out) if out else None  # fail before training, not after it
     hp = load_hyperparams(algo, hyperparams)
     hp.update(overrides or {})
     if steps is not None:
@@ -335,9 +335,6 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
     trainer = Trainer(algo, hp, load_suite(suite), seed)
     if resume:
         trainer.restore(resume)
-    out_dir = Path(out) if out else None
-    if out_dir:
-        out_dir.mkdir(parents=True, exist_ok=True)
     trainer.run(int(hp["steps"]), out_dir, progress)
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
@@ -350,8 +347,6 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
         results, full = evaluate(dec, ev)
     card = model_card(trainer, weights, results, ev)
     if out_dir:
-        from overtakezoo.benchmark.io import atomic_write_bytes, atomic_write_json
-
         atomic_write_bytes(out_dir / f"{algo}.pt", weights)
         atomic_write_json(out_dir / f"{algo}.json", card)
         if eval_suite and full is not None:  # the runner's results file, ready for `overtakezoo submit`
@@ -373,8 +368,6 @@ def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path 
     dec = load_pretrained(name, data.config, directory)
     summary, _ = evaluate(dec, data)
     if write:
-        from overtakezoo.benchmark.io import atomic_write_json
-
         card = read_card(directory / f"{name}.json", name)
         card.setdefault("results", {})[suite] = summary
         if suite == "table1":

@@ -13,17 +13,46 @@ def register(subparsers: Any) -> None:
                    "Regenerate leaderboards/ from leaderboards/submissions/: a Markdown table per suite, an\n"
                    "index (index.json, README.md) and a PNG plot of success vs crash rate per suite. The output\n"
                    "is byte-identical on every run. With --check nothing is written and the exit status is 1\n"
-                   "when any generated file is missing, different or obsolete (CI runs this).",
+                   "when any generated file is missing, different or obsolete (CI runs this).\n"
+                   "With --verify nothing is written: every current row's policy (its built-in zoo member, or\n"
+                   "its stored policy file, checked by sha256) is re-run on its scenarios (a seeded sample of K\n"
+                   "per row with --sample K) and every per-scenario value must equal the recorded one; the first\n"
+                   "row that does not reproduce is named with its first mismatching scenario (exit 2).",
                    ["overtakezoo leaderboard", "overtakezoo leaderboard --check",
+                    "overtakezoo leaderboard --verify --sample 20 --seed 1   # 20 scenarios of every row",
+                    "overtakezoo leaderboard --verify --only 'table1/my-*'    # every scenario of some rows",
                     "overtakezoo leaderboard --root /tmp/lb"])
     p.add_argument("--check", action="store_true", help="write nothing; exit 1 if the files are stale")
+    p.add_argument("--verify", action="store_true", help="write nothing; re-run every row's policy and require "
+                   "its per-scenario results to match exactly")
+    p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios per row, drawn from "
+                   "--seed (default: every scenario)")
+    p.add_argument("--seed", type=int, default=0, help="with --verify --sample: the draw's seed (default 0)")
+    p.add_argument("--jobs", type=int, default=1, help="with --verify: suites verified in parallel processes")
+    p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows matching this glob, "
+                   "e.g. 'table1/*' or '*/my-policy'")
     p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
     p.set_defaults(handler=run)
 
 
 def run(args: Any) -> int:
+    from ..errors import UserError
     from ..leaderboard import stale_files, write
 
+    if not args.verify and (args.sample is not None or args.only is not None):
+        raise UserError("--sample and --only go with --verify")
+    if args.verify:
+        from ..submission import verify
+
+        if args.sample is not None and args.sample < 1:
+            raise UserError(f"--sample {args.sample}: must be >= 1")
+        if args.jobs < 1:
+            raise UserError(f"--jobs {args.jobs}: must be >= 1")
+        n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs)
+        if n == 0 and args.only is not None:
+            raise UserError(f"--only {args.only!r}: no current row matches")
+        print(f"verified {n} row(s): every re-run reproduces its recorded per-scenario results")
+        return 0
     if args.check:
         stale = stale_files(args.root)
         for rel in stale:

@@ -26,6 +26,11 @@ def run(args: Any) -> int:
 
     if any(n < 1 for n in args.sizes) or args.seconds <= 0:
         raise UserError("--sizes must be >= 1 and --seconds > 0")
+    if args.out:  # fail before measuring, not after
+        from ..io import check_writable
+
+        check_writable(args.out + ".json")
+        check_writable(args.out + ".md")
     report = measure(args.sizes, args.seconds, suites=not args.no_suites)
     if args.out:
         write_report(report, args.out)

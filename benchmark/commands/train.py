@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import UserError
+from ..io import check_writable_dir
 
 ALGORITHMS = ("dqn", "double-dqn", "ppo")
 
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and not Path(args.resume).is_file():
         raise UserError(f"--resume: no checkpoint at {args.resume}")
     out = Path(args.out or f"runs/{args.algorithm}")
+    check_writable_dir(out)  # an unwritable --out fails now, not after training
     eval_suite = None if args.eval_suite.lower() == "none" else args.eval_suite
     if args.algorithm == "ppo":
         return _run_ppo(args, out, eval_suite)

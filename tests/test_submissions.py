@@ -1,0 +1,244 @@
+"""Verified submissions: rows re-run exactly, edits and swapped artifacts are refused, names are guarded."""
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from overtakezoo import zoo
+from overtakezoo.benchmark import policy as policies
+from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard import generate
+from overtakezoo.benchmark.metrics import summarize
+from overtakezoo.benchmark.results import PER_SCENARIO, Results
+from overtakezoo.benchmark.runner import run_indices, run_suite
+from overtakezoo.benchmark.submission import sample_indices, submit, verify
+from overtakezoo.envs import OVERTAKE, SIM_VERSION
+
+from test_benchmark_results import fake_results
+from test_benchmark_runner import small_suite
+
+REPO = Path(__file__).resolve().parents[1] / "leaderboards"
+
+
+def one_line_error(capsys, argv):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    return err
+
+
+def shipped(name, suite="table1"):
+    """A shipped row as it was measured (the submission block stripped)."""
+    r = Results.load(REPO / "submissions" / suite / f"{name}.json")
+    return Results({**r.meta, "submission": None}, r.per, r.summary, r.timing)
+
+
+@pytest.fixture
+def root(tmp_path):
+    """A leaderboard holding the shipped table1 rows of always-overtake and rule-fsm."""
+    root = tmp_path / "lb"
+    for name in ("always-overtake", "rule-fsm"):
+        submit(shipped(name), root)
+    return root
+
+
+# ------------------------------------------------------------------ subsets
+@pytest.mark.parametrize("decider", ["rule-fsm", "dqn", "oracle"])
+def test_a_subset_run_equals_the_same_scenarios_of_the_full_run(tmp_path, decider):
+    suite = small_suite(tmp_path, count=24)
+    full = run_suite(suite, zoo.load(decider, suite.config), progress=False).per
+    idx = np.array([21, 2, 17, 17, 23, 0])  # any order, repeats allowed
+    sub = run_indices(suite, zoo.load(decider, suite.config), idx, chunk_size=4)
+    for key in PER_SCENARIO:
+        np.testing.assert_array_equal(sub[key], full[key][idx], err_msg=key)
+
+
+def test_sample_indices_are_seeded_sorted_and_per_row():
+    a = sample_indices(3000, 5, 0, "submissions/table1/a.json")
+    assert np.array_equal(a, sample_indices(3000, 5, 0, "submissions/table1/a.json"))
+    assert np.all(np.diff(a) > 0) and a.size == 5
+    assert not np.array_equal(a, sample_indices(3000, 5, 0, "submissions/table1/b.json"))
+    assert not np.array_equal(a, sample_indices(3000, 5, 1, "submissions/table1/a.json"))
+    assert np.array_equal(sample_indices(10, None, 0, "x"), np.arange(10))
+
+
+# ------------------------------------------------------------------ the shipped leaderboard
+def test_every_shipped_row_reproduces_on_a_sample():
+    # CI: one seeded scenario of each of the 64 rows re-runs exactly (two worker processes).
+    t0 = time.perf_counter()
+    lines = []
+    assert verify(REPO, sample=1, seed=0, jobs=2, log=lines.append) == 64
+    assert all(line.startswith("verified ") for line in lines)
+    print(f"verified 64 rows in {time.perf_counter() - t0:.1f} s")
+
+
+def test_privileged_rows_are_upper_bounds_not_ranked():
+    md = (REPO / "table1.md").read_text()
+    ranked, rest = md.split("## Upper bounds")
+    assert "[oracle]" not in ranked and "[oracle](submissions/table1/oracle.json)" in rest.split("###")[0]
+    index = json.loads((REPO / "index.json").read_text())
+    for s in index["suites"].values():
+        assert [e["name"] for e in s["upper_bounds"]] == ["oracle"]
+        assert all(not e["privileged"] for e in s["entries"])
+
+
+# ------------------------------------------------------------------ refusals
+def test_edited_per_scenario_outcome_is_refused_naming_the_scenario(root, capsys):
+    path = root / "submissions" / "table1" / "always-overtake.json"
+    idx = sample_indices(3000, 3, 0, "submissions/table1/always-overtake.json")
+    r = Results.load(path)
+    i = int(idx[1])
+    r.per["outcome"][i] = 1 if r.per["outcome"][i] != 1 else 2  # consistent file: the summary follows the edit
+    r.summary = summarize(r.per, r.meta["seed"])
+    r.save(path)
+    assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "3", "--only", "table1/rule-fsm"]) == 0
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "3"])
+    assert f"submissions/table1/always-overtake.json: scenario {i}: outcome: recorded" in err
+
+    # A float edited in the fourth decimal is caught too, and named.
+    r = Results.load(path)
+    r.per["outcome"] = shipped("always-overtake").per["outcome"]
+    r.per["episode_time"][idx[0]] += 1e-4
+    r.summary = summarize(r.per, r.meta["seed"])
+    r.save(path)
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "3"])
+    assert f"scenario {idx[0]}: episode_time: recorded" in err
+
+
+class ConstantPolicy:
+    """A test-only file format for load_policy: a JSON file {"mode": m}."""
+
+    @staticmethod
+    def load(spec, config=None):
+        if not spec.endswith(".json"):
+            raise UserError(f"policy {spec!r}: not a test policy")
+        mode = json.loads(Path(spec).read_text())["mode"]
+        return zoo.ConstantDecider(mode, "const", config)
+
+
+def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(root, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(policies, "load_policy", ConstantPolicy.load)  # the real loaders read SB3/TorchScript/ONNX
+    mine = tmp_path / "my-policy.json"
+    mine.write_text(json.dumps({"mode": OVERTAKE}))
+    assert main(["submit", str(_results_file(tmp_path, "always-overtake")), "--policy", str(mine),
+                 "--name", "my-overtaker", "--root", str(root)]) == 0
+    row = Results.load(root / "submissions" / "table1" / "my-overtaker.json")
+    sha = row.meta["submission"]["policy"]["sha256"]
+    artifact = root / "submissions" / "artifacts" / f"{sha}.json"
+    assert artifact.read_bytes() == mine.read_bytes()
+    assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "4", "--only", "*/my-*"]) == 0
+    assert "verified submissions/table1/my-overtaker.json: 4 of 3000" in capsys.readouterr().out
+
+    # The stored policy no longer reproduces the row: a mismatch, named.
+    artifact.write_text(json.dumps({"mode": 0}))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "4"])
+    assert "my-overtaker.json: submission.policy.artifact" in err and "sha256" in err and f"{sha[:12]}" in err
+
+
+def _results_file(tmp_path, name):
+    path = tmp_path / f"{name}.results.json"
+    shipped(name).save(path)
+    return path
+
+
+def test_builtin_names_are_reserved(root, tmp_path, capsys):
+    mine = tmp_path / "ppo.zip"
+    mine.write_bytes(b"my own ppo")
+    own = fake_results()
+    own.meta["decider"] = {**own.meta["decider"], "name": "ppo", "weights_sha256": "0" * 64}
+    path = tmp_path / "ppo.json"
+    own.save(path)
+    # A self-trained "ppo" is not the zoo's ppo: refused, with or without its file.
+    assert "the zoo has v1" in one_line_error(capsys, ["submit", str(path), "--root", str(root)])
+    assert "reserved" in one_line_error(capsys, ["submit", str(path), "--policy", str(mine), "--root", str(root)])
+    assert "reserved" in one_line_error(capsys, ["submit", str(path), "--policy", str(mine), "--name", "PPO",
+                                                 "--root", str(root)])
+    assert "not a file" in one_line_error(capsys, ["submit", str(path), "--policy", "pkg.mod:factory",
+                                                   "--name", "mine", "--root", str(root)])
+    # The weights the results recorded must be the file's.
+    assert "submit the file that was evaluated" in one_line_error(
+        capsys, ["submit", str(path), "--policy", str(mine), "--name", "my-ppo", "--root", str(root)])
+    # A decider that is not built in needs its policy file; a built-in keeps its own name.
+    own.meta["decider"] = {**own.meta["decider"], "name": "stub", "weights_sha256": None}
+    own.save(path)
+    assert "--policy FILE" in one_line_error(capsys, ["submit", str(path), "--root", str(root)])
+    assert "its own name" in one_line_error(
+        capsys, ["submit", str(_results_file(tmp_path, "rule-fsm")), "--name", "rules", "--root", str(root)])
+    assert sorted(p.name for p in (root / "submissions" / "table1").iterdir()) == ["always-overtake.json",
+                                                                                  "rule-fsm.json"]
+    assert not (root / "submissions" / "artifacts").exists()
+
+
+def test_resubmitting_needs_replace_and_replace_prunes_the_old_artifact(root, tmp_path, capsys):
+    row = root / "submissions" / "table1" / "rule-fsm.json"
+    before = row.read_bytes()
+    results = _results_file(tmp_path, "rule-fsm")
+    assert "--replace" in one_line_error(capsys, ["submit", str(results), "--root", str(root)])
+    assert row.read_bytes() == before
+    assert main(["submit", str(results), "--replace", "--root", str(root)]) == 0
+    assert row.read_bytes() == before  # the same row, filed again
+
+    own = fake_results()
+    own.meta["decider"] = {**own.meta["decider"], "name": "mine"}
+    path = tmp_path / "mine.json"
+    own.save(path)
+    for i, content in enumerate((b"v1", b"v2")):
+        policy = tmp_path / f"mine-{i}.pt"
+        policy.write_bytes(content)
+        argv = ["submit", str(path), "--policy", str(policy), "--root", str(root)] + (["--replace"] if i else [])
+        assert main(argv) == 0
+        if not i:
+            assert "--replace" in one_line_error(capsys, argv)
+    stored = sorted(p.name for p in (root / "submissions" / "artifacts").iterdir())
+    assert len(stored) == 1 and stored[0].endswith(".pt")
+    assert (root / "submissions" / "artifacts" / stored[0]).read_bytes() == b"v2"
+
+
+def test_stale_rows_are_shown_apart_and_skipped_by_verify(root, capsys):
+    path = root / "submissions" / "table1" / "rule-fsm.json"
+    doc = json.loads(path.read_text())
+    doc["sim_version"] = SIM_VERSION + 1
+    path.write_text(json.dumps(doc))
+    md = generate(root)["table1.md"].decode()
+    ranked, stale = md.split("## Stale submissions")
+    assert "[rule-fsm]" not in ranked
+    assert f"[rule-fsm](submissions/table1/rule-fsm.json): measured on simulator v{SIM_VERSION + 1} " \
+           f"(now v{SIM_VERSION})" in stale
+    index = json.loads(generate(root)["index.json"])
+    assert index["suites"]["table1"]["stale"][0]["file"] == "submissions/table1/rule-fsm.json"
+    assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "skipped submissions/table1/rule-fsm.json: stale" in out and "verified 1 row(s)" in out
+
+    # A results file without a simulator version (an older OvertakeZoo) is stale as well, and refused.
+    doc.pop("sim_version")
+    path.write_text(json.dumps(doc))
+    assert "simulator of unknown version" in generate(root)["table1.md"].decode()
+    assert "re-run the evaluation" in one_line_error(capsys, ["submit", str(path), "--replace", "--root", str(root)])
+
+
+def test_verify_flags_need_verify(capsys):
+    assert "--verify" in one_line_error(capsys, ["leaderboard", "--sample", "3", "--root", str(REPO)])
+    assert "no current row" in one_line_error(capsys, ["leaderboard", "--verify", "--only", "nope/*",
+                                                       "--root", str(REPO)])
+
+
+# ------------------------------------------------------------------ the results loader (defect: "seed": 0.0)
+@pytest.mark.parametrize("key, value", [("seed", 0.0), ("range", [0.0, 40]), ("sim_version", 1.0)])
+def test_integer_fields_given_as_floats_are_user_errors(tmp_path, capsys, key, value):
+    doc = json.loads(fake_results(n=40, seed=1).to_json().replace('"count": 3000', '"count": 40'))
+    doc[key] = value  # the exact input hypothesis found: "seed": 0.0 made compare/submit/leaderboard raise TypeError
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(UserError, match=f"^r.json: {key}.*is not of type 'integer'"):
+        Results.from_json(path.read_text(), "r.json")
+    for argv in (["compare", str(path), str(path)], ["submit", str(path), "--root", str(tmp_path / "lb")]):
+        assert f"{key}" in one_line_error(capsys, argv)
+    (tmp_path / "lb" / "submissions" / "table1").mkdir(parents=True)
+    shutil.copy(path, tmp_path / "lb" / "submissions" / "table1" / "stub.json")
+    assert key in one_line_error(capsys, ["leaderboard", "--root", str(tmp_path / "lb")])
