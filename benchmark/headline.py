@@ -16,11 +16,15 @@ score is their mean (rliable's stratified bootstrap over runs and tasks).
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from .errors import UserError
 
 CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
         "adversarial", "occluded")
@@ -135,4 +139,71 @@ def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], orac
     for n in sorted(privileged & set(table)):
         out.append(row("upper bound", n, f"{n} (privileged)"))
     out.append("")
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------ inputs from the leaderboard
+def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
+    """``seeds/<member>.json`` (written by scripts/seed_results.py): every training seed's outcome
+    counts per suite, and the shipped seed with its selection rule."""
+    out = {}
+    for path in sorted((root / "seeds").glob("*.json")) if (root / "seeds").is_dir() else []:
+        try:
+            doc = json.loads(path.read_text())
+            assert isinstance(doc["member"], str) and isinstance(doc["selection_rule"], str)
+            for entry in doc["seeds"]:
+                for c in entry["suites"].values():
+                    assert all(isinstance(c[k], int) and not isinstance(c[k], bool) for k in ("n", "success", "crash"))
+                    assert 0 <= c["success"] + c["crash"] <= c["n"] and c["n"] > 0
+                    assert isinstance(c["suite_sha256"], str)
+        except (ValueError, KeyError, TypeError, AssertionError) as exc:
+            raise UserError(f"{path}: malformed seeds file ({type(exc).__name__}: {exc})") from None
+        out[doc["member"]] = doc
+    return out
+
+
+def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dict[str, Any]],
+                hashes: dict[str, str]) -> dict[str, dict[str, list[Counts]]]:
+    """Counts per decider and suite: a member's training seeds where its seeds file covers the suite
+    at the current suite hash, else its leaderboard row (one run). ``rows[decider][suite]`` is a
+    results summary."""
+    table: dict[str, dict[str, list[Counts]]] = {}
+    for name, by_suite in rows.items():
+        doc = seeds.get(name)
+        for suite, summary in by_suite.items():
+            per_seed = []
+            if doc is not None:
+                per_seed = [e["suites"].get(suite) for e in doc["seeds"]]
+                ok = all(c is not None and c["suite_sha256"] == hashes.get(suite) for c in per_seed)
+                per_seed = [Counts(c["success"], c["crash"], c["n"]) for c in per_seed] if ok else []
+            table.setdefault(name, {})[suite] = per_seed or [counts_from_summary(summary)]
+    # A member with seeds on some suites and one run on others: use its single runs everywhere.
+    for name, by_suite in table.items():
+        if len({len(v) for v in by_suite.values()}) > 1:
+            table[name] = {s: [counts_from_summary(rows[name][s])] for s in by_suite}
+    return table
+
+
+def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
+    """Markdown: every learned member's training seeds on ``suite`` (success, crash with Wilson CIs),
+    their mean with a bootstrap CI over seeds and scenarios, and the shipped seed with its rule."""
+    out = [f"### Learned deciders over training seeds ({suite})", "",
+           "| member | seed | success [95 % CI] | crash [95 % CI] | shipped |", "|---|---|---|---|---|"]
+    rules = []
+    for name, doc in sorted(seeds.items()):
+        cs = []
+        for e in doc["seeds"]:
+            c = e["suites"].get(suite)
+            if c is None:
+                continue
+            cs.append(Counts(c["success"], c["crash"], c["n"]))
+            out.append(f"| {name} | {e['seed']} | {_pct(c['success_rate'])} % [{_pct(c['success_ci'][0])}, "
+                       f"{_pct(c['success_ci'][1])}] | {_pct(c['crash_rate'])} % [{_pct(c['crash_ci'][0])}, "
+                       f"{_pct(c['crash_ci'][1])}] | {'yes' if e['seed'] == doc['shipped_seed'] else ''} |")
+        if cs:
+            s, c = mean_over_seeds(cs, "success"), mean_over_seeds(cs, "crash")
+            out.append(f"| **{name}** | mean of {len(cs)} | {_pct(s['value'])} % [{_pct(s['lo'])}, {_pct(s['hi'])}] | "
+                       f"{_pct(c['value'])} % [{_pct(c['lo'])}, {_pct(c['hi'])}] | |")
+        rules.append(f"{name}: {doc['selection_rule']}")
+    out += ["", "Shipped seed: " + ("; ".join(sorted(set(r.split(': ', 1)[1] for r in rules))) if rules else "-"), ""]
     return "\n".join(out)

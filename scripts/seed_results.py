@@ -46,6 +46,7 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--ship", action="store_true")
     ap.add_argument("--suites", default=",".join(CORE))
+    ap.add_argument("--no-write", action="store_true", help="only evaluate (fill each run's cache)")
     args = ap.parse_args()
     algo = args.member
     seeds = []
@@ -53,14 +54,24 @@ def main() -> None:
         card = json.loads((run / f"{algo}.json").read_text())
         entry = {"seed": card["seed"], "run": run.name, "weights_sha256": card["weights_sha256"],
                  "steps": card["steps"], "suites": {}}
+        cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
+        cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
         for name in [TRAIN_SUITE, *args.suites.split(",")]:
             suite = load_suite(name)
+            hit = cache.get(name)
+            if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == card["weights_sha256"]:
+                entry["suites"][name] = hit
+                continue
             results = run_suite(suite, load_policy(str(run / f"{algo}.pt"), suite.config), progress=False)
             entry["suites"][name] = {"suite_version": suite.version, "suite_sha256": suite.hash,
                                      **counts(results.summary)}
             print(f"{algo} seed {card['seed']} {name}: success {results.summary['success_rate']['value']:.4f} "
                   f"crash {results.summary['crash_rate']['value']:.4f}", flush=True)
+        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": card["weights_sha256"],
+                                                   **entry["suites"]}, indent=1).encode())
         seeds.append(entry)
+    if args.no_write:
+        return
     order = sorted(seeds, key=lambda e: (e["suites"][TRAIN_SUITE]["success_rate"],
                                           -e["suites"][TRAIN_SUITE]["crash_rate"], -e["seed"]))
     chosen = order[(len(order) - 1) // 2]
