@@ -187,7 +187,7 @@ def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dic
 def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
     """Markdown: every learned member's training seeds on ``suite`` (success, crash with Wilson CIs),
     their mean with a bootstrap CI over seeds and scenarios, and the shipped seed with its rule."""
-    out = [f"### Learned deciders over training seeds ({suite})", "",
+    out = [f"### Learned deciders over their training seeds ({suite})", "",
            "| member | seed | success [95 % CI] | crash [95 % CI] | shipped |", "|---|---|---|---|---|"]
     rules = []
     for name, doc in sorted(seeds.items()):
