@@ -1,55 +1,129 @@
-"""Performance report: throughput of the core, one PettingZoo env, whole suites, memory, and
-highway-env's ``two-way-v0`` measured side by side on the same machine.
+"""Performance report: every speed figure the README quotes, measured side by side on one machine.
 
-    overtakezoo perf [--sizes 1 256 4096 16384] [--seconds 3] [--out docs/perf]
+    overtakezoo perf [--sizes 1 8 256 4096 16384] [--batch 8] [--seconds 1] [--repeats 3] [--out docs/perf]
+
+Each figure is measured ``repeats`` times (a window of ``seconds`` each, or one whole run) and
+reported as the median with the range, under a stable id (``core-4096``, ``eval-table1-dqn``...)
+that the README cites. Like is compared with like, with N always named: one Gymnasium env of ours
+against one highway-env ``two-way-v0`` env, and our ``gymnasium.make_vec`` batch of N against
+highway-env's ``make_vec`` batch of N (sync and async), in simulated seconds per wall second (our
+step is ``dt`` = 0.1 s; a highway-env step is one decision, 1 / ``policy_frequency`` s).
 
 Env-steps/s count scenario-steps (N rows stepped once = N env-steps, the planner included; rows
-are auto-reset so the batch stays full). Simulated seconds per wall second = env-steps/s x dt.
+are auto-reset so the batch stays full).
 """
 
 from __future__ import annotations
 
 import os
 import platform
+import statistics
+import subprocess
 import sys
+import tempfile
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from overtakezoo.envs import OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution
 
+HIGHWAY_ID = "two-way-v0"  # highway-env's only packaged overtaking-with-oncoming-traffic env
+OUR_ID = "overtakezoo/Overtake-v0"
+HIGHWAY_IDLE = 1  # highway-env's discrete meta-action IDLE: keep lane and speed
 
-def core_steps_per_second(n: int, seconds: float = 3.0, seed: int = 0) -> float:
+
+def spread(values: list[float]) -> dict[str, Any]:
+    """Median and range of repeated measurements."""
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "runs": values}
+
+
+def windows(step: Callable[[], int], seconds: float, repeats: int) -> list[float]:
+    """Rates (units per wall second) of ``repeats`` windows of ``seconds``; ``step`` returns the
+    units one call did. The first call is a warm-up and is not timed."""
+    step()
+    rates = []
+    for _ in range(repeats):
+        done, start = 0, time.perf_counter()
+        while (elapsed := time.perf_counter() - start) < seconds:
+            done += step()
+        rates.append(done / elapsed)
+    return rates
+
+
+def core_rates(n: int, seconds: float, repeats: int, seed: int = 0) -> list[float]:
+    """Env-steps/s of the bare batched core at N (auto-reset keeps the batch full)."""
     dist = ScenarioDistribution()
     core = OvertakeCore(EnvConfig(), auto_reset=True, source=lambda k, rng: dist.sample(k, rng), seed=seed)
     core.reset(dist.sample(n, seed))
     modes = np.full(n, OVERTAKE)
-    for _ in range(3):  # warm-up
-        core.step(modes)
-    steps, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
+
+    def step() -> int:
         for _ in range(5):
             core.step(modes)
-        steps += 5
-    return n * steps / (time.perf_counter() - start)
+        return 5 * n
+
+    return windows(step, seconds, repeats)
 
 
-def pettingzoo_steps_per_second(seconds: float = 3.0, seed: int = 0) -> float:
+def pettingzoo_rates(seconds: float, repeats: int, seed: int = 0) -> list[float]:
+    """Steps/s of one PettingZoo ``parallel_env()`` (one ego), actions as a policy would send them."""
     from overtakezoo.envs import parallel_env
 
     env = parallel_env()
     env.reset(seed=seed)
-    steps, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
+    episodes = [seed]
+
+    def step() -> int:
         if not env.agents:
-            env.reset(seed=seed + steps)
-        env.step({agent: 1 for agent in env.agents})
-        steps += 1
-    return steps / (time.perf_counter() - start)
+            episodes[0] += 1
+            env.reset(seed=episodes[0])
+        env.step({agent: OVERTAKE for agent in env.agents})
+        return 1
+
+    return windows(step, seconds, repeats)
 
 
-def suite_wall_time(suite: str, decider: str) -> dict[str, Any]:
+def gym_rates(env_id: str, action: int, seconds: float, repeats: int) -> list[float]:
+    """Steps/s of one ``gymnasium.make(env_id)`` env."""
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    env.reset(seed=0)
+
+    def step() -> int:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+        return 1
+
+    try:
+        return windows(step, seconds, repeats)
+    finally:
+        env.close()
+
+
+def vec_rates(env_id: str, n: int, mode: str | None, action: int, seconds: float, repeats: int) -> list[float]:
+    """Env-steps/s of ``gymnasium.make_vec(env_id, num_envs=n)`` (``mode`` None: the env's own
+    vector entry point). Finished envs reset themselves (the vector env's auto-reset)."""
+    import gymnasium as gym
+
+    kwargs = {} if mode is None else {"vectorization_mode": mode}
+    env = gym.make_vec(env_id, num_envs=n, **kwargs)
+    env.reset(seed=0)
+    actions = np.full(n, action)
+
+    def step() -> int:
+        env.step(actions)
+        return n
+
+    try:
+        return windows(step, seconds, repeats)
+    finally:
+        env.close()
+
+
+def suite_wall_times(suite: str, decider: str, repeats: int) -> dict[str, Any]:
     """Wall time of a whole suite run in the runner (scenario generation and decider included;
     process start-up and imports not)."""
     from overtakezoo import zoo
@@ -58,12 +132,28 @@ def suite_wall_time(suite: str, decider: str) -> dict[str, Any]:
 
     s = load_suite(suite)
     d = zoo.load(decider, config=s.config)
-    start = time.perf_counter()
-    result = run_suite(s, d, progress=False)
-    wall = time.perf_counter() - start
-    return {"suite": suite, "decider": decider, "scenarios": s.count, "wall_time_s": round(wall, 2),
-            "success_rate": round(float(result.summary["success_rate"]["value"]), 4),
-            "simulated_s": round(float(np.sum(result.per_scenario_array("episode_time"))), 1)}
+    walls = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run_suite(s, d, progress=False)
+        walls.append(time.perf_counter() - start)
+    return {"scenarios": s.count, **spread(walls)}
+
+
+def eval_process_times(suite: str, decider: str, runs: int) -> list[float]:
+    """Wall time of ``overtakezoo eval`` as a fresh process, start to exit (interpreter start-up,
+    imports, torch for dqn, the run and the results file included)."""
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", "--suite", suite, "--decider", decider,
+               "--out", os.path.join(tmp, "results.json"), "--no-progress"]
+        for _ in range(runs):
+            start = time.perf_counter()
+            done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
+            times.append(time.perf_counter() - start)
+            if done.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd[2:])} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return times
 
 
 def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-fsm") -> float:
@@ -86,96 +176,146 @@ def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-f
     return round(peak / 2**20 / (s.count / 1000), 2)
 
 
-def highway_env_sim_seconds_per_second(seconds: float = 5.0) -> dict[str, Any] | None:
-    """highway-env's ``two-way-v0`` (the only packaged overtaking-with-oncoming-traffic env), stepped
-    with the IDLE action on one core; None when the ``[compare]`` extra is not installed."""
-    try:
-        import gymnasium as gym
-        import highway_env  # noqa: F401  (registers two-way-v0 on import)
-    except ImportError:
-        return None
-    env = gym.make("two-way-v0")
-    env.reset(seed=0)
-    per_decision = 1.0 / env.unwrapped.config["policy_frequency"]
-    decisions, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        _, _, terminated, truncated, _ = env.step(1)
-        decisions += 1
-        if terminated or truncated:
-            env.reset()
-    elapsed = time.perf_counter() - start
-    import importlib.metadata as md
-
-    return {"version": md.version("highway-env"), "decisions_per_s": round(decisions / elapsed, 1),
-            "sim_seconds_per_wall_second": round(decisions * per_decision / elapsed, 1)}
-
-
-def machine() -> str:
+def machine() -> dict[str, Any]:
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+    return {"host": platform.node(), "cpu": cpu, "cores": os.cpu_count(), "os": platform.platform(),
+            "python": platform.python_version(), "numpy": np.__version__}
 
 
-def measure(sizes: list[int], seconds: float, suites: bool = True, progress=print) -> dict[str, Any]:
-    dt = EnvConfig().dt
-    report: dict[str, Any] = {"machine": machine(), "date": time.strftime("%Y-%m-%d"), "core": {}}
-    for n in sizes:
-        rate = core_steps_per_second(n, seconds)
-        report["core"][str(n)] = {"env_steps_per_s": round(rate), "sim_seconds_per_wall_second": round(rate * dt)}
-        progress(f"core N={n:>6}: {rate:>12,.0f} env-steps/s")
+def load_average() -> list[float] | None:
     try:
-        report["pettingzoo_steps_per_s"] = round(pettingzoo_steps_per_second(seconds))
-        progress(f"PettingZoo env: {report['pettingzoo_steps_per_s']:,} steps/s")
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
+
+
+def highway_version() -> str | None:
+    try:
+        import highway_env  # noqa: F401  (registers two-way-v0 on import)
     except ImportError:
-        report["pettingzoo_steps_per_s"] = None
+        return None
+    import importlib.metadata as md
+
+    return md.version("highway-env")
+
+
+class Report:
+    """Figures as rows with a stable id; ``add`` measures, prints a progress line and records."""
+
+    def __init__(self, progress: Callable[[str], None]) -> None:
+        self.rows: list[dict[str, Any]] = []
+        self.progress = progress
+
+    def add(self, id: str, what: str, unit: str, values: list[float], sim_s_per_unit: float | None = None,
+            digits: int = 0, **extra: Any) -> dict[str, Any]:
+        row = {"id": id, "what": what, "unit": unit, **spread([round(v, digits) if digits else round(v)
+                                                                for v in values]), **extra}
+        if sim_s_per_unit is not None:
+            row["sim_s_per_wall_s"] = round(row["median"] * sim_s_per_unit, 1)
+        self.rows.append(row)
+        self.progress(f"{id:<28} {_fmt(row['median'])} {unit} (range {_fmt(row['min'])}-{_fmt(row['max'])})")
+        return row
+
+    def get(self, id: str) -> dict[str, Any] | None:
+        return next((r for r in self.rows if r["id"] == id), None)
+
+    def ratio(self, id: str, what: str, ours: str, theirs: str) -> None:
+        a, b = self.get(ours), self.get(theirs)
+        if a and b:
+            value = round(a["sim_s_per_wall_s"] / b["sim_s_per_wall_s"], 1)
+            self.rows.append({"id": id, "what": what, "unit": "x (simulated s per wall s)", "median": value,
+                              "of": [ours, theirs]})
+            self.progress(f"{id:<28} {value}x")
+
+
+def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, eval_runs: int = 5,
+            suites: bool = True, progress: Callable[[str], None] = print) -> dict[str, Any]:
+    dt = EnvConfig().dt
+    started = time.perf_counter()
+    meta: dict[str, Any] = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
+                            "load_average_at_start": load_average(), "repeats": repeats,
+                            "seconds_per_window": seconds}
+    r = Report(progress)
+    for n in sizes:
+        r.add(f"core-{n}", f"batched core, N = {n}, planner included", "env-steps/s",
+              core_rates(n, seconds, repeats), dt, n=n)
+    r.add("pettingzoo-1", "one PettingZoo parallel_env() (one ego, N = 1)", "steps/s",
+          pettingzoo_rates(seconds, repeats), dt, n=1)
+    r.add("gym-1", f"one Gymnasium env of ours, gymnasium.make({OUR_ID!r})", "steps/s",
+          gym_rates(OUR_ID, OVERTAKE, seconds, repeats), dt, n=1)
+    r.add(f"gym-vec-{batch}", f"our gymnasium.make_vec batch, N = {batch} (one process)", "env-steps/s",
+          vec_rates(OUR_ID, batch, None, OVERTAKE, seconds, repeats), dt, n=batch)
+    hw = highway_version()
+    meta["highway_env"] = hw
+    if hw:
+        import gymnasium as gym
+
+        per_decision = 1.0 / gym.make(HIGHWAY_ID).unwrapped.config["policy_frequency"]
+        r.add("highway-1", f"one highway-env {hw} {HIGHWAY_ID}, gymnasium.make", "steps/s",
+              gym_rates(HIGHWAY_ID, HIGHWAY_IDLE, seconds, repeats), per_decision, digits=1, n=1)
+        for mode in ("sync", "async"):
+            r.add(f"highway-vec-{mode}-{batch}", f"highway-env {HIGHWAY_ID} make_vec, N = {batch}, {mode}",
+                  "env-steps/s", vec_rates(HIGHWAY_ID, batch, mode, HIGHWAY_IDLE, seconds, repeats), per_decision,
+                  digits=1, n=batch)
+        r.ratio("ratio-1", "one env: ours (gym-1) / highway-env (highway-1)", "gym-1", "highway-1")
+        for mode in ("sync", "async"):
+            r.ratio(f"ratio-vec-{mode}-{batch}", f"batch of N = {batch}: ours (gym-vec-{batch}) / highway-env "
+                    f"{mode} (highway-vec-{mode}-{batch})", f"gym-vec-{batch}", f"highway-vec-{mode}-{batch}")
+    else:
+        progress("highway-env not installed (the [compare] extra): its rows are left out")
     if suites:
-        report["suites"] = []
         for decider in ("rule-fsm", "dqn"):
             try:
-                row = suite_wall_time("table1", decider)
+                t = suite_wall_times("table1", decider, repeats)
             except Exception as exc:  # a member missing from this install is reported, not fatal
-                row = {"suite": "table1", "decider": decider, "error": str(exc).splitlines()[0]}
-            report["suites"].append(row)
-            progress(f"table1 / {decider}: {row.get('wall_time_s', row.get('error'))} s")
-        report["peak_memory_mib_per_1000_scenarios"] = peak_memory_per_1000_scenarios()
-        progress(f"peak memory: {report['peak_memory_mib_per_1000_scenarios']} MiB per 1000 scenarios")
-    hw = highway_env_sim_seconds_per_second(seconds)
-    report["highway_env"] = hw
-    if hw:
-        best = max(v["sim_seconds_per_wall_second"] for v in report["core"].values())
-        single = report["core"].get("1", {}).get("sim_seconds_per_wall_second")
-        report["ratio_vs_highway_env"] = {"batched": round(best / hw["sim_seconds_per_wall_second"], 1),
-                                          "single_env": round(single / hw["sim_seconds_per_wall_second"], 1) if single else None}
-        progress(f"highway-env two-way-v0: {hw['sim_seconds_per_wall_second']} sim s / wall s; "
-                 f"ratio {report['ratio_vs_highway_env']}")
-    return report
+                progress(f"runner-table1-{decider}: not measured: {str(exc).splitlines()[0]}")
+                continue
+            r.add(f"runner-table1-{decider}", f"table1 ({t['scenarios']} scenarios) with {decider}, whole run in "
+                  "the runner (scenarios, decider, simulation; no process start-up)", "s", t["runs"], digits=2)
+        try:
+            r.add("eval-table1-dqn", "`overtakezoo eval --suite table1 --decider dqn` as a process, start to exit "
+                  f"(median of {eval_runs} runs; start-up and torch import included)", "s",
+                  eval_process_times("table1", "dqn", eval_runs), digits=2)
+        except RuntimeError as exc:
+            progress(f"eval-table1-dqn: not measured: {exc}")
+        r.add("memory-table1", "peak memory of a table1 run (rule-fsm), per 1000 scenarios", "MiB",
+              [peak_memory_per_1000_scenarios()], digits=2)
+    meta["load_average_at_end"] = load_average()
+    meta["report_wall_time_s"] = round(time.perf_counter() - started, 1)
+    return {**meta, "figures": r.rows}
+
+
+def _fmt(x: float) -> str:
+    return f"{x:,.0f}" if abs(x) >= 100 else f"{x:,.2f}".rstrip("0").rstrip(".")
 
 
 def to_markdown(report: dict[str, Any]) -> str:
-    lines = ["# Performance report", "", f"Machine: {report['machine']} ({report['date']}).", "",
-             "| measurement | value |", "|---|---|"]
-    for n, row in report["core"].items():
-        lines.append(f"| core, N = {n} | {row['env_steps_per_s']:,} env-steps/s "
-                     f"({row['sim_seconds_per_wall_second']:,} simulated s per wall s) |")
-    if report.get("pettingzoo_steps_per_s"):
-        lines.append(f"| one PettingZoo env | {report['pettingzoo_steps_per_s']:,} steps/s |")
-    for row in report.get("suites", []):
-        value = f"{row['wall_time_s']} s" if "wall_time_s" in row else f"not measured: {row['error']}"
-        lines.append(f"| {row['suite']} ({row.get('scenarios', '?')} scenarios) with {row['decider']}, whole run in "
-                     f"the runner (scenarios, decider, simulation) | {value} |")
-    if report.get("peak_memory_mib_per_1000_scenarios") is not None:
-        lines.append(f"| peak memory of a table1 run (rule-fsm), per 1000 scenarios | "
-                     f"{report['peak_memory_mib_per_1000_scenarios']} MiB |")
-    hw = report.get("highway_env")
-    if hw:
-        lines.append(f"| highway-env {hw['version']} two-way-v0 | {hw['decisions_per_s']} decisions/s = "
-                     f"{hw['sim_seconds_per_wall_second']} simulated s per wall s |")
-        r = report["ratio_vs_highway_env"]
-        lines.append(f"| ratio to highway-env (simulated s per wall s) | {r['batched']}x batched, {r['single_env']}x one env |")
+    m = report["machine"]
+    lines = ["# Performance report", "",
+             f"Written by `overtakezoo perf` on {report['date']}: {m['cpu']}, {m['cores']} cores, {m['os']}, "
+             f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.",
+             f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
+             f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
+             f"windows of {report['seconds_per_window']} s (whole runs for the `runner-` and `eval-` rows) with "
+             f"the range; the report took {report['report_wall_time_s']} s."]
+    loads = [x for key in ("load_average_at_start", "load_average_at_end") for x in (report[key] or [])[:1]]
+    if loads and max(loads) > m["cores"]:
+        lines.append(f"The machine was busy (load above its {m['cores']} cores): absolute figures are low; "
+                     "ratios of figures measured in this run are the robust part.")
+    lines += ["",
+              "| id | measurement | median | range | simulated s per wall s |", "|---|---|---|---|---|"]
+    for row in report["figures"]:
+        if "of" in row:  # a ratio of two rows' medians
+            lines.append(f"| `{row['id']}` | {row['what']} | {row['median']}x | | |")
+            continue
+        rng = f"{_fmt(row['min'])} - {_fmt(row['max'])}" if len(row["runs"]) > 1 else ""
+        sim = f"{row['sim_s_per_wall_s']:,.1f}" if "sim_s_per_wall_s" in row else ""
+        lines.append(f"| `{row['id']}` | {row['what']} | {_fmt(row['median'])} {row['unit']} | {rng} | {sim} |")
     return "\n".join(lines) + "\n"
 
 

@@ -321,18 +321,23 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
 
 
 def _batches(todo: list, chunk_size: int) -> list[list]:
-    """Rows stepped together in one batch (fewer Python steps). Privileged deciders bind the whole
-    core, so each runs alone."""
+    """Rows stepped together in one batch (fewer Python steps). Only deciders that hold their
+    decisions equally long share a batch (the runner holds one batch as one); privileged deciders
+    bind the whole core, so each runs alone."""
     out: list[list] = []
-    size = 0
-    for item in sorted(todo, key=lambda it: bool(getattr(it[2], "privileged", False))):  # stable
-        n = item[1].size
-        if not out or size + n > chunk_size or getattr(item[2], "privileged", False):
+    size, key = 0, None
+    for item in sorted(todo, key=lambda it: _batch_key(it[2])):  # stable
+        n, privileged = item[1].size, getattr(item[2], "privileged", False)
+        if not out or size + n > chunk_size or privileged or _batch_key(item[2]) != key:
             out.append([])
-            size = 0
+            size, key = 0, _batch_key(item[2])
         out[-1].append(item)
         size += n
     return out
+
+
+def _batch_key(decider: Any) -> tuple[bool, int]:
+    return bool(getattr(decider, "privileged", False)), int(getattr(decider, "action_repeat", 1))
 
 
 def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
@@ -392,6 +397,7 @@ class _Stacked:
     def __init__(self, parts: list[tuple[Any, int]]) -> None:
         bounds = np.cumsum([0] + [n for _, n in parts])
         self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:])]
+        self.action_repeat = int(getattr(parts[0][0], "action_repeat", 1))  # equal in a batch (_batches)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         for d, rows in self.parts:

@@ -27,7 +27,6 @@ class NumpyBackend:
     cos, sin, tan = staticmethod(np.cos), staticmethod(np.sin), staticmethod(np.tan)
     arctan, arctan2, sqrt = staticmethod(np.arctan), staticmethod(np.arctan2), staticmethod(np.sqrt)
     isfinite = staticmethod(np.isfinite)
-    stack = staticmethod(np.stack)
     ones_like = staticmethod(np.ones_like)
     # ufunc reductions skip numpy's Python-level wrappers, which dominate at N = 1.
     amin = staticmethod(np.minimum.reduce)
@@ -40,6 +39,12 @@ class NumpyBackend:
 
     def zeros(self, shape: Any, dtype: Any = None) -> np.ndarray:
         return np.zeros(shape, dtype or self.float)
+
+    @staticmethod
+    def stack(xs: Any, axis: int = 0) -> np.ndarray:
+        # np.array of small equal-shape arrays is np.stack on axis 0 without its Python-level checks
+        # (4x faster at N = 1); for large arrays np.stack's plain copies are faster.
+        return np.array(xs) if axis == 0 and xs[0].size <= 256 else np.stack(xs, axis)
 
     def full(self, shape: Any, value: Any, dtype: Any = None) -> np.ndarray:
         return np.full(shape, value, dtype or self.float)

@@ -127,7 +127,19 @@ class OvertakeCore:
         T["half_len"] = (ego["ego_length"] + T["length"]) / 2
         T["half_wid"] = (ego["ego_width"] + T["width"]) / 2
         T["reach"] = xp.minimum(ego["sensor_range"], T["reveal"])
-        T.update(rollout_geometry(self.cfg.planner, w, T["d"], T["half_wid"], xp))
+        T.update(rollout_geometry(self.cfg.planner, w, T["d"], T["half_wid"], T["half_len"], xp))
+        # Per-episode terms of the step (computed once here, not every step; same expressions).
+        T["half_length"], T["half_width"] = T["length"] / 2, T["width"] / 2
+        T["speedup"] = T["behaviour"] == SPEEDUP_WHEN_PASSED
+        T["not_must_pass"] = ~T["must_pass"]
+        T["pair_same_lane"] = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]  # (M, M, N)
+        T["pair_half_len"] = (T["length"][:, None] + T["length"][None, :]) / 2
+        others = xp.arange(T["lane"].shape[0])[:, None] != xp.arange(T["lane"].shape[0])[None, :]
+        T["lane_mates"] = xp.any(xp.any(T["pair_same_lane"] & others[:, :, None], axis=0), axis=0)  # (N,)
+        ego["half_ego_length"], ego["half_ego_width"] = ego["ego_length"] / 2, ego["ego_width"] / 2
+        ego["half_lane_width"] = half_w = w / 2
+        ego["offroad_low"], ego["offroad_high"] = -half_w - 0.5, 3 * half_w + 0.5
+        ego["time_up"] = ego["time_limit"] - 1e-9
         return ego, T
 
     def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
@@ -201,7 +213,8 @@ class OvertakeCore:
     def _plan_inputs(self, geo: dict[str, Any]) -> dict[str, Any]:
         T = self._sc
         return {**geo, "offsets": T["offsets"], "lat_margin": T["lat_margin"], "inside": T["inside"],
-                "lat_cost": T["lat_cost"]}
+                "lat_cost": T["lat_cost"], "priority": T["priority"], "lon_reach": T["lon_reach"],
+                "beside_reach": T["beside_reach"]}
 
     def geometry(self) -> dict[str, Any]:
         """The same geometry as (N, M) arrays: dx, dy, d, same_dir, direction, v_along, half_len,
@@ -219,15 +232,17 @@ class OvertakeCore:
         modes = xp.asarray(modes, xp.int).reshape(-1)
         if modes.shape[0] != self.num:
             raise ValueError(f"expected {self.num} modes, got {modes.shape[0]}")
-        if modes.shape[0] and (modes.min() < 0 or modes.max() > 2):
+        if ((modes < 0) | (modes > 2)).any():
             raise ValueError("modes must be 0 (follow), 1 (overtake) or 2 (abort)")
         active = ~self.done
         dt = cfg.dt * xp.astype(active, xp.float)  # finished rows are frozen: their clock does not run
         prev_mode = self.mode
         modes = xp.where(active, modes, prev_mode)
-        switched = active & (modes != prev_mode) & ((modes == OVERTAKE) | (prev_mode == OVERTAKE))
-        self.stats["switches"] += switched
-        self.stats["aborts"] += active & (modes == ABORT) & (prev_mode != ABORT)
+        switched = modes != prev_mode  # (all False on the usual step, where no row changes its mode)
+        if switched.any():
+            self.stats["aborts"] += active & (modes == ABORT) & (prev_mode != ABORT)
+            switched = active & switched & ((modes == OVERTAKE) | (prev_mode == OVERTAKE))
+            self.stats["switches"] += switched
         self.mode = modes
 
         geo = self._geometry()
@@ -284,25 +299,26 @@ class OvertakeCore:
         xp, T, nc = self.xp, self._sc, self.cfg.npc
         direction, half_wid, s, v = geo["direction"], geo["half_wid"], self._npc_s, self._npc_v
         # Other NPCs ahead in the same lane, along each NPC's own direction: pairs (j, k, N).
-        same_lane = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]
         ahead = direction[:, None] * (s[None, :] - s[:, None])
-        pair_gap = ahead - (T["length"][:, None] + T["length"][None, :]) / 2
-        pair_gap = xp.where(same_lane & (ahead > 0), pair_gap, INF)
+        pair_gap = ahead - T["pair_half_len"]
+        pair_gap = xp.where(T["pair_same_lane"] & (ahead > 0), pair_gap, INF)
         gap = xp.amin(pair_gap, axis=1)
         lead_v = v[first_argmin(pair_gap, 1, xp), xp.arange(self.num)]
         # The ego counts once it occupies this lane ahead and the reaction delay has passed.
         ego_gap = -direction * geo["dx"] - geo["half_len"]
         ego_in_lane = (xp.abs(geo["dy"]) < half_wid) & (ego_gap > -2 * geo["half_len"])
         self._npc_aware = xp.where(ego_in_lane, self._npc_aware + dt, 0.0)
-        sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
-        sees_ego &= T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
-        gap = xp.where(sees_ego, ego_gap, gap)
-        lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
+        if ego_in_lane.any():  # (the ego in no NPC's lane: every NPC keeps its lead)
+            sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
+            sees_ego &= T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
+            gap = xp.where(sees_ego, ego_gap, gap)
+            lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
         # A speed-up lead raises its desired speed once the ego draws level in the other lane.
-        passing = (T["behaviour"] == SPEEDUP_WHEN_PASSED) & (geo["dy"] < -half_wid) & (
-            geo["dx"] - geo["half_len"] < nc.speedup_trigger)
-        self._npc_boosted |= passing & (dt > 0)
-        v_des = T["v_des"] + xp.where(self._npc_boosted, T["boost"], 0.0)
+        v_des = T["v_des"]
+        if T["speedup"].any():  # (no speed-up lead in the batch: nothing to boost)
+            passing = T["speedup"] & (geo["dy"] < -half_wid) & (geo["dx"] - geo["half_len"] < nc.speedup_trigger)
+            self._npc_boosted |= passing & (dt > 0)
+            v_des = v_des + xp.where(self._npc_boosted, T["boost"], 0.0)
         s_star = nc.min_gap + xp.maximum(
             v * nc.time_headway + v * (v - lead_v) / (2.0 * math.sqrt(nc.max_acceleration * nc.comfortable_braking)), 0.0)
         interaction = xp.where(xp.isfinite(gap), (s_star / xp.maximum(gap, 0.1)) ** 2, 0.0)
@@ -320,10 +336,12 @@ class OvertakeCore:
         xp, T, E = self.xp, self._sc, self._ego
         cs, sn = xp.cos(self.psi), xp.sin(self.psi)
         c, s = xp.abs(cs), xp.abs(sn)
-        he_l, he_w = E["ego_length"] / 2, E["ego_width"] / 2
-        hn_l, hn_w = T["length"] / 2, T["width"] / 2
+        he_l, he_w = E["half_ego_length"], E["half_ego_width"]
+        hn_l, hn_w = T["half_length"], T["half_width"]
         dx, dy = geo["dx"], geo["dy"]
         hit = xp.abs(dx) <= hn_l + he_l * c + he_w * s
+        if not hit.any():  # (no vehicle overlaps the ego along the road: no contact, skip the other axes)
+            return hit
         hit &= xp.abs(dy) <= hn_w + he_l * s + he_w * c
         hit &= xp.abs(dx * cs + dy * sn) <= he_l + hn_l * c + hn_w * s
         hit &= xp.abs(-dx * sn + dy * cs) <= he_w + hn_l * s + hn_w * c
@@ -332,20 +350,20 @@ class OvertakeCore:
     def _resolve(self, hit: Any, active: Any) -> tuple[Any, Any]:
         xp, T, E = self.xp, self._sc, self._ego
         crash = active & xp.any(hit, axis=0)
-        half_w = E["lane_width"] / 2
-        offroad = active & ~crash & ((self.y - E["ego_width"] / 2 < -half_w - 0.5)
-                                     | (self.y + E["ego_width"] / 2 > 3 * half_w + 0.5))
-        front, rear = self.x + E["ego_length"] / 2, self.x - E["ego_length"] / 2
-        passed = xp.all(~T["must_pass"] | (rear >= self._npc_s + T["length"] / 2), axis=0)
-        in_lane = self.y + E["ego_width"] / 2 <= half_w
-        success = active & ~crash & ~offroad & (front >= E["goal_s"]) & in_lane & passed
+        half_w = E["half_lane_width"]
+        left, right = self.y + E["half_ego_width"], self.y - E["half_ego_width"]
+        offroad = active & ~crash & ((right < E["offroad_low"]) | (left > E["offroad_high"]))
+        front, rear = self.x + E["half_ego_length"], self.x - E["half_ego_length"]
+        passed = xp.all(T["not_must_pass"] | (rear >= self._npc_s + T["half_length"]), axis=0)
+        in_lane = left <= half_w
+        going = active & ~crash & ~offroad
+        success = going & (front >= E["goal_s"]) & in_lane & passed
         # Out of time, or out of road (a follower stuck behind the lead past the goal): truncation.
-        timeout = active & ~crash & ~offroad & ~success & (
-            (self.t >= E["time_limit"] - 1e-9) | (self.x > E["road_length"]))
-        hit_idx = xp.minimum(first_true(hit, 0, xp), max(hit.shape[0] - 1, 0))
-        cols = xp.arange(self.num)
-        self.crash_npc = xp.where(crash, hit_idx, self.crash_npc)
-        if hit.shape[0]:
+        timeout = going & ~success & ((self.t >= E["time_up"]) | (self.x > E["road_length"]))
+        if crash.any():  # (which vehicle was hit matters only in a crash)
+            hit_idx = xp.minimum(first_true(hit, 0, xp), max(hit.shape[0] - 1, 0))
+            cols = xp.arange(self.num)
+            self.crash_npc = xp.where(crash, hit_idx, self.crash_npc)
             self.crash_lane = xp.where(crash, xp.astype(T["lane"][hit_idx, cols], xp.int), self.crash_lane)
         outcome = xp.where(timeout, TIMEOUT, self.outcome)
         outcome = xp.where(success, SUCCESS, outcome)
@@ -358,7 +376,7 @@ class OvertakeCore:
 
     def _update_stats(self, geo: dict[str, Any], active: Any, jerk: Any) -> None:
         xp, st, E = self.xp, self.stats, self._ego
-        in_opposite = self.y + E["ego_width"] / 2 > E["lane_width"] / 2
+        in_opposite = self.y + E["half_ego_width"] > E["half_lane_width"]
         st["opposite_time"] += xp.astype(in_opposite & active, xp.float) * self.cfg.dt
         # Time to collision with vehicles ahead whose lane the ego overlaps.
         gap = geo["dx"] - geo["half_len"]

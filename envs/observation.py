@@ -69,9 +69,13 @@ def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
     dist = xp.abs(dx)
     m = dist.shape[0]
     if m:
-        j = xp.arange(m)
-        before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
-        rank = xp.sum(before & seen[None, :] & (lanes[None, :] == lanes[:, None]), axis=1)  # (M, N)
+        if core._sc["lane_mates"][sel].any():
+            j = xp.arange(m)
+            before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
+            same_lane = core._sc["pair_same_lane"][..., sel]  # lanes equal, the other vehicle present (cached)
+            rank = xp.sum(before & seen[None, :] & same_lane, axis=1)  # (M, N)
+        else:  # (at most one vehicle per lane in these rows, e.g. table1: each is first in its lane)
+            rank = xp.zeros(dist.shape, xp.int)
         vj, vn = xp.nonzero2(seen & (rank < k))
         if len(vn):
             # Relative position and velocity of the kept vehicles in the ego frame.

@@ -95,10 +95,17 @@ def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_w
     return y + clip(target - y, -reach, reach, xp)
 
 
+# Up to this many rows (the batch, the last axis) numpy's own argmin/argmax is cheaper than the
+# elementwise passes below: at small N each numpy call costs ~1 us whatever its size.
+SMALL_BATCH = 256
+
+
 def first_argmin(a: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
     """Index of the first minimum along ``axis``, like ``argmin``. The core keeps the batch as the
     last (contiguous) axis; numpy's argmin over a leading axis copies a transpose and its reductions
     over a short trailing axis cost ~20 ns per row, so both are avoided with fast elementwise passes."""
+    if xp.name == "numpy" and a.shape[-1] <= SMALL_BATCH:
+        return a.argmin(axis=axis)
     low = xp.amin(a, axis=axis, keepdims=True)
     return first_true(a == low, axis, xp)
 
@@ -106,6 +113,8 @@ def first_argmin(a: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
 def first_true(mask: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
     """Index of the first True along ``axis`` (the axis length where there is none)."""
     length = mask.shape[axis]
+    if xp.name == "numpy" and mask.shape[-1] <= SMALL_BATCH:
+        return np.where(mask.any(axis=axis), mask.argmax(axis=axis), length)
     index = xp.arange(length).reshape((-1,) + (1,) * (mask.ndim - 1 - axis % mask.ndim))
     return xp.amin(xp.where(mask, index, length), axis=axis)
 
@@ -135,6 +144,9 @@ def _swept_conflict(y, v, offsets, dj, margin, lane_width, roll_in, tip, t_from,
 def _longitudinal_window(dx, rel_v, reach, xp):
     """Times [t0, t1] (M, N) during which |dx + rel_v t| < reach (constant relative speed)."""
     still = xp.abs(rel_v) < 1e-9
+    if not still.any():  # (every vehicle moves relative to the ego: no special case to mask)
+        a, b = (-reach - dx) / rel_v, (reach - dx) / rel_v
+        return xp.minimum(a, b), xp.maximum(a, b)
     safe_v = xp.where(still, 1.0, rel_v)
     a, b = (-reach - dx) / safe_v, (reach - dx) / safe_v
     inside_now = xp.abs(dx) < reach
@@ -143,17 +155,20 @@ def _longitudinal_window(dx, rel_v, reach, xp):
     return t0, t1
 
 
-def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray, xp=NP) -> dict:
+def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray,
+                     half_len: np.ndarray, xp=NP) -> dict:
     """What the evaluator needs that is fixed for an episode (NPCs keep their lanes): rollout end
-    offsets (R, N) and, per rollout and vehicle (R, M, N), the lateral distance, whether it is inside
-    the safety width, and its lateral cost. The core caches this at reset."""
+    offsets (R, N) and their priority, per vehicle (M, N) the longitudinal reach of the prediction
+    and of the abort's clearance, and, per rollout and vehicle (R, M, N), the lateral distance,
+    whether it is inside the safety width, and its lateral cost. The core caches this at reset."""
     k = xp.arange(cfg.num_rollouts + 1)[:, None]
     offsets = (k / cfg.num_rollouts) * lane_width
     lat_margin = half_wid + cfg.horizontal_safety
     lat_end = xp.abs(offsets[:, None, :] - d)
     inside = lat_end < lat_margin
     return {"offsets": offsets, "lat_margin": lat_margin, "lat_end": lat_end, "inside": inside,
-            "lat_cost": xp.where(inside, 2.0, 1.0 / xp.maximum(lat_end, 1e-3))}
+            "lat_cost": xp.where(inside, 2.0, 1.0 / xp.maximum(lat_end, 1e-3)), "priority": offsets / lane_width,
+            "lon_reach": half_len + cfg.vertical_safety, "beside_reach": half_len + cfg.abort_clearance}
 
 
 def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout: np.ndarray,
@@ -181,27 +196,32 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     # interval per rollout; a conflict is that sweep touching the vehicle (exact in continuous time,
     # and O(R M N), not O(R M N T)).
     roll_in = cfg.roll_in_speed_factor * v + cfg.roll_in_margin
-    rel_v = npc["v_along"] * cfg.enable_prediction - v  # (M, N) NPC speed relative to the ego
-    lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, half_len + cfg.vertical_safety, xp)
-    t_from, t_to = xp.maximum(lon_t0, 0.0), xp.minimum(lon_t1, cfg.horizon_time)
-    watch = visible & ~ahead_same & (t_from <= t_to)  # (M, N): longitudinally in reach in the horizon
-    swept = _swept_conflict(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, t_from, t_to, xp)
-    pred_block = xp.any(swept & watch, axis=1)
-    blocked = lead_block | pred_block  # (R, N)
+    blocked = lead_block  # (R, N)
+    watch = visible & ~ahead_same
+    if watch.any():  # (no other perceived vehicle: nothing to predict)
+        rel_v = npc["v_along"] * cfg.enable_prediction - v  # (M, N) NPC speed relative to the ego
+        lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, npc["lon_reach"], xp)
+        t_from, t_to = xp.maximum(lon_t0, 0.0), xp.minimum(lon_t1, cfg.horizon_time)
+        watch = watch & (t_from <= t_to)  # (M, N): longitudinally in reach in the horizon
+        if watch.any():
+            swept = _swept_conflict(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, t_from, t_to, xp)
+            blocked = lead_block | xp.any(swept & watch, axis=1)
 
     # Costs, normalized over the allowed rollouts.
     allowed = k <= table.rollout_number[mode]  # (R, N)
     ahead = visible & (gap > 0.0)
-    priority = offsets / w
+    priority = npc["priority"]
     transition = xp.abs(k - current_rollout) / n
     lateral = xp.sum(xp.where(ahead, npc["lat_cost"], 0.0), axis=1)
     longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
+    everywhere = allowed.all()  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
     cost = 0.0
     for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
                          (cfg.weight_lateral, lateral), (cfg.weight_longitudinal, longitudinal)):
-        total = xp.sum(xp.where(allowed, term, 0.0), axis=0)
+        total = xp.sum(term if everywhere else xp.where(allowed, term, 0.0), axis=0)
         cost += weight * term / xp.maximum(total, 1e-9)
-    cost = xp.where(allowed, cost, INF)
+    if not everywhere:
+        cost = xp.where(allowed, cost, INF)
 
     free = allowed & ~blocked
     free_cost = xp.where(free, cost, INF)
@@ -209,19 +229,24 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     keep = free[current_rollout, cols] & (cost[current_rollout, cols] <= free_cost[best, cols] + cfg.keep_margin)
     choice = xp.where(keep, current_rollout, best)
     none_free = ~xp.any(free, axis=0)
-    fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
-    choice = xp.where(none_free, fallback, choice)
+    if none_free.any():  # (some row has every allowed rollout blocked)
+        fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
+        choice = xp.where(none_free, fallback, choice)
     forced = table.rollout_id[mode]
     choice = xp.where(forced >= 0, forced, choice)
     target_d = offsets[choice, cols]
 
     # ABORT: merge back only where the ego lane beside the ego is clear; until then hold the offset
     # and drop back below the speed of the vehicle alongside (or keep going if it is behind us).
-    beside = visible & same_dir & (xp.abs(dx) < half_len + cfg.abort_clearance)
-    waiting = (mode == ABORT) & xp.any(beside, axis=0)
-    target_d = xp.where(waiting, y, target_d)
-    lead_v = xp.amin(xp.where(beside & (dx > 0.0), npc["v_along"], INF), axis=0)
-    speed_cap = xp.where(waiting & xp.isfinite(lead_v), xp.maximum(lead_v - cfg.abort_drop_back, 0.0), INF)
+    v0 = xp.minimum(table.velocity[mode], ego["speed_limit"])
+    aborting = mode == ABORT
+    if aborting.any():  # (no row aborting: no speed cap, the target stands)
+        beside = visible & same_dir & (xp.abs(dx) < npc["beside_reach"])
+        waiting = aborting & xp.any(beside, axis=0)
+        target_d = xp.where(waiting, y, target_d)
+        lead_v = xp.amin(xp.where(beside & (dx > 0.0), npc["v_along"], INF), axis=0)
+        speed_cap = xp.where(waiting & xp.isfinite(lead_v), xp.maximum(lead_v - cfg.abort_drop_back, 0.0), INF)
+        v0 = xp.minimum(v0, speed_cap)
 
     # Speed: IDM behind the nearest same-direction vehicle on the chosen path.
     # The path's offset where the ego would draw level with the vehicle's front: the closest it gets.
@@ -232,7 +257,6 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     path_gap = xp.where(on_path, gap, INF)
     leader_gap = xp.amin(path_gap, axis=0)
     leader_v = npc["v_along"][first_argmin(path_gap, xp=xp), cols]
-    v0 = xp.minimum(xp.minimum(table.velocity[mode], ego["speed_limit"]), speed_cap)
     a_max = table.acceleration[mode]
     free_term = 1.0 - (v / xp.maximum(v0, 1e-3)) ** 4
     s_star = table.following_distance[mode] + xp.maximum(

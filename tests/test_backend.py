@@ -8,8 +8,9 @@ from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, OvertakeCore, ScenarioDist
 torch = pytest.importorskip("torch")
 
 
-def test_torch_backend_matches_numpy_step_for_step():
-    scenarios = ScenarioDistribution(oncoming_count=2, follower_count=1).sample(300, 5)
+@pytest.mark.parametrize("n, lead", [(300, "idm"), (4, "speedup")])  # 4 rows: numpy's small-batch paths
+def test_torch_backend_matches_numpy_step_for_step(n, lead):
+    scenarios = ScenarioDistribution(oncoming_count=2, follower_count=1, lead_behaviour=lead).sample(n, 5)
 
     def policy(x, y):  # switches through all three modes
         return np.where(x < 20, FOLLOW, np.where(y > 3.0, ABORT, OVERTAKE))

@@ -8,14 +8,19 @@ from ..cmdutil import add_parser
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "perf", help="measure throughput, suite wall times, memory and highway-env side by side",
-                   description="Measure env-steps/s of the batched core, one PettingZoo env, table1 wall times, "
-                               "peak memory, and highway-env's two-way-v0 (with the [compare] extra) on this machine.",
-                   examples=["overtakezoo perf", "overtakezoo perf --sizes 1 4096 --seconds 1 --no-suites",
+    p = add_parser(subparsers, "perf", help="measure throughput, suite and eval times, memory and highway-env side by side",
+                   description="Measure env-steps/s of the batched core, one PettingZoo env, one Gymnasium env and a "
+                               "make_vec batch of ours and of highway-env's two-way-v0 (with the [compare] extra), "
+                               "table1 wall times in the runner and as an `overtakezoo eval` process, and peak "
+                               "memory on this machine; each figure as median and range of --repeats runs.",
+                   examples=["overtakezoo perf", "overtakezoo perf --sizes 1 4096 --seconds 0.5 --no-suites",
                              "overtakezoo perf --out docs/perf"])
-    p.add_argument("--sizes", type=int, nargs="+", default=[1, 256, 4096, 16384], help="batch sizes N")
-    p.add_argument("--seconds", type=float, default=3.0, help="measuring time per figure")
-    p.add_argument("--no-suites", action="store_true", help="skip the table1 runs and the memory figure")
+    p.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 256, 4096, 16384], help="core batch sizes N")
+    p.add_argument("--batch", type=int, default=8, help="N of the make_vec batches compared with highway-env")
+    p.add_argument("--seconds", type=float, default=1.0, help="measuring window per run")
+    p.add_argument("--repeats", type=int, default=3, help="runs per figure (median and range reported)")
+    p.add_argument("--eval-runs", type=int, default=5, help="`overtakezoo eval` processes timed")
+    p.add_argument("--no-suites", action="store_true", help="skip the table1 runs, the eval processes and memory")
     p.add_argument("--out", default=None, help="write OUT.json and OUT.md (e.g. docs/perf)")
     p.set_defaults(handler=run)
 
@@ -24,14 +29,15 @@ def run(args: Any) -> int:
     from ..errors import UserError
     from ..perf import measure, write_report
 
-    if any(n < 1 for n in args.sizes) or args.seconds <= 0:
-        raise UserError("--sizes must be >= 1 and --seconds > 0")
+    if any(n < 1 for n in args.sizes) or min(args.batch, args.repeats, args.eval_runs) < 1 or args.seconds <= 0:
+        raise UserError("--sizes, --batch, --repeats and --eval-runs must be >= 1 and --seconds > 0")
     if args.out:  # fail before measuring, not after
         from ..io import check_writable
 
         check_writable(args.out + ".json")
         check_writable(args.out + ".md")
-    report = measure(args.sizes, args.seconds, suites=not args.no_suites)
+    report = measure(args.sizes, args.seconds, repeats=args.repeats, batch=args.batch, eval_runs=args.eval_runs,
+                     suites=not args.no_suites)
     if args.out:
         write_report(report, args.out)
         print(f"wrote {args.out}.json and {args.out}.md")

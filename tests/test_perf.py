@@ -1,0 +1,39 @@
+"""`overtakezoo perf`: every figure is measured, named by a stable id and written with its range."""
+
+import json
+
+from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.perf import eval_process_times, highway_version
+from test_benchmark_cli import one_line_error, small_suite_file
+
+
+def test_perf_writes_every_figure_with_median_and_range(tmp_path, capsys):
+    out = tmp_path / "perf"
+    assert main(["perf", "--sizes", "1", "4", "--seconds", "0.05", "--repeats", "2", "--batch", "2",
+                 "--no-suites", "--out", str(out)]) == 0
+    report = json.loads((tmp_path / "perf.json").read_text())
+    markdown = (tmp_path / "perf.md").read_text()
+    ids = [row["id"] for row in report["figures"]]
+    expected = ["core-1", "core-4", "pettingzoo-1", "gym-1", "gym-vec-2"]
+    if highway_version():  # the [compare] extra: one env against one env, a batch of 2 against 2
+        expected += ["highway-1", "highway-vec-sync-2", "highway-vec-async-2", "ratio-1", "ratio-vec-sync-2",
+                     "ratio-vec-async-2"]
+    assert ids == expected
+    for row in report["figures"]:
+        assert f"| `{row['id']}` |" in markdown
+        if "of" in row:
+            assert set(row["of"]) <= set(ids) and row["median"] > 0
+        else:
+            assert len(row["runs"]) == 2 and row["min"] <= row["median"] <= row["max"] and row["min"] > 0
+    assert report["machine"]["numpy"] and report["repeats"] == 2
+    assert "Load average" in markdown and report["load_average_at_start"] is not None
+
+
+def test_eval_process_time_is_a_whole_process_run(tmp_path):
+    times = eval_process_times(str(small_suite_file(tmp_path, count=4)), "always-follow", runs=2)
+    assert len(times) == 2 and all(t > 0.2 for t in times)  # interpreter start-up and imports included
+
+
+def test_perf_rejects_bad_sizes(capsys):
+    assert "--sizes" in one_line_error(capsys, ["perf", "--sizes", "0"])
+    assert "--repeats" in one_line_error(capsys, ["perf", "--repeats", "0"])
