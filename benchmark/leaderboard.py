@@ -16,12 +16,14 @@ from typing import Any
 
 from .errors import UserError
 from .io import atomic_write_bytes
-from .metrics import TABLE, format_metric, render_table
+from . import headline, paper_table
+from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from .submission import Row, describe, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
 from .suites import load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"
 REFERENCE_NOTE = "reported in the paper, different simulator"
+SHAPE_NOTES = Path("reference") / "table1-shape.json"  # why a Table I row's shape differs (paper_table.py)
 _GENERATED_SUFFIXES = (".md", ".png", ".json")
 _RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
                  ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
@@ -49,6 +51,8 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     subs, ref = load_submissions(root), load_reference(root)
     files: dict[str, bytes] = {}
     index: dict[str, Any] = {"generated_by": "overtakezoo leaderboard", "suites": {}}
+    live_rows: dict[str, list[Row]] = {}
+    seeds = headline.load_seeds(root)
     for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
         suite = load_suite(name) if name in suite_names() else None
         rows = subs.get(name, [])
@@ -58,7 +62,13 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         bounds = [row for row in live if row.privileged]  # they see the future: shown apart, never ranked
         stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
         suite_ref = ref if ref and ref["suite"] == name else None
-        files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref).encode()
+        live_rows[name] = live
+        paper = _paper_section(ranked, suite_ref, root) if suite_ref else ""
+        covered = {m: d for m, d in seeds.items() if suite is not None and all(
+            e["suites"].get(name, {}).get("suite_sha256") == suite.hash for e in d["seeds"])}
+        if covered:  # learned members as the mean and spread over their training seeds
+            paper += headline.seed_lines(covered, name) + "\n"
+        files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref, paper).encode()
         if live:
             files[f"{name}.png"] = _plot(name, ranked, bounds)
         index["suites"][name] = {
@@ -71,9 +81,50 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
                       for row, why in stale],
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
+    head_md, index["headline"] = _headline(live_rows, seeds)
     files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
-    files["README.md"] = _readme(index).encode()
+    files["README.md"] = _readme(index, head_md).encode()
     return files
+
+
+def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The OvertakeZoo score over the core suites (benchmark/headline.py), learned members as the
+    mean over their training seeds (``seeds/<member>.json``) where those cover the current suites."""
+    rows: dict[str, dict[str, Any]] = {}
+    privileged = set()
+    hashes = {}
+    for suite in headline.CORE:
+        for row in live_rows.get(suite, []):
+            rows.setdefault(row.name, {})[suite] = row.results.summary
+            hashes[suite] = row.results.suite["hash"]
+            if row.privileged:
+                privileged.add(row.name)
+    table = headline.build_table(rows, seeds, hashes)
+    scores = {name: headline.score(runs) for name, runs in table.items()}
+    text = headline.render(table, privileged) + "\n" + headline.seed_lines(seeds)
+    return text, {"core": list(headline.CORE), "k": headline.K, "scores": scores}
+
+
+def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:
+    """Table I beside the paper (benchmark/paper_table.py) for dqn and rule-fsm, when both have rows."""
+    by_name = {row.name: row for row in ranked}
+    dqn, fsm = by_name.get("dqn"), by_name.get("rule-fsm")
+    if dqn is None or fsm is None:
+        return ""
+    paired = crash_same_scenarios({"outcome": dqn.results.per_scenario_array("outcome")},
+                                  {"outcome": fsm.results.per_scenario_array("outcome")})
+    path = root / SHAPE_NOTES
+    try:
+        notes = json.loads(path.read_text()) if path.is_file() else {}
+        assert isinstance(notes, dict)
+    except (ValueError, AssertionError) as exc:
+        raise UserError(f"{path}: malformed notes file ({type(exc).__name__}: {exc})") from None
+    return ("## Table I beside the paper\n\n"
+            f"The paper's two columns ({REFERENCE_NOTE}) next to ours for the shipped `dqn` and `rule-fsm` "
+            "(OpenPlanner only), with 95 % CIs. *Shape* compares which column is higher: the paper's RL vs "
+            "OP against our dqn vs rule-fsm (above or below when our CIs do not overlap, level when they "
+            "do). The crash-in-the-same-scenarios row is one paired number per pair of columns.\n\n"
+            + paper_table.render(ref, dqn.results.summary, fsm.results.summary, paired, notes) + "\n")
 
 
 def _entry(row: Row) -> dict[str, Any]:
@@ -138,7 +189,7 @@ def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
 
 
 def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale: list,
-              ref: dict[str, Any] | None) -> str:
+              ref: dict[str, Any] | None, paper: str = "") -> str:
     out = [f"# Leaderboard: {name}", "",
            "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", ""]
     if suite is not None:
@@ -179,6 +230,8 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
             cells = [_reported(row.get(k), *kinds[k]) for k in keys]
             out.append(f"| {row['decider']} ({REFERENCE_NOTE}) | " + " | ".join(cells) + " |")
         out.append("")
+    if paper:
+        out.append(paper)
     if stale:
         out += ["## Stale submissions", "",
                 "Measured on another suite file, environment config or simulator version than the current "
@@ -195,9 +248,10 @@ def _reported(value: Any, kind: str, unit: str) -> str:
     return f"{value * 100:.3g} %" if kind == "rate" else f"{value:.1f} {unit}".strip()
 
 
-def _readme(index: dict[str, Any]) -> str:
+def _readme(index: dict[str, Any], head: str = "") -> str:
     out = ["# OvertakeZoo leaderboards", "",
            "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", "",
+           *([head] if head else []), "## Suites", "",
            "One table per suite, generated from `submissions/`. CI runs `overtakezoo leaderboard --check` "
            "(the files are current) and `overtakezoo leaderboard --verify --sample 1` (a sample of every "
            "row re-runs exactly). Privileged deciders (the oracle) are listed apart as upper bounds and "

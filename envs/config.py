@@ -65,11 +65,15 @@ def _default_modes() -> dict[str, ModeParams]:
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """OpenPlanner-style rollout planner (see ``../shared/PLANNER-NOTES.md`` for the source values)."""
+    """OpenPlanner-style rollout planner. The values' public sources (hatem-darweesh/common
+    ``op_planner``, hatem-darweesh/core_planning ``op_local_planner`` launch files) and our departures
+    from them are in ``docs/planner.md``."""
 
     num_rollouts: int = 4  # n: rollouts 0..n end at offsets k * lane_width / n (0 = ego-lane centre)
     horizon_time: float = 4.0  # s; collision check against predicted paths of perceived vehicles
-    enable_prediction: bool = True  # constant-velocity prediction of perceived vehicles
+    # Constant-velocity prediction of perceived vehicles. OpenPlanner's evaluator has it off unless
+    # enablePrediction is set (docs/planner.md); table1 runs it off, the env's default keeps it on.
+    enable_prediction: bool = True
     car_tip_margin: float = 1.0  # m the current offset is held before the roll-in starts
     roll_in_speed_factor: float = 1.0  # roll-in length = factor * v + margin (m)
     roll_in_margin: float = 4.0

@@ -29,7 +29,7 @@ from .config import ABORT, OVERTAKE, EnvConfig
 from .observation import observe, observation_size
 from .backend import make_backend
 from .planner import ModeTable, Plan, clip, first_argmin, first_true, lateral_profile, plan, rollout_geometry
-from .scenarios import OPPOSITE_LANE, SPEEDUP_WHEN_PASSED, Scenarios
+from .scenarios import OPPOSITE_LANE, SCRIPTED, SPEEDUP_WHEN_PASSED, Scenarios
 
 RUNNING, SUCCESS, CRASH, TIMEOUT, OFFROAD = 0, 1, 2, 3, 4
 OUTCOME_NAMES = ("running", "success", "crash", "timeout", "offroad")
@@ -294,7 +294,8 @@ class OvertakeCore:
         return StepResult(obs, reward, terminated, truncated, final_obs, info)
 
     def _step_npcs(self, geo: dict[str, Any], dt: Any, npc_accel: Any) -> None:
-        """IDM for every NPC behind the nearest vehicle ahead in its lane (NPC or, once noticed, ego)."""
+        """IDM for every NPC behind the nearest vehicle ahead in its lane (NPC or, once noticed, ego;
+        scripted NPCs never notice the ego)."""
         xp, T, nc = self.xp, self._sc, self.cfg.npc
         direction, half_wid, s, v = geo["direction"], geo["half_wid"], self._npc_s, self._npc_v
         # Other NPCs ahead in the same lane, along each NPC's own direction: pairs (j, k, N).
@@ -309,6 +310,7 @@ class OvertakeCore:
         self._npc_aware = xp.where(ego_in_lane, self._npc_aware + dt, 0.0)
         if ego_in_lane.any():  # (the ego in no NPC's lane: every NPC keeps its lead)
             sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
+            sees_ego &= T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
             gap = xp.where(sees_ego, ego_gap, gap)
             lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
         # A speed-up lead raises its desired speed once the ego draws level in the other lane.

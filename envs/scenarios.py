@@ -18,8 +18,13 @@ import numpy as np
 from .config import ConfigError
 
 EGO_LANE, OPPOSITE_LANE = 0, 1
-IDM, SPEEDUP_WHEN_PASSED = 0, 1
-BEHAVIOURS = {"idm": IDM, "speedup": SPEEDUP_WHEN_PASSED}
+# NPC behaviours. IDM (the env's default) is reactive: it brakes for whatever occupies its lane
+# ahead, the ego included once its reaction time has passed. SCRIPTED drives the scenario's speed
+# profile (its desired speed) in its lane, blind to the ego, like the scripted NPCs of an
+# OpenSCENARIO scenario (the paper's Table I); it still keeps its distance to NPCs ahead of it.
+# SPEEDUP_WHEN_PASSED is a reactive lead that raises its desired speed once the ego draws level.
+IDM, SPEEDUP_WHEN_PASSED, SCRIPTED = 0, 1, 2
+BEHAVIOURS = {"idm": IDM, "speedup": SPEEDUP_WHEN_PASSED, "scripted": SCRIPTED}
 KMH = 1.0 / 3.6
 
 
@@ -121,6 +126,7 @@ class ScenarioDistribution:
     lead_gap: Range = (8.0, 25.0)  # D1: bumper gap from the ego to NPC1
     lead_behaviour: str = "idm"
     lead_boost: Range = (0.0, 0.0)  # m/s added to a speed-up lead's desired speed once passed
+    oncoming_behaviour: str = "idm"  # "idm" (reactive) or "scripted" (blind to the ego)
     oncoming_count: int = 1
     oncoming_speed: Range = (1.0, 3.0)
     oncoming_gap: Range = (20.0, 150.0)  # D2: from the ego's front to the first oncoming front
@@ -147,8 +153,9 @@ class ScenarioDistribution:
                 if value[0] > value[1]:
                     raise ConfigError(f"scenario.{key}: low {value[0]} is above high {value[1]}")
             elif isinstance(default, str):
-                if value not in BEHAVIOURS:
-                    raise ConfigError(f"scenario.{key}: {value!r} is not one of {', '.join(BEHAVIOURS)}")
+                allowed = BEHAVIOURS if key == "lead_behaviour" else _ONCOMING_BEHAVIOURS
+                if value not in allowed:
+                    raise ConfigError(f"scenario.{key}: {value!r} is not one of {', '.join(allowed)}")
             elif isinstance(default, int):
                 if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 64:
                     raise ConfigError(f"scenario.{key}: expected an integer in [0, 64], got {value!r}")
@@ -227,6 +234,7 @@ class ScenarioDistribution:
             lane[:, 1:1 + K] = OPPOSITE_LANE
             s[:, 1:1 + K] = fronts + L / 2  # an oncoming car's front faces -s
             v[:, 1:1 + K] = onc_v
+            behaviour[:, 1:1 + K] = BEHAVIOURS[self.oncoming_behaviour]
             reveal[:, 1:1 + K] = onc_reveal
         # Followers behind the ego, in the ego lane.
         if F:
@@ -247,6 +255,10 @@ class ScenarioDistribution:
         )
 
 
+# Speeding up when passed only makes sense for the lead being passed.
+_ONCOMING_BEHAVIOURS = {k: v for k, v in BEHAVIOURS.items() if k != "speedup"}
+
+
 def _num(key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"scenario.{key}: expected a number, got {value!r}")
@@ -261,6 +273,7 @@ def make_scenario(
     ego_speed: float = 15.0 * KMH,
     lead_behaviour: str = "idm",
     lead_boost: float = 0.0,
+    oncoming_behaviour: str = "idm",
     reaction_time: float = 0.7,
     reveal: float = math.inf,
     **road: Any,
@@ -274,7 +287,7 @@ def make_scenario(
     if lead is not None:
         rows.append((EGO_LANE, lead[0] + (Le + L) / 2, lead[1], BEHAVIOURS[lead_behaviour], lead_boost, True, math.inf))
     for gap, speed in oncoming:
-        rows.append((OPPOSITE_LANE, Le / 2 + gap + L / 2, speed, IDM, 0.0, False, reveal))
+        rows.append((OPPOSITE_LANE, Le / 2 + gap + L / 2, speed, BEHAVIOURS[oncoming_behaviour], 0.0, False, reveal))
     for gap, speed in followers:
         rows.append((EGO_LANE, -(Le / 2 + gap + L / 2), speed, IDM, 0.0, False, math.inf))
     M = max(len(rows), 1)

@@ -2,7 +2,7 @@
 
 Leaderboard rows are re-run (``leaderboard --verify``) and marked stale by simulator version, so a
 behaviour change that keeps SIM_VERSION would silently invalidate every row. These trajectories
-(the final state of a few table1 scenarios under two fixed deciders) fail on any such change.
+(the final state of a few table1-reactive scenarios (table1 v1) under two fixed deciders) fail on any such change.
 """
 
 import hashlib
@@ -25,7 +25,7 @@ REFERENCE = {
                             "ae569e52e41398326f8ef65b49648d523b46bd42ae64968b8b6ccf5e6e137067"),
     },
 }
-SCENARIOS = 6  # table1 scenarios 0..5
+SCENARIOS = 6  # table1-reactive scenarios 0..5
 
 
 class FinalState:
@@ -46,7 +46,7 @@ class FinalState:
 
 
 def trajectory(decider):
-    suite = load_suite("table1")
+    suite = load_suite("table1-reactive")  # table1 v1: the suite these were recorded on
     rec = FinalState()
     run_suite(suite, zoo.load(decider, suite.config), progress=False, recorder=rec, limit=SCENARIOS)
     (state,) = rec.states
@@ -59,7 +59,7 @@ def test_reference_trajectories_match_sim_version(decider):
     assert SIM_VERSION in REFERENCE, f"no reference trajectories for SIM_VERSION {SIM_VERSION}: record them"
     want_steps, want_hash = REFERENCE[SIM_VERSION][decider]
     steps, digest = trajectory(decider)
-    hint = (f"{decider} on table1 scenarios 0-{SCENARIOS - 1} no longer follows the SIM_VERSION {SIM_VERSION} "
+    hint = (f"{decider} on table1-reactive scenarios 0-{SCENARIOS - 1} no longer follows the SIM_VERSION {SIM_VERSION} "
             "trajectories: the simulator's behaviour changed. Bump SIM_VERSION (envs/version.py) and re-measure "
             "the leaderboard (scripts/reproduce-leaderboard.sh), then record the new reference here")
     assert steps == want_steps, f"{hint}; (outcome, steps) now {steps}"

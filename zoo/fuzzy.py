@@ -7,7 +7,7 @@ Literature followed:
   (near / medium / far) and to the car in the other lane (near / far); near ahead -> tailgate,
   medium ahead & near other -> tailgate, medium ahead & far other -> overtake, far ahead ->
   approach. Rules 1-4 below are theirs (tailgate and approach are both our FOLLOW mode).
-- The three-mode design of ``../shared/PLANNER-NOTES.md``: a time-margin ratio (clear distance
+- A three-mode design (``docs/planner.md``, "Fuzzy deciders"): a time-margin ratio (clear distance
   available / distance needed to complete the pass, Glennon, TRR 1195, 1988), pass progress and
   the current mode give an output "go-ness" in [0, 1] by centroid; overtake above a threshold,
   abort below a lower one while in the opposite lane and early in the pass (hysteresis), follow

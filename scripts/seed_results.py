@@ -1,0 +1,96 @@
+"""Evaluate every training seed of the learned members and pick the seed to ship.
+
+Usage: python scripts/seed_results.py MEMBER RUN_DIR [RUN_DIR ...] [--ship] [--suites a,b,...]
+
+Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``). Every seed is run
+on the training suite (``table1-train``) and on the core suites; the outcome counts and CIs go to
+``leaderboards/seeds/<MEMBER>.json``, which the leaderboard reads to report the member as the mean
+and spread over seeds. With ``--ship`` the selected seed's weights and card are copied to
+``zoo/pretrained/``.
+
+Selection rule (fixed before any seed was evaluated): the median seed by success rate on the
+*training* suite ``table1-train`` (ties: lower crash rate there, then the lower seed). The test
+suites never enter the choice.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+from overtakezoo.benchmark.headline import CORE
+from overtakezoo.benchmark.io import atomic_write_bytes
+from overtakezoo.benchmark.policy import load_policy
+from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.suites import load_suite
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN_SUITE = "table1-train"
+RULE = ("the median seed by success rate on the training suite table1-train (ties: lower crash rate "
+        "there, then the lower seed), fixed before any seed was evaluated; test suites never enter the choice")
+
+
+def counts(summary: dict) -> dict:
+    s, c = summary["success_rate"], summary["crash_rate"]
+    return {"n": s["n"], "success": s["k"], "crash": c["k"], "success_rate": s["value"],
+            "success_ci": [s["lo"], s["hi"]], "crash_rate": c["value"], "crash_ci": [c["lo"], c["hi"]],
+            "crash_share_npc1": summary["crash_share_npc1"]["value"],
+            "crash_share_npc2": summary["crash_share_npc2"]["value"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("member")
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--ship", action="store_true")
+    ap.add_argument("--suites", default=",".join(CORE))
+    ap.add_argument("--no-write", action="store_true", help="only evaluate (fill each run's cache)")
+    args = ap.parse_args()
+    algo = args.member
+    seeds = []
+    for run in args.runs:
+        card = json.loads((run / f"{algo}.json").read_text())
+        entry = {"seed": card["seed"], "run": run.name, "weights_sha256": card["weights_sha256"],
+                 "steps": card["steps"], "suites": {}}
+        cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
+        cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
+        for name in [TRAIN_SUITE, *args.suites.split(",")]:
+            suite = load_suite(name)
+            hit = cache.get(name)
+            if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == card["weights_sha256"]:
+                entry["suites"][name] = hit
+                continue
+            results = run_suite(suite, load_policy(str(run / f"{algo}.pt"), suite.config), progress=False)
+            entry["suites"][name] = {"suite_version": suite.version, "suite_sha256": suite.hash,
+                                     **counts(results.summary)}
+            print(f"{algo} seed {card['seed']} {name}: success {results.summary['success_rate']['value']:.4f} "
+                  f"crash {results.summary['crash_rate']['value']:.4f}", flush=True)
+        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": card["weights_sha256"],
+                                                   **entry["suites"]}, indent=1).encode())
+        seeds.append(entry)
+    if args.no_write:
+        return
+    order = sorted(seeds, key=lambda e: (e["suites"][TRAIN_SUITE]["success_rate"],
+                                          -e["suites"][TRAIN_SUITE]["crash_rate"], -e["seed"]))
+    chosen = order[(len(order) - 1) // 2]
+    doc = {"member": algo, "selection_rule": RULE, "shipped_seed": chosen["seed"], "train_suite": TRAIN_SUITE,
+           "seeds": sorted(seeds, key=lambda e: e["seed"])}
+    atomic_write_bytes(ROOT / "leaderboards" / "seeds" / f"{algo}.json",
+                       (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
+    print(f"{algo}: shipped seed {chosen['seed']} ({chosen['run']})")
+    if args.ship:
+        run = next(r for r in args.runs if r.name == chosen["run"])
+        card = json.loads((run / f"{algo}.json").read_text())
+        card["selection_rule"] = RULE
+        card["selection_note"] = (f"Seed {chosen['seed']} of {len(seeds)} training seeds "
+                                  f"({', '.join(str(e['seed']) for e in doc['seeds'])}), chosen by the rule above.")
+        card["seed_results"] = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
+        shutil.copyfile(run / f"{algo}.pt", ROOT / "zoo" / "pretrained" / f"{algo}.pt")
+        atomic_write_bytes(ROOT / "zoo" / "pretrained" / f"{algo}.json",
+                           (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
+
+
+if __name__ == "__main__":
+    main()
