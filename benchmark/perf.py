@@ -143,17 +143,44 @@ def suite_wall_times(suite: str, decider: str, repeats: int) -> dict[str, Any]:
 def eval_process_times(suite: str, decider: str, runs: int) -> list[float]:
     """Wall time of ``overtakezoo eval`` as a fresh process, start to exit (interpreter start-up,
     imports, torch for dqn, the run and the results file included)."""
-    times = []
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", "--suite", suite, "--decider", decider,
-               "--out", os.path.join(tmp, "results.json"), "--no-progress"]
-        for _ in range(runs):
-            start = time.perf_counter()
-            done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-            times.append(time.perf_counter() - start)
-            if done.returncode != 0:
-                raise RuntimeError(f"{' '.join(cmd[2:])} failed: {done.stderr.strip().splitlines()[-1:]}")
-    return times
+        return [_cli(["eval", "--suite", suite, "--decider", decider, "--out", "results.json"], tmp)[0]
+                for _ in range(runs)]
+
+
+def _cli(args: list[str], cwd: str) -> tuple[float, float]:
+    """Run ``overtakezoo ARGS`` as a process; returns (wall s, CPU s of the child)."""
+    import resource
+
+    cmd = [sys.executable, "-m", "overtakezoo.benchmark.cli", *args, "--no-progress"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def archive_costs(suite: str = "table1", decider: str = "rule-fsm") -> dict[str, float]:
+    """An MCAP archive of 1000 episodes (the suite's first 1000 of 3000, the default every-step
+    scene): its size in MB and the CPU time of the run with it over the run without it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        base = ["eval", "--suite", suite, "--decider", decider, "--shard", "0/3", "--out", "r.json"]
+        _, plain = _cli(base, tmp)
+        _, archived = _cli([*base, "--archive", "run.mcap"], tmp)
+        size = os.path.getsize(os.path.join(tmp, "run.mcap"))
+    return {"mb": size / 1e6, "cpu_ratio": archived / plain}
+
+
+def replay_gif_times(runs: int) -> list[float]:
+    """Wall time of ``overtakezoo replay --episode 29 --out ep.gif`` as a process: episode 29 of
+    rule-fsm on table1-reactive's first 30 scenarios, 246 frames."""
+    with tempfile.TemporaryDirectory() as tmp:
+        _cli(["eval", "--suite", "table1-reactive", "--decider", "rule-fsm", "--shard", "0/100", "--out", "r.json",
+              "--archive", "run.mcap"], tmp)
+        return [_cli(["replay", "run.mcap", "--episode", "29", "--out", "ep.gif"], tmp)[0] for _ in range(runs)]
 
 
 def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-fsm") -> float:
@@ -285,6 +312,16 @@ def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, 
             progress(f"eval-table1-dqn: not measured: {exc}")
         r.add("memory-table1", "peak memory of a table1 run (rule-fsm), per 1000 scenarios", "MiB",
               [peak_memory_per_1000_scenarios()], digits=2)
+        try:
+            a = archive_costs()
+            r.add("archive-table1-1000", "MCAP archive of 1000 table1 episodes (rule-fsm, scene at every step)", "MB",
+                  [a["mb"]], digits=1)
+            r.add("archive-cpu-ratio", "CPU time of that run with the archive / without it", "x", [a["cpu_ratio"]],
+                  digits=1)
+            r.add("replay-gif-246", "`overtakezoo replay --episode 29 --out ep.gif` as a process, a 246-frame "
+                  f"episode (median of {repeats} runs; start-up included)", "s", replay_gif_times(repeats), digits=2)
+        except RuntimeError as exc:
+            progress(f"archive and replay rows: not measured: {exc}")
     meta["load_average_at_end"] = load_average()
     meta["report_wall_time_s"] = round(time.perf_counter() - started, 1)
     return {**meta, "figures": r.rows}
