@@ -131,6 +131,7 @@ class OvertakeCore:
         # Per-episode terms of the step (computed once here, not every step; same expressions).
         T["half_length"], T["half_width"] = T["length"] / 2, T["width"] / 2
         T["speedup"] = T["behaviour"] == SPEEDUP_WHEN_PASSED
+        T["notices_ego"] = T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
         T["not_must_pass"] = ~T["must_pass"]
         T["pair_same_lane"] = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]  # (M, M, N)
         T["pair_half_len"] = (T["length"][:, None] + T["length"][None, :]) / 2
@@ -309,8 +310,7 @@ class OvertakeCore:
         ego_in_lane = (xp.abs(geo["dy"]) < half_wid) & (ego_gap > -2 * geo["half_len"])
         self._npc_aware = xp.where(ego_in_lane, self._npc_aware + dt, 0.0)
         if ego_in_lane.any():  # (the ego in no NPC's lane: every NPC keeps its lead)
-            sees_ego = ego_in_lane & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
-            sees_ego &= T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
+            sees_ego = ego_in_lane & T["notices_ego"] & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
             gap = xp.where(sees_ego, ego_gap, gap)
             lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
         # A speed-up lead raises its desired speed once the ego draws level in the other lane.
