@@ -116,9 +116,10 @@ def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:
     path = root / SHAPE_NOTES
     try:
         notes = json.loads(path.read_text()) if path.is_file() else {}
-        assert isinstance(notes, dict)
-    except (ValueError, AssertionError) as exc:
-        raise UserError(f"{path}: malformed notes file ({type(exc).__name__}: {exc})") from None
+    except ValueError as exc:
+        raise UserError(f"{path}: malformed notes file ({exc})") from None
+    if not isinstance(notes, dict):
+        raise UserError(f"{path}: malformed notes file (expected an object of row notes)")
     return ("## Table I beside the paper\n\n"
             f"The paper's two columns ({REFERENCE_NOTE}) next to ours for the shipped `dqn` and `rule-fsm` "
             "(OpenPlanner only), with 95 % CIs. *Shape* compares which column is higher: the paper's RL vs "
