@@ -4,6 +4,10 @@ A suite file has top-level ``name``, ``version`` (an integer), ``count``, ``seed
 ``description``, a ``[scenario]`` table (keys of :class:`~overtakezoo.envs.ScenarioDistribution`) and an
 optional ``[sim]`` table (keys of :class:`~overtakezoo.envs.EnvConfig`, nested tables allowed). The
 suite's hash is the sha256 of the file's bytes, so any edit gives results a different identity.
+
+A *split* of a suite (``oncoming-4-train``) has ``base = "oncoming-4"`` in place of the two tables:
+the base's distribution and simulator settings drawn with the split's own ``seed`` and ``count``.
+Its hash covers its own bytes and the base file's, so an edit to either changes it.
 """
 
 from __future__ import annotations
@@ -22,7 +26,11 @@ from .errors import UserError
 SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
 MAX_COUNT = 1_000_000
-_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim"}
+# The public single-ego suites (the OvertakeZoo score's), and the training mixture of their splits.
+CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
+        "adversarial", "occluded")
+MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE)}
+_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base"}
 
 
 @dataclass(frozen=True)
@@ -81,6 +89,15 @@ def list_suites() -> list[Suite]:
     return [load_suite(n) for n in suite_names()]
 
 
+def load_training(spec: str) -> list[Suite]:
+    """The suites a trainer draws from: a mixture's name (``core-train``: every core suite's
+    training split), suites joined by ``+`` (``table1-train+urban-50-train``), or one suite."""
+    names = MIXTURES.get(spec) or tuple(part for part in str(spec).split("+") if part)
+    if not names:
+        raise UserError(f"no training suite in {spec!r}")
+    return [load_suite(n) for n in names]
+
+
 def load_suite(name_or_path: str | Path) -> Suite:
     """A built-in suite by name (``table1``) or any suite file by path."""
     text = str(name_or_path)
@@ -108,6 +125,9 @@ def parse_suite(data: bytes, path: Path) -> Suite:
     unknown = sorted(set(doc) - _KEYS)
     if unknown:
         raise UserError(f"{where}: {unknown[0]}: unknown key (known: {', '.join(sorted(_KEYS))})")
+    digest = hashlib.sha256(data)
+    if "base" in doc:
+        doc, digest = _with_base(doc, where, digest)
     for key in ("name", "version", "count", "seed", "scenario"):
         if key not in doc:
             raise UserError(f"{where}: {key}: missing")
@@ -136,8 +156,24 @@ def parse_suite(data: bytes, path: Path) -> Suite:
     except (TypeError, ValueError) as exc:  # a value of the wrong type deep in a nested table
         raise UserError(f"{where}: sim: {exc}") from None
     return Suite(name=name, version=version, count=count, seed=seed, description=description,
-                 hash=hashlib.sha256(data).hexdigest(), path=path.resolve(), config=config,
+                 hash=digest.hexdigest(), path=path.resolve(), config=config,
                  distribution=distribution)
+
+
+def _with_base(doc: dict[str, Any], where: str, digest: Any) -> tuple[dict[str, Any], Any]:
+    """A split's document completed with its base suite's tables (a built-in suite, by name)."""
+    base = doc["base"]
+    if not isinstance(base, str) or not NAME_RE.match(base) or not (SUITES_DIR / f"{base}.toml").is_file():
+        raise UserError(f"{where}: base: {base!r} is not a built-in suite (known: {', '.join(suite_names())})")
+    both = sorted({"scenario", "sim"} & set(doc))
+    if both:
+        raise UserError(f"{where}: {both[0]}: a split takes its tables from its base suite {base!r}")
+    base_bytes = (SUITES_DIR / f"{base}.toml").read_bytes()
+    base_doc = tomllib.loads(base_bytes.decode("utf-8"))
+    if "base" in base_doc:
+        raise UserError(f"{where}: base: {base!r} is itself a split")
+    digest.update(b"\0" + base_bytes)
+    return {**doc, "scenario": base_doc["scenario"], "sim": base_doc.get("sim", {})}, digest
 
 
 def _int(where: str, key: str, value: Any, lo: int, hi: int) -> int:

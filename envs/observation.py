@@ -2,7 +2,8 @@
 
 Layout (all float32, O(1) after scaling):
 
-- ego (4): speed, yaw rate, lateral offset / lane width, distance from the front to the goal;
+- ego (5): speed, yaw rate, lateral offset / lane width, distance from the front to the goal, the
+  speed limit (the road's scale: what a decider needs to read speeds and gaps relative to it);
 - mode (3): one-hot of the current mode;
 - planner (n + 1): 1 where the shared planner marks a rollout blocked (what OpenPlanner's own
   behaviour selector sees);
@@ -23,7 +24,7 @@ from .config import EnvConfig
 if TYPE_CHECKING:
     from .core import OvertakeCore
 
-EGO_FEATURES = 4
+EGO_FEATURES = 5
 SLOT_FEATURES = 5
 
 
@@ -59,6 +60,7 @@ def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
     out[1] = core.yaw_rate[sel]
     out[2] = y / lane_width
     out[3] = (E["goal_s"][sel] - core.x[sel] - E["ego_length"][sel] / 2) / oc.position_scale
+    out[4] = E["speed_limit"][sel] / oc.speed_scale
     out[EGO_FEATURES + core.mode[sel], xp.arange(n)] = 1.0
     r = cfg.planner.num_rollouts + 1
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == core.num:

@@ -15,7 +15,8 @@ from gymnasium.wrappers import vector as vector_wrappers
 
 from overtakezoo.benchmark.results import config_sha256
 from overtakezoo.benchmark.suites import load_suite
-from overtakezoo.envs import EnvConfig, OvertakeCore, make_scenario, make_vec, parallel_env
+from overtakezoo.envs import (EnvConfig, OvertakeCore, make_scenario, make_vec, observation_layout, observation_size,
+                              parallel_env)
 from overtakezoo.envs.config import RewardConfig
 from overtakezoo.envs.spaces import ego_observation_space, npc_observation_space, npc_start_extent
 
@@ -142,7 +143,7 @@ def test_make_vec_steps_under_gymnasiums_observation_wrappers(wrap):
     obs, _ = vec.reset(seed=0)
     for _ in range(25):  # across two autoresets
         obs, rew, term, trunc, _ = vec.step(vec.action_space.sample())
-        assert obs.shape == (4, 32) and np.isfinite(obs).all()
+        assert obs.shape == (4, observation_size(EnvConfig())) and np.isfinite(obs).all()
     vec.close()
 
 
@@ -158,7 +159,7 @@ def test_make_vec_next_step_autoreset():
     obs, rew, term, trunc, infos = vec.step(np.full(3, 2, np.int64))  # actions ignored: new episodes
     assert not term.any() and not trunc.any() and (rew == 0.0).all()
     np.testing.assert_array_equal(infos["t"], 0.0)
-    assert not np.array_equal(obs, ended) and (obs[:, 4] == 1.0).all()  # mode one-hot: follow
+    assert not np.array_equal(obs, ended) and (obs[:, observation_layout(EnvConfig())["mode"]][:, 0] == 1.0).all()  # mode one-hot: follow
     obs, rew, *_ = vec.step(np.zeros(3, np.int64))
     np.testing.assert_allclose(vec.core.t, 0.1)
     # The same seed draws the same episodes in both modes (one generator, same order of draws).

@@ -37,6 +37,7 @@ from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_lay
 
 from .base import Decider, register
 from .common import WeightsError, read_card, read_verified  # noqa: F401 (WeightsError is re-exported)
+from .features import FEATURES_VERSION, speed_relative
 
 PRETRAINED = Path(__file__).resolve().parent / "pretrained"
 NUM_MODES = 3
@@ -146,15 +147,23 @@ class DQNDecider(Decider):
         self.mask_version = int(self.model_card.get("action_mask_version", MASK_VERSION))
         self.version = str(self.model_card.get("version", "1"))
         self.weights_sha256 = self.model_card.get("weights_sha256")
+        features = self.model_card.get("features")
+        if features not in (None, FEATURES_VERSION):
+            raise WeightsError(f"{name}: unknown input features {features!r} (this version has {FEATURES_VERSION!r})")
+        self.features = features  # None: the raw observation (weights trained before the features existed)
+
+    def _input(self, obs: np.ndarray) -> torch.Tensor:
+        x = np.asarray(obs, np.float64)
+        return torch.as_tensor(speed_relative(x, self.config) if self.features else x, dtype=torch.float64)
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return self._infer(torch.as_tensor(np.asarray(obs), dtype=torch.float64)).numpy()
+            return self._infer(self._input(obs)).numpy()
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """Argmax Q over the allowed modes (stateless: the hold is the runner's)."""
         with torch.no_grad():
-            t = torch.as_tensor(np.asarray(obs), dtype=torch.float64)
+            t = self._input(obs)
             mask = action_mask(t, self.config, self.mask_version) if self.use_mask else None
             return masked_argmax(self._infer(t), mask).numpy().astype(np.int64)
 
@@ -170,7 +179,7 @@ class DQNDecider(Decider):
                  f"{c.get('action_repeat', 1)} steps; mode-transition mask v{self.mask_version} (abort only from "
                  f"overtake, follow only from follow or in lane"
                  f"{', aborts carried through' if self.mask_version >= 3 else ''}).",
-                 f"  trained on {c.get('train_suite', '?')} (sha256 {str(c.get('train_suite_hash'))[:12]}), "
+                 f"  trained on {c.get('train_suite', '?')} (sha256 {str(c.get('train_suite_hash') or '')[:12]}), "
                  f"{c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall "
                  f"({hp.get('file', '?')})."]
         if res:

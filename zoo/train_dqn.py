@@ -1,7 +1,10 @@
 """Training loop for the DQN / Double DQN deciders: many scenarios stepped in parallel in one process.
 
-One :class:`~overtakezoo.envs.OvertakeCore` holds ``num_envs`` rows with ``auto_reset=True``; a
-finished row is refilled with a scenario drawn from the training suite. Every row decides at once
+A :class:`~overtakezoo.envs.mixture.MixedCore` holds ``num_envs`` auto-reset rows split evenly over
+the training suites (one suite, or a mixture such as ``core-train``: every core suite's training
+split); a finished row is refilled with a scenario drawn from its own suite. The network sees the
+speed-relative features of :mod:`overtakezoo.zoo.features`, the same at evaluation.
+Every row decides at once
 and each decision is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same hold
 the benchmark runner applies at evaluation). Each decision gives one transition (obs, mode, summed
 reward, next obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs``
@@ -34,12 +37,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from overtakezoo.benchmark.suites import load_suite
-from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore, observation_size
+from overtakezoo.benchmark.suites import load_suite, load_training
+from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
+from overtakezoo.envs.mixture import MixedCore, split_rows
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir
 
 from .common import evaluate, read_card, read_hyperparams, reject_reward_keys, sha256_bytes
+from .features import FEATURES_VERSION, speed_relative
 from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
@@ -108,8 +113,9 @@ class Trainer:
     """State of one training run; :meth:`run` advances it, :meth:`checkpoint` / :meth:`restore`
     save and reload everything needed to continue (episodes in flight restart on resume)."""
 
-    def __init__(self, algo: str, hp: dict[str, Any], suite: Any, seed: int) -> None:
-        self.algo, self.hp, self.suite, self.seed = algo, hp, suite, int(seed)
+    def __init__(self, algo: str, hp: dict[str, Any], suites: list[Any], seed: int, name: str | None = None) -> None:
+        self.algo, self.hp, self.suites, self.seed = algo, hp, list(suites), int(seed)
+        self.train_name = name or "+".join(s.name for s in self.suites)
         torch.manual_seed(self.seed)
         torch.set_num_threads(int(hp["threads"]))
         self.rng = np.random.default_rng(self.seed)
@@ -117,7 +123,7 @@ class Trainer:
             reject_reward_keys(hp, "hyperparameters")  # also those given as overrides
         except ValueError as exc:
             raise TrainError(str(exc)) from None
-        self.config = suite.config
+        self.config = self.suites[0].config  # the observation layout, shared by every training suite
         self.obs_dim = observation_size(self.config)
         self.net = QNetwork(self.obs_dim, hp["hidden"], hp["dueling"])
         self.target = copy.deepcopy(self.net)
@@ -131,11 +137,14 @@ class Trainer:
 
     # --- environment
     def _start_core(self) -> None:
-        train = self.suite.scenarios()
-        pick = lambda n, rng: train.take(rng.integers(0, train.num, n))  # noqa: E731
-        self.core = OvertakeCore(self.config, auto_reset=True, source=pick, seed=self._core_seed)
-        n = int(self.hp["num_envs"])
-        self.obs = self.core.reset(pick(n, self.core.rng))
+        pools = [s.scenarios() for s in self.suites]
+        sources = [lambda n, rng, pool=pool: pool.take(rng.integers(0, pool.num, n)) for pool in pools]
+        sizes = split_rows(int(self.hp["num_envs"]), len(pools))
+        self.core = MixedCore([s.config for s in self.suites], sources, sizes, seed=self._core_seed)
+        self.obs = self._features(self.core.observe())
+
+    def _features(self, obs: np.ndarray) -> np.ndarray:
+        return speed_relative(obs, self.config).astype(np.float32)
 
     def epsilon(self) -> float:
         hp = self.hp
@@ -162,7 +171,8 @@ class Trainer:
         self.core_steps += res.steps
         reward = res.reward.astype(np.float32)
         finished = res.finished
-        next_obs = res.obs if res.final_obs is None else np.where(finished[:, None], res.final_obs, res.obs)
+        obs = self._features(res.obs)
+        next_obs = obs if res.final_obs is None else np.where(finished[:, None], self._features(res.final_obs), obs)
         done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
         self.buffer.add(self.obs, act, reward, next_obs, done.astype(np.float32))
         self.transitions += len(act)
@@ -170,7 +180,7 @@ class Trainer:
             out = res.final_info["outcome"][finished]
             self.recent.extend(out.tolist())
             self.episodes += int(finished.sum())
-        self.obs = res.obs
+        self.obs = obs
         return res.steps
 
     # --- learning
@@ -272,8 +282,9 @@ class Trainer:
         self.buffer.load(state["buffer"])
 
     def decider(self) -> DQNDecider:
-        return DQNDecider(copy.deepcopy(self.net).eval(), name=self.algo, config=self.suite.config,
-                          action_repeat=self.hp["action_repeat"], use_mask=self.hp["action_mask"])
+        return DQNDecider(copy.deepcopy(self.net).eval(), name=self.algo, config=self.config,
+                          action_repeat=self.hp["action_repeat"], use_mask=self.hp["action_mask"],
+                          card={"features": FEATURES_VERSION})
 
 
 class _CsvLog:
@@ -295,7 +306,7 @@ class _CsvLog:
 def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
                eval_suite: Any) -> dict[str, Any]:
     hp = trainer.hp
-    suite_name = trainer.suite.name
+    suite_name = trainer.train_name
     return {
         "name": trainer.algo, "version": "1",
         "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp["double"] else "DQN (Mnih et al. 2015)",
@@ -305,7 +316,8 @@ def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
         "action_mask_version": MASK_VERSION,
         "hyperparameters": {k: v for k, v in hp.items()},
         "training_reward": dataclasses.asdict(trainer.config.reward),
-        "train_suite": trainer.suite.name, "train_suite_hash": trainer.suite.hash,
+        "features": FEATURES_VERSION,
+        "train_suite": suite_name, "train_suites": {s.name: s.hash for s in trainer.suites},
         "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
         "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
         "results": {eval_suite.name: results} if results and eval_suite else {},
@@ -332,7 +344,7 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
         hp["steps"] = int(steps)
     seed = int(hp.get("seed", 0) if seed is None else seed)
     hp["seed"] = seed
-    trainer = Trainer(algo, hp, load_suite(suite), seed)
+    trainer = Trainer(algo, hp, load_training(suite), seed, name=suite)
     if resume:
         trainer.restore(resume)
     trainer.run(int(hp["steps"]), out_dir, progress)

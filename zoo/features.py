@@ -1,0 +1,47 @@
+"""The learned members' input: the observation re-expressed relative to the road's speed limit.
+
+The env's observation scales speeds and distances by fixed constants (``observation.speed_scale``,
+``position_scale``), chosen for table1's 15 km/h. At urban-50's 50 km/h the same features are ~3x
+larger, so a network trained at one speed sees inputs it never met at another. Here every speed is
+divided by the row's speed limit ``L`` (ego feature 4 of the observation) and every distance by
+``L * HORIZON_S``, the distance covered in ``HORIZON_S`` seconds at the limit: a gap becomes a time,
+a closing speed a fraction of the limit. A scenario driven at k times the speeds with k times the
+distances gives the same features. The speed limit itself is kept as ``log(L / speed_scale)``, so
+the network can still tell a 15 km/h shuttle road from a 50 km/h street (braking distances do not
+scale linearly with speed).
+
+The layout is the observation's (``observation_layout``): mode one-hot, blocked flags, lateral
+offsets and presence flags pass through unchanged, so the action mask reads features as it reads
+observations. Numpy only: the same function serves training (torch) and inference (numpy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from overtakezoo.envs import EnvConfig, observation_layout
+from overtakezoo.envs.observation import SLOT_FEATURES
+
+FEATURES_VERSION = "speed-relative-v1"
+HORIZON_S = 10.0  # distances in units of 10 s at the speed limit: table1's 60 m sight is ~1.4
+
+
+def speed_relative(obs: np.ndarray, config: EnvConfig) -> np.ndarray:
+    """(N, D) observations -> (N, D) float64 features (see the module docstring)."""
+    obs = np.asarray(obs, np.float64)
+    oc, lay = config.observation, observation_layout(config)
+    out = obs.copy()
+    ego = lay["ego"].start
+    limit = np.maximum(obs[:, ego + 4] * oc.speed_scale, 1e-3)  # m/s; > 0 for any valid scenario
+    speed = oc.speed_scale / limit  # observation speed unit -> fraction of the limit
+    dist = oc.position_scale / (limit * HORIZON_S)  # observation distance unit -> horizons
+    out[:, ego + 0] *= speed
+    out[:, ego + 3] *= dist
+    out[:, ego + 4] = np.log(limit / oc.speed_scale)
+    for lane in ("ego_lane", "opposite_lane"):
+        s = lay[lane]
+        slots = out[:, s].reshape(len(out), -1, SLOT_FEATURES)  # presence, x, y, vx, vy
+        slots[:, :, 1] *= dist[:, None]
+        slots[:, :, 3:5] *= speed[:, None, None]
+        out[:, s] = slots.reshape(len(out), -1)
+    return out
