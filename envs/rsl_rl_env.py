@@ -1,7 +1,8 @@
 """The rsl-rl ``VecEnv`` face of the core: a thin adapter for ``rsl_rl.runners.OnPolicyRunner``.
 
 One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios; finished rows are
-refilled from ``source``. The action is one column holding the mode index as a float (what a
+refilled from ``source`` (or pass ``core``, e.g. a :class:`~.mixture.MixedCore` over several suites).
+``transform`` (obs -> obs) maps what the policy sees, e.g. a decider's input features. The action is one column holding the mode index as a float (what a
 categorical action distribution samples); observations are a TensorDict with one group,
 ``"policy"``, which the runner's ``obs_groups`` route to both actor and critic. With
 ``action_repeat`` = k one env step holds the decision for k core steps (:func:`.hold.hold`,
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -49,13 +50,12 @@ class OvertakeRslRlEnv(VecEnv):
 
     def __init__(self, num_envs: int, config: EnvConfig | None = None, source: Scenarios | Source | None = None,
                  seed: int | None = None, device: str | torch.device = "cpu", bootstrap_timeouts: bool = True,
-                 action_repeat: int = 1) -> None:
+                 action_repeat: int = 1, core: Any = None, transform: Callable[[np.ndarray], np.ndarray] | None = None
+                 ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.cfg = config or EnvConfig()  # the runner's logger reads env.cfg
-        if source is None:
-            source = ScenarioDistribution.from_dict(self.cfg.scenario).sample(1000, seed=seed)
-        self.source = pool_source(source) if isinstance(source, Scenarios) else source
+        self.cfg = config or (core.cfg if core is not None else EnvConfig())  # the runner's logger reads env.cfg
+        self.transform = transform or (lambda obs: obs)
         # True: a time limit is a truncation and PPO bootstraps its value (extras["time_outs"]); False:
         # running out of time is a terminal failure of the task (the limit is part of the suite).
         self.bootstrap_timeouts = bootstrap_timeouts
@@ -65,10 +65,20 @@ class OvertakeRslRlEnv(VecEnv):
         self.num_envs = num_envs
         self.num_actions = 1
         self.device = torch.device(device)
-        self.core = OvertakeCore(self.cfg, auto_reset=True, source=self.source, seed=seed)
-        self._obs = self.core.reset(self.source(num_envs, self.core.rng))
+        if core is None:
+            if source is None:
+                source = ScenarioDistribution.from_dict(self.cfg.scenario).sample(1000, seed=seed)
+            source = pool_source(source) if isinstance(source, Scenarios) else source
+            core = OvertakeCore(self.cfg, auto_reset=True, source=source, seed=seed)
+            core.reset(source(num_envs, core.rng))
+        elif core.num != num_envs or not core.auto_reset:
+            raise ValueError(f"core: expected an auto-reset core of {num_envs} rows")
+        self.core = core
+        self._obs = self.transform(core.observe())
         # Longest episode any row can have; the runner only uses it for random initial lengths.
-        self.max_episode_length = int(math.ceil(float(np.max(self.core.scen.time_limit)) / self.cfg.dt / action_repeat))
+        cores = getattr(core, "cores", [core])
+        limit = max(float(np.max(c.scen.time_limit)) for c in cores)
+        self.max_episode_length = int(math.ceil(limit / self.cfg.dt / action_repeat))
         self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=self.device)
         self.episode_counts: dict[str, int] = {"episodes": 0}  # running totals, e.g. for a progress bar
 
@@ -85,7 +95,7 @@ class OvertakeRslRlEnv(VecEnv):
         # until the next decision; those few steps' rewards belong to no decision and are dropped.
         res = hold(self.core, modes, self.action_repeat)
         reward, finished, truncated = res.reward, res.finished, res.truncated
-        self._obs = res.obs
+        self._obs = self.transform(res.obs)
         dev = self.device
         self.episode_length_buf += 1
         self.episode_length_buf[torch.as_tensor(finished, device=dev)] = 0

@@ -27,12 +27,13 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.benchmark.suites import load_training
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 from overtakezoo.envs.io import atomic_path, atomic_write_bytes, check_writable_dir
 
 from .base import Decider, register
 from .common import WeightsError, evaluate, read_card, read_hyperparams, read_verified, sha256_bytes  # noqa: F401
+from .features import FEATURES_VERSION, speed_relative
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
@@ -104,10 +105,16 @@ class PPODecider(Decider):
         self.weights_sha256 = self.model_card.get("weights_sha256")
         # Core steps each decision is held, exactly as in training (the runner applies the hold).
         self.action_repeat = int(action_repeat or self.model_card.get("action_repeat", 1))
+        self.features = self.model_card.get("features")
+        if self.features not in (None, FEATURES_VERSION):
+            raise WeightsError(f"ppo: unknown input features {self.features!r} (this version has {FEATURES_VERSION!r})")
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
+        x = np.asarray(obs)
+        if self.features:
+            x = speed_relative(x, self.config)
         with torch.inference_mode():
-            x = self.actor.obs_normalizer(torch.as_tensor(np.asarray(obs), dtype=torch.float32))
+            x = self.actor.obs_normalizer(torch.as_tensor(x, dtype=torch.float32))
             return self.actor.mlp(x).numpy()
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
@@ -122,7 +129,7 @@ class PPODecider(Decider):
         lines = [f"ppo (PPO, rsl-rl-lib {c.get('library_version', '?')}): MLP {a.get('hidden_dims')} "
                  f"{a.get('activation')} actor over the {a.get('obs_dim')}-feature observation, categorical "
                  f"over the 3 modes (argmax at test time), decision held {self.action_repeat} steps.",
-                 f"  trained on {c['train_suite']['name']} (sha256 {str(c['train_suite'].get('sha256'))[:12]}), "
+                 f"  trained on {c['train_suite']['name']}, "
                  f"{c.get('steps')} decisions, seed {c.get('seed')}, {c.get('wall_time_s', 0):.0f} s wall "
                  f"({c.get('hyperparameters', {}).get('file')})."]
         res = c.get("results", {}).get("table1")
@@ -160,10 +167,15 @@ def rollout(decider: Decider, config: EnvConfig, scenarios: Any) -> tuple[np.nda
     return core.outcome, core.crash_lane, core.stats["completion_time"]
 
 
-def greedy_score(decider: Decider, config: EnvConfig, scenarios: Any) -> float:
-    """Success rate minus crash rate of ``decider`` on ``scenarios`` (model selection)."""
-    outcome, _, _ = rollout(decider, config, scenarios)
-    return float(np.mean(outcome == SUCCESS) - np.mean(outcome == CRASH))
+def greedy_score(decider: Decider, sets: list[tuple[EnvConfig, Any]]) -> float:
+    """Success rate minus crash rate of ``decider`` over ``(config, scenarios)`` sets, each set
+    weighted equally (model selection over a mixture of suites)."""
+    scores = []
+    for config, scenarios in sets:
+        decider.config = config
+        outcome, _, _ = rollout(decider, config, scenarios)
+        scores.append(np.mean(outcome == SUCCESS) - np.mean(outcome == CRASH))
+    return float(np.mean(scores))
 
 
 # ----------------------------------------------------------------------------- training
@@ -183,10 +195,11 @@ def _library_version() -> str:
 def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, out: str | Path | None = None,
           resume: str | Path | None = None, progress: bool = True, hyperparams: str | Path | None = None,
           eval_suite: str | None = "table1") -> Path:
-    """Train PPO on ``suite`` for ``steps`` transitions (decisions); write ``out/ppo.pt`` + ``out/ppo.json`` (the
+    """Train PPO on ``suite`` (one suite, ``a+b``, or a mixture such as ``core-train``) for ``steps`` transitions (decisions); write ``out/ppo.pt`` + ``out/ppo.json`` (the
     model card, with ``eval_suite`` results), ``out/train_log.csv`` and ``out/checkpoints/``.
     ``resume`` continues from a checkpoint. Returns the path of the weights file."""
-    from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv
+    from overtakezoo.envs.mixture import MixedCore, split_rows
+    from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv, pool_source
 
     hp = load_hyperparams(hyperparams)
     steps = int(steps if steps is not None else hp["train"]["steps"])
@@ -194,17 +207,21 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     check_writable_dir(out / "checkpoints")  # fail before training, not after it
     torch.set_num_threads(int(hp["train"].get("threads", 1)))
     torch.manual_seed(seed)
-    train_suite = load_suite(suite)
-    config, scenarios = train_suite.config, train_suite.scenarios()
-    meta = {"name": train_suite.name, "version": train_suite.version, "count": train_suite.count,
-            "seed": train_suite.seed, "sha256": train_suite.hash}
+    suites = load_training(suite)
+    config = suites[0].config  # the observation layout, shared by every training suite
+    pools = [s.scenarios() for s in suites]
+    meta = {"name": suite, "suites": {s.name: s.hash for s in suites}}
     num_envs = int(hp["env"]["num_envs"])
     repeat = int(hp["env"].get("action_repeat", 1))
-    env = OvertakeRslRlEnv(num_envs, config, scenarios, seed=seed,
+    core = MixedCore([s.config for s in suites], [pool_source(p) for p in pools], split_rows(num_envs, len(pools)),
+                     seed=seed)
+    env = OvertakeRslRlEnv(num_envs, config, seed=seed, core=core, transform=lambda o: speed_relative(o, config),
                            bootstrap_timeouts=bool(hp["env"].get("bootstrap_timeouts", True)), action_repeat=repeat)
-    # Model selection: the greedy (argmax) policy on the first scenarios of the training suite.
+    # Model selection: the greedy (argmax) policy on the first scenarios of each training suite.
     select_every = int(hp["train"].get("select_every", 0))
-    select_set = scenarios.take(np.arange(min(int(hp["train"].get("select_scenarios", 500)), scenarios.num)))
+    per_suite = max(1, int(hp["train"].get("select_scenarios", 500)) // len(suites))
+    select_sets = [(s.config, p.take(np.arange(min(per_suite, p.num)))) for s, p in zip(suites, pools)]
+    selected = sum(sc.num for _, sc in select_sets)
     best: dict[str, Any] = {"score": -np.inf, "iteration": None, "state": None}
     runner = make_runner(env, hp)
     per_iter = num_envs * int(hp["runner"]["num_steps_per_env"])
@@ -245,14 +262,14 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
                 bar.update(1)
             if select_every and ((it + 1) % select_every == 0 or it + 1 == iterations):
                 policy = runner.alg.get_policy()
-                score = greedy_score(PPODecider(policy, env.core.obs_size, config, action_repeat=repeat),
-                                     config, select_set)
+                score = greedy_score(PPODecider(policy, observation_size(config), config, action_repeat=repeat,
+                                                card={"features": FEATURES_VERSION}), select_sets)
                 runner.alg.train_mode()  # the decider switched the shared actor to eval mode
                 if score > best["score"]:
                     best = {"score": score, "iteration": it + 1,
                             "state": {k: v.detach().clone() for k, v in policy.state_dict().items()}}
                 if bar is not None:
-                    bar.write(f"iteration {it + 1}: greedy success - crash on {select_set.num} training "
+                    bar.write(f"iteration {it + 1}: greedy success - crash on {selected} training "
                               f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})")
             if (it + 1) % int(hp["train"]["checkpoint_every"]) == 0 or it + 1 == iterations:
                 with atomic_path(out / "checkpoints" / f"ppo_{it + 1:05d}.pt") as tmp:  # complete or absent
@@ -265,12 +282,13 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     actor = runner.get_inference_policy("cpu")
     if best["state"] is not None:
         actor.load_state_dict(best["state"])
-    blob = weights_blob(actor, env.core.obs_size, hp["actor"])
+    blob = weights_blob(actor, observation_size(config), hp["actor"])
     card = {
         "name": "ppo", "version": "1", "algorithm": "PPO (clipped surrogate, GAE, adaptive KL learning rate)",
         "library": "rsl-rl-lib OnPolicyRunner", "library_version": _library_version(),
         "torch_version": torch.__version__,
-        "architecture": {"obs_dim": env.core.obs_size, "hidden_dims": hp["actor"]["hidden_dims"],
+        "features": FEATURES_VERSION,
+        "architecture": {"obs_dim": observation_size(config), "hidden_dims": hp["actor"]["hidden_dims"],
                          "activation": hp["actor"]["activation"], "num_modes": NUM_MODES,
                          "distribution": hp["actor"]["distribution_cfg"]["class_name"]},
         "hyperparameters": {"file": hp["file"], **{k: hp[k] for k in ("train", "env", "runner", "algorithm",
@@ -279,7 +297,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
         "train_suite": meta, "steps": iterations * per_iter, "steps_unit": "decisions (env steps)",
         "iterations": iterations, "seed": seed,
         "selection": {"rule": "greedy success rate minus crash rate on the first training scenarios",
-                      "scenarios": select_set.num, "every": select_every, "iteration": best["iteration"],
+                      "scenarios": selected, "every": select_every, "iteration": best["iteration"],
                       "score": None if best["state"] is None else round(best["score"], 4)},
         "wall_time_s": round(wall, 1), "weights_sha256": sha256_bytes(blob), "weights_bytes": len(blob),
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "results": {},
