@@ -3,14 +3,15 @@
 Usage: python scripts/seed_results.py MEMBER RUN_DIR [RUN_DIR ...] [--ship] [--suites a,b,...]
 
 Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``). Every seed is run
-on the training suite (``table1-train``) and on the core suites; the outcome counts and CIs go to
+on the training splits of the core suites (``core-train``, what the members train on) and on the
+core suites; the outcome counts and CIs go to
 ``leaderboards/seeds/<MEMBER>.json``, which the leaderboard reads to report the member as the mean
 and spread over seeds. With ``--ship`` the selected seed's weights and card are copied to
 ``zoo/pretrained/``.
 
-Selection rule (fixed before any seed was evaluated): the median seed by success rate on the
-*training* suite ``table1-train`` (ties: lower crash rate there, then the lower seed). The test
-suites never enter the choice.
+Selection rule (fixed before any seed was evaluated): the median seed by mean success rate over the
+*training* splits (ties: lower mean crash rate there, then the lower seed). The test suites never
+enter the choice.
 """
 
 from __future__ import annotations
@@ -24,12 +25,14 @@ from overtakezoo.benchmark.headline import CORE
 from overtakezoo.benchmark.io import atomic_write_bytes
 from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.benchmark.suites import MIXTURES, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAIN_SUITE = "table1-train"
-RULE = ("the median seed by success rate on the training suite table1-train (ties: lower crash rate "
-        "there, then the lower seed), fixed before any seed was evaluated; test suites never enter the choice")
+TRAIN_SUITE = "core-train"
+TRAIN_SPLITS = MIXTURES[TRAIN_SUITE]
+RULE = ("the median seed by mean success rate over the training splits of the core suites (core-train; ties: "
+        "lower mean crash rate there, then the lower seed), fixed before any seed was evaluated; test suites "
+        "never enter the choice")
 
 
 def counts(summary: dict) -> dict:
@@ -56,7 +59,7 @@ def main() -> None:
                  "steps": card["steps"], "suites": {}}
         cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
         cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-        for name in [TRAIN_SUITE, *args.suites.split(",")]:
+        for name in [*TRAIN_SPLITS, *args.suites.split(",")]:
             suite = load_suite(name)
             hit = cache.get(name)
             if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == card["weights_sha256"]:
@@ -72,8 +75,10 @@ def main() -> None:
         seeds.append(entry)
     if args.no_write:
         return
-    order = sorted(seeds, key=lambda e: (e["suites"][TRAIN_SUITE]["success_rate"],
-                                          -e["suites"][TRAIN_SUITE]["crash_rate"], -e["seed"]))
+    def train_mean(e: dict, rate: str) -> float:
+        return sum(e["suites"][n][rate] for n in TRAIN_SPLITS) / len(TRAIN_SPLITS)
+
+    order = sorted(seeds, key=lambda e: (train_mean(e, "success_rate"), -train_mean(e, "crash_rate"), -e["seed"]))
     chosen = order[(len(order) - 1) // 2]
     doc = {"member": algo, "selection_rule": RULE, "shipped_seed": chosen["seed"], "train_suite": TRAIN_SUITE,
            "seeds": sorted(seeds, key=lambda e: e["seed"])}
