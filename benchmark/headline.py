@@ -141,6 +141,37 @@ def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], orac
     return "\n".join(out)
 
 
+def generalization(table: dict[str, dict[str, list[Counts]]], learned: list[str], suites: tuple[str, ...] = CORE,
+                   bar: str = "fuzzy", safe: str = "rule-fsm", oracle: str = "oracle") -> str:
+    """Markdown: every learned member on every core suite (success / crash in %, mean over its
+    seeds) against the targets: success at least ``bar``'s, crash at most ``safe``'s, and no crash on
+    table1; the ``bar``, ``safe`` and ``oracle`` rows for reference."""
+    def rate(runs: list[Counts], key: str) -> float:
+        return float(np.mean([getattr(c, key) / c.n for c in runs]))
+
+    def cell(name: str, s: str) -> str:
+        runs = table.get(name, {}).get(s)
+        if not runs:
+            return "-"
+        su, cr = rate(runs, "success"), rate(runs, "crash")
+        if name not in learned or not table.get(bar, {}).get(s) or not table.get(safe, {}).get(s):
+            return f"{_pct(su)} / {_pct(cr)}"
+        met = su >= rate(table[bar][s], "success") and cr <= rate(table[safe][s], "crash") and (
+            s != "table1" or cr == 0.0)
+        return f"{_pct(su)} / {_pct(cr)} {'met' if met else 'missed'}"
+
+    names = [n for n in learned if n in table] + [n for n in (bar, safe, oracle) if n in table]
+    out = ["## Off the training suite", "",
+           f"Success / crash rate (%) of every learned member on every core suite (the mean over its "
+           f"training seeds where its seeds file covers the suite), beside `{bar}`, `{safe}` and `{oracle}`. "
+           f"The target for a learned member on a suite: success at least `{bar}`'s, crash rate at most "
+           f"`{safe}`'s and, on `table1`, no crash at all; each learned cell says whether it is met.", "",
+           "| decider | " + " | ".join(suites) + " |", "|---|" + "---|" * len(suites)]
+    out += [f"| {n} | " + " | ".join(cell(n, s) for s in suites) + " |" for n in names]
+    out.append("")
+    return "\n".join(out)
+
+
 # ------------------------------------------------------------------ inputs from the leaderboard
 def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
     """``seeds/<member>.json`` (written by scripts/seed_results.py): every training seed's outcome

@@ -28,6 +28,7 @@ _GENERATED_SUFFIXES = (".md", ".png", ".json")
 _RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
                  ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
                  ("crash_share_npc2", "rate", "%"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
+LEARNED = {"dqn", "double-dqn", "ppo", "bc", "cql"}  # the zoo's learned members (targets in the headline)
 _LABELS = {k: label for k, label, _, _ in TABLE}
 
 
@@ -101,7 +102,9 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[s
                 privileged.add(row.name)
     table = headline.build_table(rows, seeds, hashes)
     scores = {name: headline.score(runs) for name, runs in table.items()}
-    text = headline.render(table, privileged) + "\n" + headline.seed_lines(seeds)
+    learned = sorted(set(seeds) | (LEARNED & set(table)))
+    text = (headline.render(table, privileged) + "\n" + headline.generalization(table, learned) + "\n"
+            + headline.seed_lines(seeds))
     return text, {"core": list(headline.CORE), "k": headline.K, "scores": scores}
 
 
