@@ -56,9 +56,10 @@ def read_recipes(path: Path = RECIPES_FILE) -> dict[str, Any]:
         if "interleave" in spec:
             missing = [x for x in spec["interleave"] if x not in levels or "interleave" in levels[x]]
             if missing or not spec["interleave"]:
-                raise UserError(f"recipes {path}: levels.{level}.interleave: {missing or '[]'} are not single-policy levels")
-        elif not (isinstance(spec.get("decider"), str) and 0.0 <= float(spec.get("epsilon", -1)) <= 1.0
-                  and isinstance(spec.get("seed", 0), int)):
+                raise UserError(f"recipes {path}: levels.{level}.interleave: {missing or '[]'} are not "
+                                "single-policy levels")
+        elif not (isinstance(spec.get("decider"), str) and isinstance(spec.get("epsilon"), (int, float))
+                  and 0.0 <= spec["epsilon"] <= 1.0 and isinstance(spec.get("seed", 0), int)):
             raise UserError(f"recipes {path}: levels.{level} needs decider (str), epsilon in [0, 1], seed (int)")
     for s in data.get("suites", []):
         if not (isinstance(s, dict) and isinstance(s.get("suite"), str) and isinstance(s.get("env"), str)
@@ -116,7 +117,9 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
 
     try:
         suite = load_suite(recipe["suite"])
-        count, chunk, policies = int(recipe["count"]), int(recipe.get("chunk_size", 4096)), recipe["policies"]
+        count, chunk = int(recipe["count"]), int(recipe.get("chunk_size", 4096))
+        policies = [{**p, "decider": str(p["decider"]), "epsilon": float(p["epsilon"]), "seed": int(p["seed"])}
+                    for p in recipe["policies"]]
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"dataset {name}: the registry's recipe is incomplete ({exc})") from None
     if suite.hash != recipe.get("suite_sha256"):
@@ -145,7 +148,8 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
 def describe(level: str, recipe: dict[str, Any], components: list[str]) -> str:
     who = "; ".join(f"{p['decider']} v{p['decider_version']} epsilon {p['epsilon']} seed {p['seed']}"
                     for p in recipe["policies"])
-    mix = f"; episode i is episode i of the (i mod {len(components)})-th of {', '.join(components)}" if components else ""
+    mix = (f"; episode i is episode i of the (i mod {len(components)})-th of {', '.join(components)}"
+           if components else "")
     return (f"{level}: {who} on suite {recipe['suite']} v{recipe['suite_version']} ({recipe['suite_sha256'][:12]}), "
             f"its first {recipe['count']} scenarios{mix}. One transition per simulator step.")
 
@@ -180,10 +184,11 @@ def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archi
     archives = Path(archives) if archives else cache_dir() / "release" / f"datasets-v{data['version']}"
     plans = plan(data)
     entries: dict[str, dict[str, Any]] = {}
-    memo: dict[str, Any] = {}
+    memo: dict[str, Any] = {}  # recorded episodes per policy: the mixed dataset reuses its components'
+    memo_suite = None
     for name, p in tqdm(plans.items(), desc="datasets", unit="dataset", disable=not progress):
-        if memo.get("suite") != p["suite"].name:  # a new suite: free the last one's episodes
-            memo = {"suite": p["suite"].name}
+        if memo_suite != p["suite"].name:  # a new suite: free the last one's episodes
+            memo, memo_suite = {}, p["suite"].name
         recipe = resolve_recipe(p["suite"], p["count"], data["chunk_size"], p["policies"])
         suite, episodes = collect_recipe(recipe, name, progress, memo)
         description = describe(p["level"], recipe, p["components"])

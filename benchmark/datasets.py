@@ -360,8 +360,9 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
                 and (mirrors == [] or e.get("sha256") is not None)
                 and (e.get("content_sha256") is None or _is_sha(e["content_sha256"]))
                 and isinstance(e.get("recipe", {}), dict)):
-            raise UserError(f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the archive's "
-                            "size (int) and sha256 (64 hex), and optionally recipe (object) and content_sha256 (64 hex)")
+            raise UserError(f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the "
+                            "archive's size (int) and sha256 (64 hex), and optionally recipe (object) and "
+                            "content_sha256 (64 hex)")
         e["mirrors"] = mirrors
         out[name] = e
     return out

@@ -169,3 +169,10 @@ def test_shipped_registry_names_the_readme_example():
     e = reg["overtakezoo/table1/rule-fsm-v0"]
     assert e["level"] == "medium" and e["recipe"]["suite"] == "table1-train" and e["content_sha256"]
     assert {x["level"] for x in reg.values()} >= {"random", "medium", "expert", "mixed"}
+
+
+def test_regenerate_and_download_help_have_examples(capsys):
+    for argv in (["dataset", "regenerate", "--help"], ["dataset", "download", "--help"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 0 and "examples:" in capsys.readouterr().out
