@@ -15,7 +15,8 @@ def register(subparsers: Any) -> None:
                    ["overtakezoo dataset build --suite table1-train --decider rule-fsm --epsilon 0.1 "
                     "--name overtakezoo/table1/rule-fsm-v0",
                     "overtakezoo dataset list",
-                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0",
+                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0 --build",
+                    "overtakezoo dataset regenerate",
                     "overtakezoo dataset pack overtakezoo/table1/rule-fsm-v0 --out rule-fsm-v0.tar.gz"])
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     b = add_parser(sub, "build", "record a decider's transitions on a suite",
@@ -36,10 +37,15 @@ def register(subparsers: Any) -> None:
     ls = add_parser(sub, "list", "list local datasets", "List the datasets in the local datasets folder.",
                     ["overtakezoo dataset list"])
     ls.set_defaults(handler=run_list)
-    d = add_parser(sub, "download", "fetch a published dataset",
-                   "Download a dataset listed in the package's registry (resumable, SHA-256 verified).",
-                   ["overtakezoo dataset download overtakezoo/table1/rule-fsm-v0"])
+    d = add_parser(sub, "download", "fetch a published dataset (or rebuild it from its recipe)",
+                   "Download a dataset listed in the package's registry from its mirrors, in order (resumable,\n"
+                   "SHA-256 verified). With --build, a dataset no mirror delivers is rebuilt locally from the\n"
+                   "registry's recipe and installed only if its content hash equals the registry's.",
+                   ["overtakezoo dataset download overtakezoo/table1/rule-fsm-v0",
+                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0 --build   # works offline"])
     d.add_argument("name", help="a dataset name from the registry")
+    d.add_argument("--build", action="store_true",
+                   help="when no mirror delivers the archive, rebuild the dataset from its recipe (verified)")
     d.add_argument("--no-progress", action="store_true", help="no progress bar")
     d.set_defaults(handler=run_download)
     k = add_parser(sub, "pack", "write a local dataset as .tar.gz for publishing",
@@ -48,6 +54,16 @@ def register(subparsers: Any) -> None:
     k.add_argument("name")
     k.add_argument("--out", required=True, help="output .tar.gz")
     k.set_defaults(handler=run_pack)
+    r = add_parser(sub, "regenerate", "rebuild the official datasets and rewrite the registry",
+                   "Build every dataset of the recipe table (benchmark/registry/recipes.toml), pack each archive\n"
+                   "for upload, and rewrite the registry with recipes, content hashes and archive hashes (atomically).",
+                   ["overtakezoo dataset regenerate",
+                    "overtakezoo dataset regenerate --archives dist/datasets --registry my-registry.json"])
+    r.add_argument("--recipes", help="the recipe table (default: the package's registry/recipes.toml)")
+    r.add_argument("--registry", help="registry file to write (default: $OVERTAKEZOO_REGISTRY or the package's)")
+    r.add_argument("--archives", help="folder for the .tar.gz archives (default: <cache>/release/datasets-vN)")
+    r.add_argument("--no-progress", action="store_true", help="no progress bars")
+    r.set_defaults(handler=run_regenerate)
     p.set_defaults(handler=lambda args: (p.print_help(), 2)[1])
 
 
@@ -84,8 +100,8 @@ def run_list(args: Any) -> int:
 def run_download(args: Any) -> int:
     from ..datasets import download
 
-    path = download(args.name, progress=not args.no_progress)
-    print(f"downloaded {args.name} to {path}")
+    path = download(args.name, progress=not args.no_progress, build=args.build)
+    print(f"installed {args.name} in {path}")
     return 0
 
 
@@ -96,5 +112,24 @@ def run_pack(args: Any) -> int:
 
     out, size, sha = pack(args.name, args.out)
     print(f"wrote {out}; registry entry:")
-    print(json.dumps({args.name: {"url": "https://.../" + out.name, "size": size, "sha256": sha}}, indent=1))
+    print(json.dumps({args.name: {"mirrors": ["https://.../" + out.name], "size": size, "sha256": sha}}, indent=1))
+    return 0
+
+
+def run_regenerate(args: Any) -> int:
+    import time
+    from pathlib import Path
+
+    from ..dataset_recipes import RECIPES_FILE, regenerate
+    from ..datasets import datasets_dir, registry_path
+
+    t0 = time.perf_counter()
+    registry = Path(args.registry) if args.registry else registry_path()
+    entries, archives = regenerate(Path(args.recipes) if args.recipes else RECIPES_FILE, registry,
+                         Path(args.archives) if args.archives else None, progress=not args.no_progress)
+    for name, e in entries.items():
+        print(f"  {name}  {e['episodes']} episodes  {e['steps']} steps  content {e['content_sha256'][:16]}  "
+              f"archive {e['size']} bytes")
+    print(f"wrote {registry}: {len(entries)} datasets (installed in {datasets_dir()}, archives to upload in "
+          f"{archives}) in {time.perf_counter() - t0:.0f} s")
     return 0
