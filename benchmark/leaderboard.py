@@ -292,8 +292,8 @@ model.save("my-dqn.zip")
 With CleanRL, rsl-rl or your own torch code, save the network with TorchScript
 (`torch.jit.script(net).save("my-dqn.pt")`, observations in, Q-values or logits out; the mode is
 the argmax) or export it to ONNX. `overtakezoo train dqn --out runs/my-dqn` (also `double-dqn`,
-`ppo`) writes `runs/my-dqn/dqn.pt` with its model card `dqn.json` beside it: pass the `.pt` to
-`eval` and `submit`, which finds the card the same way. A `package.module:factory` policy works
+`ppo`) writes `runs/my-dqn/dqn.npz` (numpy weights; the torch `dqn.pt` too) with its model card
+`dqn.json` beside it: pass the `.npz` to `eval` and `submit`, which finds the card the same way. A `package.module:factory` policy works
 with `eval` but is not a file: export it to submit it. Tune on `table1-train`, never on the suites
 you submit to.
 

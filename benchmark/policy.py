@@ -7,9 +7,11 @@ A SPEC is one of:
   object with ``act(obs)`` on a batch (N, D) (and optionally ``reset(mask)``, ``name``,
   ``action_repeat``);
 - a file:
-  - ``<name>.pt`` with its model card ``<name>.json`` beside it: what ``overtakezoo train dqn |
-    double-dqn | ppo`` writes (sha256 checked against the card, as for the zoo's own weights; the
-    leaderboard stores the pair as ``artifacts/<sha256>.pt`` + ``artifacts/<sha256>.json``);
+  - ``<name>.npz`` or ``<name>.pt`` with its model card ``<name>.json`` beside it (or the card
+    itself, or the directory holding one such pair): what ``overtakezoo train dqn | double-dqn |
+    ppo`` writes (sha256 checked against the card, as for the zoo's own weights; the leaderboard
+    stores the pair as ``artifacts/<sha256>.npz`` + ``artifacts/<sha256>.json``). The ``.npz`` acts
+    through numpy only; a ``.pt`` is read with torch and acts the same way;
   - a TorchScript file (``torch.jit.save``): a module mapping float32 observations (N, D) to
     Q-values or logits (N, 3), argmax taken (or to modes (N,));
   - an ONNX file (extra ``[onnx]``: onnxruntime), the same contract;
@@ -71,6 +73,8 @@ def load_policy(spec: str, config: EnvConfig | None = None) -> zoo.Decider:
     config = config or EnvConfig()
     spec = str(spec)
     path = Path(spec)
+    if path.is_dir() or (path.suffix == ".json" and path.is_file()):
+        path = _trained_weights(path)
     if path.is_file():
         return _load_file(path, config)
     if FACTORY.match(spec):
@@ -141,7 +145,7 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     else:
         hint = (f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
                 "`overtakezoo train` writes)"
-                if path.suffix in (".pt", ".pth") else "")
+                if path.suffix in (".pt", ".pth", ".npz") else "")
         raise UserError(f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a "
                         f"model card{hint}")
     dec.name = f"{_slug(path.stem)}-{sha[:8]}"
@@ -152,10 +156,32 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
 
 
 def model_card(path: Path) -> Path | None:
-    """The model card of weights in the format `overtakezoo train` writes (<name>.pt beside
-    <name>.json), or None: the file is a policy on its own."""
+    """The model card of weights in the format `overtakezoo train` writes (<name>.npz or <name>.pt
+    beside <name>.json), or None: the file is a policy on its own."""
     card = path.with_suffix(".json")
-    return card if path.suffix in (".pt", ".pth") and card.is_file() else None
+    return card if path.suffix in (".npz", ".pt", ".pth") and card.is_file() else None
+
+
+def _trained_weights(path: Path) -> Path:
+    """The weights file of a model card, or of the one card with its .npz in a directory."""
+    if path.is_dir():
+        cards = sorted(p for p in path.glob("*.json") if p.with_suffix(".npz").is_file())
+        if len(cards) != 1:
+            raise UserError(f"policy {path}: expected one <name>.npz beside its model card <name>.json in the "
+                            f"directory, found {', '.join(p.stem for p in cards) or 'none'}")
+        return cards[0].with_suffix(".npz")
+    try:
+        weights = json.loads(path.read_text()).get("weights_file")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        weights = None
+    if not isinstance(weights, str):
+        raise UserError(f"policy {path}: not a model card (no weights_file) of `overtakezoo train`")
+    target = path.parent / Path(weights).name
+    if target.with_suffix(".json") != path:
+        raise UserError(f"policy {path}: its weights_file {weights} is not named after the card")
+    if not target.is_file():
+        raise UserError(f"policy {path}: weights {target.name} not found beside the card")
+    return target
 
 
 def _slug(stem: str) -> str:
@@ -185,24 +211,24 @@ def _argmax(out: Any, path: Path) -> np.ndarray:
 
 
 def _load_trained(weights: Path, card_path: Path, config: EnvConfig) -> zoo.Decider:
-    """``overtakezoo train`` output: <algo>.pt with its model card <algo>.json."""
-    from overtakezoo.zoo.common import WeightsError, read_card
+    """``overtakezoo train`` output: <algo>.npz (numpy) or <algo>.pt (torch) with the model card <algo>.json."""
+    from overtakezoo.zoo.common import WeightsError, read_card, read_verified
+    from overtakezoo.zoo.learned import MLPDecider, load_weights
 
     try:
         card = read_card(card_path, weights.name)
-        if card.get("name") == "ppo":
-            from overtakezoo.zoo import ppo
-
-            actor, obs_dim = ppo.load_weights(weights, card)
-            dec = ppo.PPODecider(actor, obs_dim, config, card)
-            dec.policy_kind = "overtakezoo-ppo"
-        elif "architecture" in card and "hidden" in card["architecture"]:
-            from overtakezoo.zoo import dqn
-
-            dec = dqn.from_card(str(card.get("name", "dqn")), card, weights, config)
-            dec.policy_kind = "overtakezoo-dqn"
-        else:
+        if not isinstance(card.get("architecture"), dict):
             raise UserError(f"policy {weights}: model card {card_path.name} is not one `overtakezoo train` writes")
+        name = str(card.get("name", "dqn"))
+        if weights.suffix == ".npz":
+            net = load_weights(weights, card, weights.name)
+        else:  # the torch file of a training run: converted as `export` does (torch needed)
+            from overtakezoo.zoo.export import torch_to_numpy, trained_sha256
+
+            data = read_verified(weights, {"weights_sha256": trained_sha256(card)}, weights.name)
+            net = torch_to_numpy(data, card, f"weights {weights.name}")
+        dec = MLPDecider(net, name, config, card)
+        dec.policy_kind = "overtakezoo-ppo" if name == "ppo" else "overtakezoo-dqn"
     except ModuleNotFoundError as exc:
         raise UserError(f"policy {weights}: needs {exc.name} (pip install 'overtakezoo[train]')") from None
     except (WeightsError, KeyError, TypeError) as exc:

@@ -2,12 +2,12 @@
 
 Usage: python scripts/seed_results.py MEMBER RUN_DIR [RUN_DIR ...] [--ship] [--suites a,b,...]
 
-Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``). Every seed is run
-on the training splits of the core suites (``core-train``, what the members train on) and on the
-core suites; the outcome counts and CIs go to
+Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``, and from newer
+trainers ``<algo>.npz``). Every seed is run on the training splits of the core suites
+(``core-train``, what the members train on) and on the core suites; the outcome counts and CIs go to
 ``leaderboards/seeds/<MEMBER>.json``, which the leaderboard reads to report the member as the mean
-and spread over seeds. With ``--ship`` the selected seed's weights and card are copied to
-``zoo/pretrained/``.
+and spread over seeds. With ``--ship`` the selected seed is exported
+(:func:`overtakezoo.zoo.export.export`) into ``zoo/pretrained/<MEMBER>.npz`` + ``.json``.
 
 Selection rule (fixed before any seed was evaluated): the median seed by mean success rate over the
 *training* splits (ties: lower mean crash rate there, then the lower seed). The test suites never
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 from pathlib import Path
 
 from overtakezoo.benchmark.headline import CORE
@@ -26,6 +25,7 @@ from overtakezoo.benchmark.io import atomic_write_bytes
 from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.runner import run_suite
 from overtakezoo.benchmark.suites import MIXTURES, load_suite
+from overtakezoo.zoo.export import export, trained_sha256
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_SUITE = "core-train"
@@ -55,14 +55,15 @@ def main() -> None:
     seeds = []
     for run in args.runs:
         card = json.loads((run / f"{algo}.json").read_text())
-        entry = {"seed": card["seed"], "run": run.name, "weights_sha256": card["weights_sha256"],
+        weights_sha = trained_sha256(card)  # the torch file's: the same before and after an export
+        entry = {"seed": card["seed"], "run": run.name, "weights_sha256": weights_sha,
                  "steps": card["steps"], "suites": {}}
         cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
         cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
         for name in [*TRAIN_SPLITS, *args.suites.split(",")]:
             suite = load_suite(name)
             hit = cache.get(name)
-            if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == card["weights_sha256"]:
+            if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == weights_sha:
                 entry["suites"][name] = hit
                 continue
             results = run_suite(suite, load_policy(str(run / f"{algo}.pt"), suite.config), progress=False)
@@ -70,7 +71,7 @@ def main() -> None:
                                      **counts(results.summary)}
             print(f"{algo} seed {card['seed']} {name}: success {results.summary['success_rate']['value']:.4f} "
                   f"crash {results.summary['crash_rate']['value']:.4f}", flush=True)
-        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": card["weights_sha256"],
+        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": weights_sha,
                                                    **entry["suites"]}, indent=1).encode())
         seeds.append(entry)
     if args.no_write:
@@ -87,14 +88,12 @@ def main() -> None:
     print(f"{algo}: shipped seed {chosen['seed']} ({chosen['run']})")
     if args.ship:
         run = next(r for r in args.runs if r.name == chosen["run"])
-        card = json.loads((run / f"{algo}.json").read_text())
-        card["selection_rule"] = RULE
-        card["selection_note"] = (f"Seed {chosen['seed']} of {len(seeds)} training seeds "
-                                  f"({', '.join(str(e['seed']) for e in doc['seeds'])}), chosen by the rule above.")
-        card["seed_results"] = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
-        shutil.copyfile(run / f"{algo}.pt", ROOT / "zoo" / "pretrained" / f"{algo}.pt")
-        atomic_write_bytes(ROOT / "zoo" / "pretrained" / f"{algo}.json",
-                           (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
+        note = (f"Seed {chosen['seed']} of {len(seeds)} training seeds "
+                f"({', '.join(str(e['seed']) for e in doc['seeds'])}), chosen by the rule above.")
+        seed_results = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
+        card = export(run, ROOT / "zoo" / "pretrained", algo, {"selection_rule": RULE, "selection_note": note,
+                                                                "seed_results": seed_results})
+        print(f"{algo}: exported {run / (algo + '.pt')} to {card.with_suffix('.npz')} + {card.name}")
 
 
 if __name__ == "__main__":

@@ -180,18 +180,21 @@ def test_module_factory(tmp_path, suite, capsys, monkeypatch):
 
 # ----------------------------------------------------------------------------- overtakezoo train output
 @pytest.mark.parametrize("name", ["dqn", "ppo"])
-def test_weights_in_the_train_format_evaluate_like_the_zoo_member(tmp_path, suite, capsys, name):
+def test_weights_in_the_train_format_evaluate_like_the_zoo_member(tmp_path, suite, capsys, learned_dir,
+                                                                    monkeypatch, name):
+    from overtakezoo.zoo import learned
     from overtakezoo.zoo.common import read_card
 
-    pytest.importorskip("rsl_rl")
-    pre = __import__("overtakezoo.zoo.dqn", fromlist=["PRETRAINED"]).PRETRAINED
-    for ext in (".pt", ".json"):  # `overtakezoo train` writes <algo>.pt beside the card <algo>.json
-        shutil.copy(pre / f"{name}{ext}", tmp_path / f"{name}{ext}")
-    doc = evaluate(capsys, suite, tmp_path / f"{name}.pt", tmp_path / "p.json")
+    for ext in (".npz", ".json"):  # `overtakezoo train` writes <algo>.npz beside the card <algo>.json
+        shutil.copy(learned_dir / f"{name}{ext}", tmp_path / f"{name}{ext}")
+    monkeypatch.setattr(learned, "PRETRAINED", learned_dir)  # the zoo member with the same weights
+    doc = evaluate(capsys, suite, tmp_path / f"{name}.npz", tmp_path / "p.json")
     zoo_doc = evaluate(capsys, suite, name, tmp_path / "z.json")
     assert doc["scenarios"] == zoo_doc["scenarios"]  # same weights, same hold: same results
     assert doc["decider"]["weights_sha256"] == read_card(tmp_path / f"{name}.json", name)["weights_sha256"]
     assert doc["decider"]["policy"]["kind"] == f"overtakezoo-{name}" and doc["decider"]["name"] != name
+    for spec in (tmp_path / f"{name}.json", tmp_path):  # the card, or the directory holding the pair
+        assert evaluate(capsys, suite, spec, tmp_path / "c.json")["scenarios"] == doc["scenarios"]
 
 
 def test_train_dqn_output_evaluates_with_one_command(tmp_path, suite, capsys):
@@ -199,8 +202,10 @@ def test_train_dqn_output_evaluates_with_one_command(tmp_path, suite, capsys):
     assert main(["train", "dqn", "--steps", "1000", "--seed", "0", "--out", str(out), "--eval-suite", "none",
                  "--no-progress"]) == 0
     capsys.readouterr()
-    doc = evaluate(capsys, suite, out / "dqn.pt", tmp_path / "r.json")
+    doc = evaluate(capsys, suite, out / "dqn.pt", tmp_path / "r.json")  # torch weights, converted on load
     assert doc["decider"]["policy"]["kind"] == "overtakezoo-dqn"
+    for spec in (out / "dqn.npz", out / "dqn.json", out):  # the export the trainer wrote: numpy only
+        assert evaluate(capsys, suite, spec, tmp_path / "n.json")["scenarios"] == doc["scenarios"]
 
 
 # ----------------------------------------------------------------------------- corrupted weights
@@ -218,7 +223,9 @@ def test_corrupted_policy_file_is_one_line(tmp_path, suite, capsys):
     # Weights with a model card whose sha256 no longer matches.
     pre = __import__("overtakezoo.zoo.dqn", fromlist=["PRETRAINED"]).PRETRAINED
     shutil.copy(pre / "dqn.json", tmp_path / "dqn.json")
-    (tmp_path / "dqn.pt").write_bytes((pre / "dqn.pt").read_bytes()[:-10])
+    (tmp_path / "dqn.npz").write_bytes((pre / "dqn.npz").read_bytes()[:-10])
+    assert "sha256" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "dqn.npz")])
+    (tmp_path / "dqn.pt").write_bytes(b"not the trained weights")
     assert "sha256" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "dqn.pt")])
 
 
@@ -231,13 +238,13 @@ def test_a_policy_for_other_observations_is_refused_at_load(tmp_path, suite, cap
 
 @pytest.mark.parametrize("command", ["eval", "decision-map"])
 def test_tampered_pretrained_weights_through_decider_are_one_line(tmp_path, suite, capsys, monkeypatch, command):
-    from overtakezoo.zoo import dqn
+    from overtakezoo.zoo import learned
 
-    for ext in (".pt", ".json"):
-        shutil.copy(dqn.PRETRAINED / f"dqn{ext}", tmp_path / f"dqn{ext}")
-    data = (tmp_path / "dqn.pt").read_bytes()
-    (tmp_path / "dqn.pt").write_bytes(data[: len(data) // 2])
-    monkeypatch.setattr(dqn, "PRETRAINED", tmp_path)
+    for ext in (".npz", ".json"):
+        shutil.copy(learned.PRETRAINED / f"dqn{ext}", tmp_path / f"dqn{ext}")
+    data = (tmp_path / "dqn.npz").read_bytes()
+    (tmp_path / "dqn.npz").write_bytes(data[: len(data) // 2])
+    monkeypatch.setattr(learned, "PRETRAINED", tmp_path)
     err = one_line_error(capsys, [command, "--suite", str(suite), "--decider", "dqn", "--out", str(tmp_path / "o")])
     assert "truncated or modified" in err and not (tmp_path / "o").exists()
 

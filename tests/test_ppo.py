@@ -17,7 +17,10 @@ from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  
 from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.categorical import CategoricalDistribution  # noqa: E402
-from overtakezoo.zoo import ppo  # noqa: E402
+from overtakezoo.zoo import ppo, train_ppo  # noqa: E402
+from overtakezoo.zoo.common import sha256_bytes  # noqa: E402
+
+from conftest import needs_shipped_weights  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -84,10 +87,9 @@ def test_categorical_matches_torch():
 
 def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     torch.manual_seed(0)
-    hp = ppo.load_hyperparams()
-    hp["runner"]["num_steps_per_env"] = 8
+    hp, _ = train_ppo.load_hyperparams(overrides={"runner": {"num_steps_per_env": 8}})
     env = OvertakeRslRlEnv(16, EnvConfig(), pool, seed=0)
-    runner = ppo.make_runner(env, hp)
+    runner = train_ppo.make_runner(env, hp)
     assert type(runner.alg.get_policy().distribution) is CategoricalDistribution
     before = [p.detach().clone() for p in runner.alg.get_policy().parameters()]
     runner.learn(2)
@@ -99,16 +101,18 @@ def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     runner.export_policy_to_jit(str(tmp_path))
     jit = torch.jit.load(str(tmp_path / "policy.pt"))
     assert torch.equal(jit(env.get_observations()["policy"]), actions)
-    # The decider built from the saved blob acts like the runner's policy.
-    card = {"weights_sha256": None}
-    blob = ppo.weights_blob(policy, env.core.obs_size, hp["actor"])
-    (tmp_path / "w.pt").write_bytes(blob)
-    card["weights_sha256"] = ppo.sha256_bytes(blob)
-    dec = ppo.PPODecider(*ppo.load_weights(tmp_path / "w.pt", card))
+    # The numpy decider exported from the saved blob acts like the runner's policy.
+    from overtakezoo.zoo.export import convert
+
+    blob = train_ppo.weights_blob(policy, env.core.obs_size, hp.actor)
+    card, _, net = convert({"name": "ppo", "weights_sha256": sha256_bytes(blob)}, blob, "ppo")
+    assert card["architecture"]["activation"] == "elu" and card["trained_weights_sha256"] == sha256_bytes(blob)
+    dec = ppo.PPODecider(net, "ppo", EnvConfig(), card)
     obs = env.get_observations()["policy"].numpy()
     assert np.array_equal(dec.act(obs), actions[:, 0].long().numpy())
 
 
+@needs_shipped_weights
 def test_pretrained_ppo_loads_and_acts(pool):
     dec = load("ppo")
     assert dec.name == "ppo" and len(dec.weights_sha256) == 64
@@ -121,17 +125,17 @@ def test_pretrained_ppo_loads_and_acts(pool):
 
 
 def test_truncated_weights_are_refused(tmp_path):
-    for name in ("ppo.pt", "ppo.json"):
+    for name in ("ppo.npz", "ppo.json"):
         shutil.copy(ppo.PRETRAINED / name, tmp_path / name)
-    data = (tmp_path / "ppo.pt").read_bytes()
-    (tmp_path / "ppo.pt").write_bytes(data[: len(data) // 2])
+    data = (tmp_path / "ppo.npz").read_bytes()
+    (tmp_path / "ppo.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises(ppo.WeightsError, match="truncated or modified"):
         ppo.load_pretrained(directory=tmp_path)
     assert issubclass(ppo.WeightsError, ValueError)
     # A card whose hash matches a file that is not PPO weights: refused in one line too.
-    (tmp_path / "ppo.pt").write_bytes(b"not a torch file")
+    (tmp_path / "ppo.npz").write_bytes(b"not an npz file")
     card = json.loads((tmp_path / "ppo.json").read_text())
-    card["weights_sha256"] = ppo.sha256_bytes(b"not a torch file")
+    card["weights_sha256"] = sha256_bytes(b"not an npz file")
     (tmp_path / "ppo.json").write_text(json.dumps(card))
     with pytest.raises(ppo.WeightsError, match="cannot load"):
         ppo.load_pretrained(directory=tmp_path)
@@ -139,7 +143,7 @@ def test_truncated_weights_are_refused(tmp_path):
 
 def test_train_writes_card_and_resumes(tmp_path):
     # The real hyperparameter file, shrunk: 16 scenarios x 8 decisions per iteration.
-    text = ppo.HYPERPARAMS.read_text()
+    text = train_ppo.HYPERPARAMS.read_text()
     for old, new in (("num_envs = 256", "num_envs = 16"), ("num_steps_per_env = 32", "num_steps_per_env = 8"),
                      ("select_every = 20", "select_every = 1"), ("select_scenarios = 500", "select_scenarios = 16"),
                      ("checkpoint_every = 50", "checkpoint_every = 1")):
@@ -148,14 +152,16 @@ def test_train_writes_card_and_resumes(tmp_path):
     hp = tmp_path / "ppo.toml"
     hp.write_text(text)
     out = tmp_path / "run"
-    weights = ppo.train(steps=2 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False)
+    weights = train_ppo.train(steps=2 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False)
     assert weights == out / "ppo.pt" and (out / "checkpoints" / "ppo_00002.pt").exists()
-    weights = ppo.train(steps=3 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False,
+    weights = train_ppo.train(steps=3 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False,
                         resume=out / "checkpoints" / "ppo_00002.pt")
     rows = (out / "train_log.csv").read_text().splitlines()
     assert rows[0].startswith("iteration,") and [r.split(",")[0] for r in rows[1:]] == ["1", "2", "3"]
     card = json.loads((out / "ppo.json").read_text())
     assert card["iterations"] == 3 and card["steps"] == 3 * 16 * 8 and card["action_repeat"] == 10
     assert card["train_suite"]["name"] == "table1-train" and card["selection"]["iteration"] in (1, 2, 3)
-    dec = ppo.load_pretrained(directory=out)
-    assert dec.weights_sha256 == card["weights_sha256"] == ppo.sha256_bytes(weights.read_bytes())
+    assert card["trained_weights_sha256"] == sha256_bytes(weights.read_bytes())
+    assert card["hyperparameters"]["train"]["select_every"] == 1 and card["hyperparameters"]["file"] == "ppo.toml"
+    dec = ppo.load_pretrained(directory=out)  # the .npz the trainer exported, numpy only
+    assert dec.weights_sha256 == card["weights_sha256"] == sha256_bytes((out / "ppo.npz").read_bytes())

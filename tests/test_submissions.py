@@ -51,11 +51,12 @@ def root(tmp_path):
 
 # ------------------------------------------------------------------ subsets
 @pytest.mark.parametrize("decider", ["rule-fsm", "dqn", "oracle"])
-def test_a_subset_run_equals_the_same_scenarios_of_the_full_run(tmp_path, decider):
+def test_a_subset_run_equals_the_same_scenarios_of_the_full_run(tmp_path, decider, learned_dir):
     suite = small_suite(tmp_path, count=24)
-    full = run_suite(suite, zoo.load(decider, suite.config), progress=False).per
+    kw = {"directory": learned_dir} if decider == "dqn" else {}  # dqn: random weights, the shipped format
+    full = run_suite(suite, zoo.load(decider, suite.config, **kw), progress=False).per
     idx = np.array([21, 2, 17, 17, 23, 0])  # any order, repeats allowed
-    sub = run_indices(suite, zoo.load(decider, suite.config), idx, chunk_size=4)
+    sub = run_indices(suite, zoo.load(decider, suite.config, **kw), idx, chunk_size=4)
     for key in PER_SCENARIO:
         np.testing.assert_array_equal(sub[key], full[key][idx], err_msg=key)
 
@@ -188,28 +189,27 @@ def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_pat
 
 
 @pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
-def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys):
-    """`overtakezoo train` writes weights plus their model card: the pair is stored (artifacts/<sha256>.pt
+def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys, learned_dir):
+    """`overtakezoo train` writes weights plus their model card: the pair is stored (artifacts/<sha256>.npz
     + artifacts/<sha256>.json), the row records both sha256s and re-runs; a swapped card is refused."""
-    pretrained = Path(zoo.__file__).parent / "pretrained"
-    mine = tmp_path / "run" / "mine.pt"
+    mine = tmp_path / "run" / "mine.npz"
     mine.parent.mkdir()
-    shutil.copy(pretrained / "dqn.pt", mine)
-    shutil.copy(pretrained / "dqn.json", mine.with_suffix(".json"))
+    shutil.copy(learned_dir / "dqn.npz", mine)
+    shutil.copy(learned_dir / "dqn.json", mine.with_suffix(".json"))
     root, results = tmp_path / "lb", tmp_path / "r.json"
     assert main(["eval", "--policy", str(mine), "--suite", tiny, "--out", str(results), "--no-progress"]) == 0
     assert main(["submit", str(results), "--name", "my-dqn", "--policy", str(mine), "--root", str(root)]) == 0
     policy = Results.load(root / "submissions" / tiny / "my-dqn.json").meta["submission"]["policy"]
     sha = policy["sha256"]
     store = root / "submissions" / "artifacts"
-    assert sorted(p.name for p in store.iterdir()) == [f"{sha}.json", f"{sha}.pt"]
+    assert sorted(p.name for p in store.iterdir()) == [f"{sha}.json", f"{sha}.npz"]
     assert (store / f"{sha}.json").read_bytes() == mine.with_suffix(".json").read_bytes()
     assert policy["card_sha256"] == file_sha256(mine.with_suffix(".json"))
     capsys.readouterr()
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
     assert "verified submissions/tiny/my-dqn.json: 12 of 12" in capsys.readouterr().out
     # The same weights with another card would overwrite the card the row uses: refused.
-    noted = tmp_path / "noted.pt"
+    noted = tmp_path / "noted.npz"
     shutil.copy(mine, noted)
     noted.with_suffix(".json").write_text(json.dumps({**json.loads(mine.with_suffix(".json").read_text()), "n": 1}))
     assert "another model card for these weights" in one_line_error(

@@ -1,25 +1,30 @@
-"""Training loop for the DQN / Double DQN deciders: many scenarios stepped in parallel in one process.
+"""DQN and Double DQN training, top to bottom: hyperparameters, Q-network, replay buffer, acting,
+TD target, the loop, checkpoints, outputs (in the spirit of CleanRL's single-file ``dqn.py``).
 
-A :class:`~overtakezoo.envs.mixture.MixedCore` holds ``num_envs`` auto-reset rows split evenly over
-the training suites (one suite, or a mixture such as ``core-train``: every core suite's training
-split); a finished row is refilled with a scenario drawn from its own suite. The network sees the
-speed-relative features of :mod:`overtakezoo.zoo.features`, the same at evaluation.
-Every row decides at once
-and each decision is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same hold
-the benchmark runner applies at evaluation). Each decision gives one transition (obs, mode, summed
-reward, next obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs``
-of a row whose episode ended during the hold is its final observation (the refilled row follows
-until the next decision, and those steps belong to no transition).
+Many scenarios are stepped in parallel in one process: a :class:`~overtakezoo.envs.mixture.MixedCore`
+holds ``num_envs`` auto-reset rows split evenly over the training suites (one suite, or a mixture
+such as ``core-train``: every core suite's training split); a finished row is refilled with a
+scenario drawn from its own suite. The network sees the speed-relative features of
+:mod:`overtakezoo.zoo.features`, the same at evaluation. Every row decides at once and each decision
+is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same hold the benchmark
+runner applies at evaluation). Each decision gives one transition (obs, mode, summed reward, next
+obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs`` of a row whose
+episode ended during the hold is its final observation (the refilled row follows until the next
+decision, and those steps belong to no transition).
 
-Learning: epsilon-greedy (linear decay over the first ``eps_fraction`` of the steps), Huber loss,
-Adam, gradient-norm clipping, a target network copied every ``target_update`` gradient steps; the
-Double DQN target lets the online net pick and the target net evaluate (:func:`~.dqn.td_targets`).
-Hyperparameters come from ``zoo/hyperparams/<algo>.toml``; ``steps`` counts decision transitions
-summed over all rows.
+Learning: epsilon-greedy over the modes the action mask allows (linear decay over the first
+``eps_fraction`` of the steps), Huber loss, Adam, gradient-norm clipping, a target network copied
+every ``target_update`` gradient steps; the Double DQN target lets the online net pick and the target
+net evaluate. Hyperparameters come from ``zoo/hyperparams/<algo>.toml``, typed by
+:class:`DQNHyperparams`; ``steps`` counts decision transitions summed over all rows.
 
 Training reward: the env's own (the suite's ``RewardConfig``, which every face and trainer uses;
 the hyperparameter file cannot change it). A timeout ends the episode as a failure
 (``timeout_terminal``): the observation has no clock, and the time limit is part of the task.
+
+Outputs: ``<algo>.pt`` (the Q-network's ``state_dict``), its numpy export ``<algo>.npz`` and the
+model card ``<algo>.json`` naming both (:mod:`overtakezoo.zoo.export`); acting needs only the
+``.npz`` (:mod:`overtakezoo.zoo.learned`).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import dataclasses
 import io
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,36 +46,102 @@ from torch import nn
 from overtakezoo.benchmark.suites import load_suite, load_training
 from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
-from overtakezoo.envs.mixture import MixedCore, split_rows
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir
+from overtakezoo.envs.mixture import MixedCore, split_rows
 
-from .common import evaluate, read_card, read_hyperparams, reject_reward_keys, sha256_bytes
+from .common import evaluate, read_card, reject_reward_keys, sha256_bytes
+from .export import convert, dqn_net
 from .features import FEATURES_VERSION, speed_relative
-from .dqn import MASK_VERSION, NUM_MODES, DQNDecider, QNetwork, action_mask, masked_argmax, td_targets
+from .learned import MASK_VERSION, NUM_MODES, MLPDecider, action_mask
+from .mlp import NumpyMLP
+from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, merged, param, read_toml
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
 ALGORITHMS = ("dqn", "double-dqn")
-# Used only while the benchmark suites module is not available: disjoint seeds, the paper's counts.
 
 
 class TrainError(ValueError):
     """Bad training input (unknown algorithm, malformed hyperparameters, unusable checkpoint)."""
 
 
-# ----------------------------------------------------------------------------- inputs
-def load_hyperparams(algo: str, path: str | Path | None = None) -> dict[str, Any]:
+# ----------------------------------------------------------------------------- hyperparameters
+@dataclass(frozen=True)
+class DQNHyperparams:
+    """``zoo/hyperparams/dqn.toml`` and ``double-dqn.toml`` (the comments there say why each value)."""
+
+    double: bool = param()  # Double DQN target (van Hasselt et al. 2016)
+    seed: int = param(0, 0, 2**32 - 1)
+    steps: int = param(lo=1)  # decision transitions, summed over all rows
+    num_envs: int = param(lo=1, hi=1_000_000)  # rows stepped at once
+    action_repeat: int = param(lo=1, hi=1000)  # core steps each decision is held
+    action_mask: bool = param()  # the mode-transition mask (zoo/learned.py)
+    gamma: float = param(lo=0.0, hi=1.0)  # discount per decision
+    lr: float = param(lo=1e-12, hi=1.0)
+    batch_size: int = param(lo=1)
+    buffer_size: int = param(lo=1)
+    learning_starts: int = param(lo=0)  # transitions in the buffer before the first gradient step
+    train_every: int = param(lo=1)  # core steps per gradient step
+    gradient_steps: int = param(1, 1, 1000)  # gradient steps each time one is due
+    target_update: int = param(lo=1)  # gradient steps between hard target syncs
+    eps_start: float = param(lo=0.0, hi=1.0)
+    eps_end: float = param(lo=0.0, hi=1.0)
+    eps_fraction: float = param(lo=0.0, hi=1.0)  # share of `steps` over which epsilon decays
+    huber_delta: float = param(lo=1e-12)
+    grad_clip: float = param(lo=1e-12)  # max gradient norm
+    hidden: tuple[int, ...] = param(lo=1, hi=65536)  # hidden layer widths
+    dueling: bool = param()  # value + advantage head (Wang et al. 2016)
+    threads: int = param(lo=1, hi=1024)  # torch CPU threads
+    timeout_terminal: bool = param(True)  # a timeout ends the task (no bootstrap), as a crash does
+    log_every: int = param(20000, 1)  # transitions between log.csv rows
+    checkpoint_every: int = param(200000, 1)  # transitions between checkpoints
+    stats_window: int = param(1000, 1)  # episodes in the logged success / crash rates
+
+
+def load_hyperparams(algo: str, path: str | Path | None = None, overrides: dict[str, Any] | None = None
+                     ) -> tuple[DQNHyperparams, str]:
+    """The hyperparameters of ``algo`` (``overrides`` applied through the same checks) and the
+    file's name; :class:`TrainError` naming ``file: key`` for anything unknown, mistyped or out of range."""
     if algo not in ALGORITHMS:
         raise TrainError(f"unknown algorithm {algo!r} (expected one of {', '.join(ALGORITHMS)})")
-    required = {"double", "steps", "num_envs", "action_repeat", "gamma", "lr", "batch_size", "buffer_size",
-                "learning_starts", "train_every", "target_update", "eps_start", "eps_end", "eps_fraction",
-                "huber_delta", "grad_clip", "hidden", "dueling", "action_mask", "threads"}
+    path = Path(path or HYPERPARAMS / f"{algo}.toml")
     try:
-        return read_hyperparams(path or HYPERPARAMS / f"{algo}.toml", required)
-    except ValueError as exc:
+        data = read_toml(path)
+        reject_reward_keys(data, f"hyperparameter file {path}")
+        reject_reward_keys(overrides or {}, "hyperparameter overrides")
+        return load_schema(DQNHyperparams, merged(data, overrides or {}), str(path)), path.name
+    except (HyperparameterError, ValueError) as exc:
         raise TrainError(str(exc)) from None
 
 
-# ----------------------------------------------------------------------------- replay
+# ----------------------------------------------------------------------------- Q-network
+class QNetwork(nn.Module):
+    """MLP Q-network; with ``dueling`` the head splits into value + mean-centred advantages."""
+
+    def __init__(self, obs_dim: int, hidden: list[int] | tuple[int, ...] = (128, 128), dueling: bool = True,
+                 num_actions: int = NUM_MODES) -> None:
+        super().__init__()
+        self.obs_dim, self.hidden, self.dueling = obs_dim, list(hidden), dueling
+        layers: list[nn.Module] = []
+        width = obs_dim
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.ReLU()]
+            width = h
+        self.body = nn.Sequential(*layers)
+        self.head = nn.Linear(width, num_actions + (1 if dueling else 0))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        out = self.head(self.body(obs))
+        if not self.dueling:
+            return out
+        value, adv = out[:, :1], out[:, 1:]
+        return value + adv - adv.mean(dim=1, keepdim=True)
+
+    def to_numpy(self) -> NumpyMLP:
+        """The same network for numpy inference (float64), as exported."""
+        return dqn_net(self.state_dict(), self.dueling)
+
+
+# ----------------------------------------------------------------------------- replay buffer
 class ReplayBuffer:
     """Fixed-size ring of transitions as numpy arrays; inserts and samples are vectorized."""
 
@@ -90,11 +162,10 @@ class ReplayBuffer:
         self.ptr = int((self.ptr + n) % self.capacity)
         self.size = int(min(self.size + n, self.capacity))
 
-    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         idx = rng.integers(0, self.size, batch)
-        return {"obs": torch.from_numpy(self.obs[idx]), "action": torch.from_numpy(self.action[idx]),
-                "reward": torch.from_numpy(self.reward[idx]), "next_obs": torch.from_numpy(self.next_obs[idx]),
-                "done": torch.from_numpy(self.done[idx])}
+        return {"obs": self.obs[idx], "action": self.action[idx], "reward": self.reward[idx],
+                "next_obs": self.next_obs[idx], "done": self.done[idx]}
 
     def state(self) -> dict[str, Any]:
         n = self.size
@@ -108,38 +179,65 @@ class ReplayBuffer:
         self.size, self.ptr = n, int(state["ptr"]) % self.capacity
 
 
-# ----------------------------------------------------------------------------- training
+# ----------------------------------------------------------------------------- acting
+def masked_argmax(q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Row-wise argmax of ``q`` over the modes ``mask`` allows."""
+    if mask is not None:
+        q = q.masked_fill(~mask, float("-inf"))
+    return q.argmax(dim=1)
+
+
+def linear_epsilon(hp: DQNHyperparams, transitions: int) -> float:
+    """Epsilon decays linearly from ``eps_start`` to ``eps_end`` over the first ``eps_fraction`` of the steps."""
+    frac = min(1.0, transitions / max(1.0, hp.eps_fraction * hp.steps))
+    return hp.eps_start + frac * (hp.eps_end - hp.eps_start)
+
+
+# ----------------------------------------------------------------------------- TD target
+def td_targets(online: nn.Module, target: nn.Module, reward: torch.Tensor, next_obs: torch.Tensor,
+               done: torch.Tensor, gamma: float, double: bool, next_mask: torch.Tensor | None = None) -> torch.Tensor:
+    """TD targets. DQN: ``r + gamma * max_a Q_target(s', a)``; Double DQN (van Hasselt et al. 2016):
+    ``r + gamma * Q_target(s', argmax_a Q_online(s', a))`` -- the online net picks, the target net
+    evaluates, which removes the max operator's overestimation bias. ``done`` rows do not bootstrap."""
+    with torch.no_grad():
+        q_next = target(next_obs)
+        if double:
+            best = masked_argmax(online(next_obs), next_mask)
+        else:
+            best = masked_argmax(q_next, next_mask)
+        boot = q_next.gather(1, best[:, None])[:, 0]
+        return reward + gamma * (1.0 - done.float()) * boot
+
+
+# ----------------------------------------------------------------------------- the training loop
 class Trainer:
     """State of one training run; :meth:`run` advances it, :meth:`checkpoint` / :meth:`restore`
     save and reload everything needed to continue (episodes in flight restart on resume)."""
 
-    def __init__(self, algo: str, hp: dict[str, Any], suites: list[Any], seed: int, name: str | None = None) -> None:
+    def __init__(self, algo: str, hp: DQNHyperparams, suites: list[Any], seed: int, name: str | None = None) -> None:
         self.algo, self.hp, self.suites, self.seed = algo, hp, list(suites), int(seed)
         self.train_name = name or "+".join(s.name for s in self.suites)
+        # Seeding: torch for the network's initial weights, numpy for exploration and replay sampling.
         torch.manual_seed(self.seed)
-        torch.set_num_threads(int(hp["threads"]))
+        torch.set_num_threads(hp.threads)
         self.rng = np.random.default_rng(self.seed)
-        try:
-            reject_reward_keys(hp, "hyperparameters")  # also those given as overrides
-        except ValueError as exc:
-            raise TrainError(str(exc)) from None
         self.config = self.suites[0].config  # the observation layout, shared by every training suite
         self.obs_dim = observation_size(self.config)
-        self.net = QNetwork(self.obs_dim, hp["hidden"], hp["dueling"])
+        self.net = QNetwork(self.obs_dim, hp.hidden, hp.dueling)
         self.target = copy.deepcopy(self.net)
-        self.optim = torch.optim.Adam(self.net.parameters(), lr=hp["lr"])
-        self.buffer = ReplayBuffer(hp["buffer_size"], self.obs_dim)
+        self.optim = torch.optim.Adam(self.net.parameters(), lr=hp.lr)
+        self.buffer = ReplayBuffer(hp.buffer_size, self.obs_dim)
         self.transitions = self.core_steps = self.updates = self.episodes = 0
         self.wall = 0.0
-        self.recent: deque[int] = deque(maxlen=int(hp.get("stats_window", 1000)))
+        self.recent: deque[int] = deque(maxlen=hp.stats_window)  # outcomes of the last episodes
         self.last_loss = float("nan")
         self._core_seed = self.seed + 1
 
-    # --- environment
     def _start_core(self) -> None:
+        """The parallel rows: ``num_envs`` split over the training suites, each refilled from its own."""
         pools = [s.scenarios() for s in self.suites]
         sources = [lambda n, rng, pool=pool: pool.take(rng.integers(0, pool.num, n)) for pool in pools]
-        sizes = split_rows(int(self.hp["num_envs"]), len(pools))
+        sizes = split_rows(self.hp.num_envs, len(pools))
         self.core = MixedCore([s.config for s in self.suites], sources, sizes, seed=self._core_seed)
         self.obs = self._features(self.core.observe())
 
@@ -147,58 +245,53 @@ class Trainer:
         return speed_relative(obs, self.config).astype(np.float32)
 
     def epsilon(self) -> float:
-        hp = self.hp
-        frac = min(1.0, self.transitions / max(1.0, hp["eps_fraction"] * hp["steps"]))
-        return hp["eps_start"] + frac * (hp["eps_end"] - hp["eps_start"])
+        return linear_epsilon(self.hp, self.transitions)
 
     def _choose(self, obs: np.ndarray) -> np.ndarray:
-        t = torch.from_numpy(obs)
-        mask = (action_mask(t, self.config) if self.hp["action_mask"]
-                else torch.ones(len(obs), NUM_MODES, dtype=torch.bool))
+        """Epsilon-greedy over the allowed modes: greedy from the online net, random ones uniform."""
+        mask = action_mask(obs, self.config) if self.hp.action_mask else np.ones((len(obs), NUM_MODES), bool)
         with torch.no_grad():
-            greedy = masked_argmax(self.net(t), mask).numpy()
-        # Random modes drawn uniformly among the allowed ones.
-        u = self.rng.random((len(obs), NUM_MODES)) * mask.numpy()
-        rand = np.argmax(u, axis=1)
+            greedy = masked_argmax(self.net(torch.from_numpy(obs)), torch.from_numpy(mask)).numpy()
+        rand = np.argmax(self.rng.random((len(obs), NUM_MODES)) * mask, axis=1)
         explore = self.rng.random(len(obs)) < self.epsilon()
         return np.where(explore, rand, greedy).astype(np.int64)
 
     def _env_step(self) -> int:
-        """One decision of every row, held ``action_repeat`` core steps; returns the core steps taken."""
-        hp = self.hp
+        """One decision of every row, held ``action_repeat`` core steps, stored as transitions;
+        returns the core steps taken."""
         act = self._choose(self.obs)
-        res = hold(self.core, act, int(hp["action_repeat"]))
+        res = hold(self.core, act, self.hp.action_repeat)
         self.core_steps += res.steps
-        reward = res.reward.astype(np.float32)
-        finished = res.finished
         obs = self._features(res.obs)
+        # A row whose episode ended during the hold: its next obs is the final one, not the refill's.
+        finished = res.finished
         next_obs = obs if res.final_obs is None else np.where(finished[:, None], self._features(res.final_obs), obs)
-        done = res.terminated | (res.truncated & bool(hp.get("timeout_terminal", True)))
-        self.buffer.add(self.obs, act, reward, next_obs, done.astype(np.float32))
+        done = res.terminated | (res.truncated & self.hp.timeout_terminal)
+        self.buffer.add(self.obs, act, res.reward.astype(np.float32), next_obs, done.astype(np.float32))
         self.transitions += len(act)
         if finished.any():
-            out = res.final_info["outcome"][finished]
-            self.recent.extend(out.tolist())
+            self.recent.extend(res.final_info["outcome"][finished].tolist())
             self.episodes += int(finished.sum())
         self.obs = obs
         return res.steps
 
-    # --- learning
     def _learn(self) -> None:
+        """One gradient step on a replay batch: Huber loss to the TD target, clipped, Adam."""
         hp = self.hp
-        b = self.buffer.sample(hp["batch_size"], self.rng)
-        next_mask = action_mask(b["next_obs"], self.config) if hp["action_mask"] else None
-        y = td_targets(self.net, self.target, b["reward"], b["next_obs"], b["done"], hp["gamma"], hp["double"],
-                       next_mask)
-        q = self.net(b["obs"]).gather(1, b["action"][:, None])[:, 0]
-        loss = nn.functional.huber_loss(q, y, delta=hp["huber_delta"])
+        b = self.buffer.sample(hp.batch_size, self.rng)
+        next_mask = torch.from_numpy(action_mask(b["next_obs"], self.config)) if hp.action_mask else None
+        obs, action, next_obs = (torch.from_numpy(b[k]) for k in ("obs", "action", "next_obs"))
+        y = td_targets(self.net, self.target, torch.from_numpy(b["reward"]), next_obs, torch.from_numpy(b["done"]),
+                       hp.gamma, hp.double, next_mask)
+        q = self.net(obs).gather(1, action[:, None])[:, 0]
+        loss = nn.functional.huber_loss(q, y, delta=hp.huber_delta)
         self.optim.zero_grad(set_to_none=True)
         loss.backward()
-        nn.utils.clip_grad_norm_(self.net.parameters(), hp["grad_clip"])
+        nn.utils.clip_grad_norm_(self.net.parameters(), hp.grad_clip)
         self.optim.step()
         self.updates += 1
         self.last_loss = float(loss.detach())
-        if self.updates % hp["target_update"] == 0:
+        if self.updates % hp.target_update == 0:  # hard target sync
             self.target.load_state_dict(self.net.state_dict())
 
     def rates(self) -> tuple[float, float]:
@@ -208,11 +301,11 @@ class Trainer:
         return float((a == SUCCESS).mean()), float((a == CRASH).mean())
 
     def run(self, steps: int, out: Path | None = None, progress: bool = True) -> None:
+        """Act, store, learn until ``steps`` transitions; log, checkpoint and show progress on the way."""
         hp = self.hp
         self._start_core()
-        log_every, ckpt_every = int(hp.get("log_every", 20000)), int(hp.get("checkpoint_every", 200000))
-        next_log = (self.transitions // log_every + 1) * log_every
-        next_ckpt = (self.transitions // ckpt_every + 1) * ckpt_every
+        next_log = (self.transitions // hp.log_every + 1) * hp.log_every
+        next_ckpt = (self.transitions // hp.checkpoint_every + 1) * hp.checkpoint_every
         bar = None
         if progress:
             from tqdm import tqdm
@@ -225,15 +318,15 @@ class Trainer:
             before, steps_before = self.transitions, self.core_steps
             self._env_step()
             # A gradient step every `train_every` core steps, as many as the hold spanned.
-            due = self.core_steps // hp["train_every"] - steps_before // hp["train_every"]
-            if self.buffer.size >= hp["learning_starts"]:
-                for _ in range(due * int(hp.get("gradient_steps", 1))):
+            due = self.core_steps // hp.train_every - steps_before // hp.train_every
+            if self.buffer.size >= hp.learning_starts:
+                for _ in range(due * hp.gradient_steps):
                     self._learn()
             self.wall = time.perf_counter() - t0
             if bar is not None and self.transitions > before:
                 bar.update(min(self.transitions, steps) - min(before, steps))
             if self.transitions >= next_log:
-                next_log += log_every
+                next_log += hp.log_every
                 s, c = self.rates()
                 if bar is not None:
                     bar.set_postfix(success=f"{s:.2f}", crash=f"{c:.2f}", eps=f"{self.epsilon():.2f}", refresh=False)
@@ -243,16 +336,16 @@ class Trainer:
                                "epsilon": round(self.epsilon(), 4), "updates": self.updates,
                                "wall_time_s": round(self.wall, 2)})
             if out and self.transitions >= next_ckpt:
-                next_ckpt += ckpt_every
+                next_ckpt += hp.checkpoint_every
                 self.checkpoint(out / "checkpoint.pt")
         if bar is not None:
             bar.close()
         if out:
             self.checkpoint(out / "checkpoint.pt")
 
-    # --- persistence
+    # ------------------------------------------------------------------------- checkpoints
     def checkpoint(self, path: Path) -> None:
-        state = {"algo": self.algo, "hp": self.hp, "seed": self.seed, "net": self.net.state_dict(),
+        state = {"algo": self.algo, "hp": as_dict(self.hp), "seed": self.seed, "net": self.net.state_dict(),
                  "target": self.target.state_dict(), "optim": self.optim.state_dict(),
                  "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
                  "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
@@ -281,11 +374,6 @@ class Trainer:
         self._core_seed = state["core_seed"]  # episodes in flight restart with fresh draws
         self.buffer.load(state["buffer"])
 
-    def decider(self) -> DQNDecider:
-        return DQNDecider(copy.deepcopy(self.net).eval(), name=self.algo, config=self.config,
-                          action_repeat=self.hp["action_repeat"], use_mask=self.hp["action_mask"],
-                          card={"features": FEATURES_VERSION})
-
 
 class _CsvLog:
     FIELDS = ["steps", "episodes", "success_rate", "crash_rate", "loss", "epsilon", "updates", "wall_time_s"]
@@ -303,18 +391,20 @@ class _CsvLog:
         self.f.flush()
 
 
-def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
+# ----------------------------------------------------------------------------- outputs
+def model_card(trainer: Trainer, weights: bytes, hp_file: str, results: dict[str, Any] | None,
                eval_suite: Any) -> dict[str, Any]:
+    """The training card of ``weights`` (the ``.pt``); :func:`~.export.convert` adds the ``.npz``."""
     hp = trainer.hp
     suite_name = trainer.train_name
     return {
         "name": trainer.algo, "version": "1",
-        "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp["double"] else "DQN (Mnih et al. 2015)",
-        "architecture": {"obs_dim": trainer.obs_dim, "hidden": list(hp["hidden"]), "dueling": bool(hp["dueling"]),
+        "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)",
+        "architecture": {"obs_dim": trainer.obs_dim, "hidden": list(hp.hidden), "dueling": hp.dueling,
                          "num_actions": NUM_MODES},
-        "action_repeat": int(hp["action_repeat"]), "action_mask": bool(hp["action_mask"]),
+        "action_repeat": hp.action_repeat, "action_mask": hp.action_mask,
         "action_mask_version": MASK_VERSION,
-        "hyperparameters": {k: v for k, v in hp.items()},
+        "hyperparameters": {"file": hp_file, **as_dict(hp)},
         "training_reward": dataclasses.asdict(trainer.config.reward),
         "features": FEATURES_VERSION,
         "train_suite": suite_name, "train_suites": {s.name: s.hash for s in trainer.suites},
@@ -325,7 +415,7 @@ def model_card(trainer: Trainer, weights: bytes, results: dict[str, Any] | None,
         "eval_suite_hash": eval_suite.hash if eval_suite else None,
         "weights_file": f"{trainer.algo}.pt", "weights_sha256": sha256_bytes(weights),
         "torch": torch.__version__,
-        "reproduce": (f"overtakezoo train {trainer.algo} --suite {suite_name} --steps {hp['steps']} "
+        "reproduce": (f"overtakezoo train {trainer.algo} --suite {suite_name} --steps {hp.steps} "
                       f"--seed {trainer.seed}"),
     }
 
@@ -335,37 +425,34 @@ def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = No
           overrides: dict[str, Any] | None = None, eval_suite: str | None = "table1", progress: bool = True
           ) -> dict[str, Any]:
     """Train ``algo`` and (unless ``eval_suite`` is None) evaluate it; writes ``log.csv``,
-    ``checkpoint.pt``, ``<algo>.pt`` and the model card ``<algo>.json`` into ``out``.
-    Returns the model card (dict)."""
+    ``checkpoint.pt``, ``<algo>.pt``, ``<algo>.npz`` and the model card ``<algo>.json`` into ``out``.
+    ``overrides`` ({"lr": 1e-3}) go through the same checks as the file. Returns the model card (dict)."""
     out_dir = check_writable_dir(out) if out else None  # fail before training, not after it
-    hp = load_hyperparams(algo, hyperparams)
-    hp.update(overrides or {})
-    if steps is not None:
-        hp["steps"] = int(steps)
-    seed = int(hp.get("seed", 0) if seed is None else seed)
-    hp["seed"] = seed
+    hp, hp_file = load_hyperparams(algo, hyperparams, overrides)
+    seed = hp.seed if seed is None else int(seed)
+    hp = dataclasses.replace(hp, steps=hp.steps if steps is None else int(steps), seed=seed)
     trainer = Trainer(algo, hp, load_training(suite), seed, name=suite)
     if resume:
         trainer.restore(resume)
-    trainer.run(int(hp["steps"]), out_dir, progress)
+    trainer.run(hp.steps, out_dir, progress)
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
     weights = buf.getvalue()
-    results, ev, full = None, None, None
+    # The card and the .npz the zoo loads; the evaluation runs what ships: the numpy network.
+    card, npz, net = convert(model_card(trainer, weights, hp_file, None, None), weights, algo)
+    full = None
     if eval_suite:
         ev = load_suite(eval_suite)
-        dec = trainer.decider()
-        dec.config, dec.weights_sha256 = ev.config, sha256_bytes(weights)
-        results, full = evaluate(dec, ev)
-    card = model_card(trainer, weights, results, ev)
+        results, full = evaluate(MLPDecider(net, algo, ev.config, card), ev)
+        card.update({"results": {ev.name: results}, "eval_suite": ev.name, "eval_suite_hash": ev.hash})
     if out_dir:
         atomic_write_bytes(out_dir / f"{algo}.pt", weights)
+        atomic_write_bytes(out_dir / f"{algo}.npz", npz)
         atomic_write_json(out_dir / f"{algo}.json", card)
-        if eval_suite and full is not None:  # the runner's results file, ready for `overtakezoo submit`
+        if full is not None:  # the runner's results file, ready for `overtakezoo submit`
             full.save(out_dir / f"{algo}-{eval_suite}.results.json")
     card["_net"] = trainer.net  # for callers in-process (tests); not serialized
     return card
-
 
 
 def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path | None = None,
@@ -373,7 +460,7 @@ def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path 
     """Re-measure a published decider on ``suite`` (e.g. after a suite or code change); with
     ``write`` the model card's ``results[suite]`` is replaced (the weights, and so their sha256,
     stay as they are)."""
-    from .dqn import PRETRAINED, load_pretrained
+    from .learned import PRETRAINED, load_pretrained
 
     directory = Path(directory) if directory else PRETRAINED
     data = load_suite(suite)

@@ -17,9 +17,15 @@ EPILOG = """examples:
   overtakezoo train double-dqn --suite table1-train --steps 200000 --seed 3 --out runs/ddqn
   overtakezoo train dqn --suite table1-train --out runs/dqn --resume runs/dqn/checkpoint.pt
 
+  overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
+  overtakezoo train ppo --out runs/ppo --set train.select_every=10
+
 Writes into --out: log.csv (steps, episodes, success / crash rate, loss, epsilon, wall time),
-checkpoint.pt (resumable), the weights <algo>.pt and the model card <algo>.json with the
-table1 evaluation. Copy both into zoo/pretrained/ to publish them."""
+checkpoint.pt (resumable), the torch weights <algo>.pt, their numpy export <algo>.npz (what the
+zoo and `eval --policy` load, no torch needed) and the model card <algo>.json with the table1
+evaluation. `python scripts/seed_results.py ALGO RUN... --ship` publishes them into zoo/pretrained/.
+Hyperparameter files and --set values are checked: an unknown key or an out-of-range value is
+one error naming the key."""
 
 
 def register(subparsers: Any) -> None:
@@ -36,6 +42,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint.pt")
     p.add_argument("--hyperparams", default=None, metavar="TOML",
                    help="hyperparameter file (default: zoo/hyperparams/<algorithm>.toml)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+                   help="override a hyperparameter (a TOML value; ppo: SECTION.KEY, e.g. train.steps=1000); "
+                        "repeatable")
     p.add_argument("--eval-suite", default="table1", help="suite evaluated at the end ('none' to skip)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run)
@@ -56,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         card = train(args.algorithm, suite=args.suite, steps=args.steps, seed=args.seed, out=out,
                      resume=args.resume, hyperparams=args.hyperparams, eval_suite=eval_suite,
-                     progress=not args.no_progress)
+                     progress=not args.no_progress, overrides=_overrides(args))
     except TrainError as exc:  # bad hyperparameter file or checkpoint (unknown suites raise UserError)
         raise UserError(str(exc)) from None
     _report(card, out)
@@ -64,20 +73,30 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_ppo(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
-    from overtakezoo.zoo import ppo
+    from overtakezoo.zoo import train_ppo
 
     kwargs: dict[str, Any] = {"suite": args.suite, "steps": args.steps, "out": out, "resume": args.resume,
-                              "eval_suite": eval_suite, "progress": not args.no_progress}
+                              "eval_suite": eval_suite, "progress": not args.no_progress,
+                              "overrides": _overrides(args)}
     if args.seed is not None:
         kwargs["seed"] = args.seed
     if args.hyperparams:
         kwargs["hyperparams"] = args.hyperparams
     try:
-        weights = ppo.train(**kwargs)
+        weights = train_ppo.train(**kwargs)
     except (ValueError, FileNotFoundError) as exc:  # a bad hyperparameter file or checkpoint: one line
         raise UserError(f"ppo: {exc}") from None
     _report(json.loads((weights.parent / "ppo.json").read_text()), out)
     return 0
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    from overtakezoo.zoo.schema import HyperparameterError, parse_overrides
+
+    try:
+        return parse_overrides(args.overrides)
+    except HyperparameterError as exc:
+        raise UserError(str(exc)) from None
 
 
 def _report(card: dict[str, Any], out: Path) -> None:

@@ -1,0 +1,107 @@
+"""Typed hyperparameters (zoo/schema.py): a misspelt key, a wrong type or an out-of-range value in a
+hyperparameter file or a --set override is one `error:` line naming the file and the key, before
+any training starts."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from overtakezoo.benchmark.cli import main
+from overtakezoo.zoo.schema import HyperparameterError, as_dict, load_hyperparams, param, parse_overrides
+from overtakezoo.zoo.train_dqn import HYPERPARAMS, DQNHyperparams
+
+DQN_TOML = (HYPERPARAMS / "dqn.toml").read_text()
+
+
+def one_line_error(capsys, argv):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    return err
+
+
+def train_dqn_with(tmp_path, capsys, old, new, extra=()):
+    assert old in DQN_TOML
+    path = tmp_path / "bad.toml"
+    path.write_text(DQN_TOML.replace(old, new))
+    out = tmp_path / "run"
+    err = one_line_error(capsys, ["train", "dqn", "--hyperparams", str(path), "--out", str(out), "--no-progress",
+                                  *extra])
+    assert not (out / "dqn.pt").exists() and not (out / "log.csv").exists()  # refused before training
+    return err, str(path)
+
+
+@pytest.mark.parametrize("old, new, needle", [
+    ("gamma = 0.99", "gama = 0.99", "gama: unknown key (did you mean 'gamma'?)"),
+    ("stats_window = 1000", "stats_window = 1000\ntime_penality = 0.1", "time_penality: unknown key"),
+    ("gamma = 0.99", "gamma = 1.5", "gamma: 1.5 is out of range [0.0, 1.0]"),
+    ("batch_size = 256", "batch_size = 256.5", "batch_size: expected an integer, got 256.5"),
+    ("hidden = [128, 128]", 'hidden = "big"', "hidden: expected an array, got 'big'"),
+    ("hidden = [128, 128]", "hidden = [128, 0]", "hidden[1]: 0 is out of range"),
+    ("dueling = true", "dueling = 1", "dueling: expected true or false, got 1"),
+    ("lr = 5e-4\n", "", "lr: missing (required)"),
+])
+def test_bad_dqn_hyperparameters_are_one_line_naming_file_and_key(tmp_path, capsys, old, new, needle):
+    err, path = train_dqn_with(tmp_path, capsys, old, new)
+    assert needle in err and path in err, err
+
+
+def test_a_reward_in_the_hyperparameters_is_refused_with_the_reason(tmp_path, capsys):
+    err, _ = train_dqn_with(tmp_path, capsys, "stats_window = 1000", "stats_window = 1000\ntime_penalty = 0.1")
+    assert "'time_penalty' is not a training setting" in err
+
+
+def test_set_overrides_go_through_the_same_checks(tmp_path, capsys):
+    out = str(tmp_path / "run")
+    err = one_line_error(capsys, ["train", "dqn", "--set", "gama=0.9", "--out", out])
+    assert "gama: unknown key (did you mean 'gamma'?)" in err
+    err = one_line_error(capsys, ["train", "dqn", "--set", "eps_end=2", "--out", out])
+    assert "eps_end: 2 is out of range" in err
+    assert "expected KEY=VALUE" in one_line_error(capsys, ["train", "dqn", "--set", "gamma", "--out", out])
+    assert parse_overrides(["hidden=[64, 64]", "train.steps=10", "schedule=fixed"]) == {
+        "hidden": [64, 64], "train": {"steps": 10}, "schedule": "fixed"}
+
+
+@pytest.mark.parametrize("section, old, new, needle", [
+    ("train", "select_every = 20", "select_evry = 20", "train.select_evry: unknown key (did you mean 'select_every'?)"),
+    ("env", "num_envs = 256", "num_envs = 0", "env.num_envs: 0 is out of range"),
+    ("runner", "save_interval = 50", "save_intervall = 50", "runner.save_intervall: unknown key"),
+    ("algorithm", "lam = 0.95", "lamda = 0.95", "algorithm.lamda: unknown key (did you mean 'lam'?)"),
+    ("actor", 'activation = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]',
+     'activaton = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]', "actor.activaton: unknown key"),
+])
+def test_bad_ppo_hyperparameters_are_one_line_naming_section_and_key(tmp_path, capsys, section, old, new, needle):
+    pytest.importorskip("rsl_rl")
+    from overtakezoo.zoo.train_ppo import HYPERPARAMS as PPO_TOML
+
+    text = PPO_TOML.read_text()
+    assert old in text, old
+    path = tmp_path / "ppo.toml"
+    path.write_text(text.replace(old, new, 1))
+    out = tmp_path / "run"
+    err = one_line_error(capsys, ["train", "ppo", "--hyperparams", str(path), "--out", str(out), "--no-progress"])
+    assert needle in err and str(path) in err, err
+    assert not (out / "ppo.pt").exists()
+
+
+def test_shipped_hyperparameter_files_load_and_round_trip():
+    for algo in ("dqn", "double-dqn"):
+        hp = load_hyperparams(DQNHyperparams, HYPERPARAMS / f"{algo}.toml")
+        assert hp.double == (algo == "double-dqn") and hp.hidden == (128, 128)
+        assert load_hyperparams(DQNHyperparams, as_dict(hp)) == hp
+
+
+def test_schema_helper_for_other_trainers():
+    @dataclasses.dataclass(frozen=True)
+    class Tiny:
+        epochs: int = param(lo=1)
+        beta: float = param(0.5, 0.0, 1.0)
+        kind: str = param("bc", choices=("bc", "cql"))
+
+    assert load_hyperparams(Tiny, {"epochs": 3}) == Tiny(epochs=3, beta=0.5, kind="bc")
+    with pytest.raises(HyperparameterError, match=r"^offline.toml: kind: 'x' is not one of 'bc', 'cql'$"):
+        load_hyperparams(Tiny, {"epochs": 3, "kind": "x"}, "offline.toml")
+    with pytest.raises(HyperparameterError, match="epochs: missing"):
+        load_hyperparams(Tiny, {}, "offline.toml")

@@ -1,0 +1,166 @@
+"""The learned members at inference (dqn, double-dqn, ppo): a numpy MLP over the observation.
+
+One decider for every learned member: the network's scores (Q-values for dqn / double-dqn, policy
+logits for ppo) over follow / overtake / abort, argmax over the modes the action mask allows. No
+torch here (it is for training only, :mod:`.train_dqn`, :mod:`.train_ppo`): the weights are a
+``.npz`` (:mod:`.mlp`) beside a model card ``<name>.json`` that holds the architecture, the input
+features, the action repeat and mask, the provenance and the sha256 of the ``.npz``; loading
+refuses a file whose hash differs (truncated, modified) with :class:`WeightsError`. Inference is in
+float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
+argmax; in float64 a result does not depend on how rows happen to be batched.
+
+**Action mask** (a mode-transition rule of the DQN members, the same in training and evaluation):
+ABORT is only offered while the current mode is OVERTAKE or ABORT (from follow there is nothing to
+abort), and FOLLOW only while the mode is FOLLOW or the ego is back inside its own lane. Out in the
+opposite lane the way back is ABORT, which merges only once the lane beside the ego is clear;
+FOLLOW there forces the centre rollout at once and cuts into the lead (what the unmasked network
+learned to do in its few crashes). Version 3 also carries an abort through: while aborting outside
+its lane the ego may not resume the overtake (abort / overtake flip-flops were the next crash cause).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
+
+from .base import Decider
+from .common import WeightsError, read_card, read_verified
+from .features import FEATURES_VERSION, speed_relative
+from .mlp import NumpyMLP, read_npz
+
+PRETRAINED = Path(__file__).resolve().parent / "pretrained"
+NUM_MODES = 3
+# The ego is inside its own lane while |y| / lane width is below this (car 1.82 m in a 3.5 m lane).
+IN_LANE = 0.25
+MASK_VERSION = 3
+
+
+def action_mask(obs: np.ndarray, config: EnvConfig, version: int = MASK_VERSION) -> np.ndarray:
+    """(N, 3) bool: which modes a row may choose. ABORT only while overtaking or aborting; FOLLOW
+    only from FOLLOW or with the ego inside its own lane; (version >= 3) OVERTAKE not while an
+    abort is still bringing the ego back to its lane. Reads the observation's (or the
+    speed-relative features', which keep these columns) mode one-hot and lateral offset."""
+    obs = np.asarray(obs)
+    layout = observation_layout(config)
+    mode = obs[:, layout["mode"]]
+    in_follow, in_abort = mode[:, FOLLOW] > 0.5, mode[:, ABORT] > 0.5
+    in_lane = np.abs(obs[:, layout["ego"]][:, 2]) < IN_LANE  # y / lane width
+    mask = np.ones((obs.shape[0], NUM_MODES), bool)
+    mask[:, ABORT] = ~in_follow
+    mask[:, FOLLOW] = in_follow | in_lane
+    if version >= 3:
+        mask[:, OVERTAKE] = ~in_abort | in_lane
+    return mask
+
+
+def masked_argmax(scores: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """Row-wise argmax over the allowed modes (the first on ties, as torch's and numpy's argmax)."""
+    if mask is not None:
+        scores = np.where(mask, scores, -np.inf)
+    return np.argmax(scores, axis=1).astype(np.int64)
+
+
+def load_weights(weights: str | Path, card: dict[str, Any], who: str | None = None) -> NumpyMLP:
+    """The network in ``weights`` (.npz) described by ``card``, after checking its sha256."""
+    weights, who = Path(weights), who or str(card.get("name", "decider"))
+    data = read_verified(weights, card, who)
+    arch = card.get("architecture") or {}
+    try:
+        net = NumpyMLP.from_arrays(read_npz(data), arch.get("activation", "relu"), bool(arch.get("dueling", False)))
+    except Exception as exc:  # a hash-matching but unusable file: one line, not a traceback
+        raise WeightsError(f"{who}: weights {weights.name}: cannot load ({type(exc).__name__}: {exc})") from None
+    if "obs_dim" in arch and net.in_features != arch["obs_dim"]:
+        raise WeightsError(f"{who}: weights {weights.name} take {net.in_features} features, the model card says "
+                           f"{arch['obs_dim']}")
+    return net
+
+
+class MLPDecider(Decider):
+    """A learned member: argmax of the network's scores over the allowed modes (each decision held
+    ``action_repeat`` core steps by the runner)."""
+
+    privileged = False
+
+    def __init__(self, net: NumpyMLP, name: str, config: EnvConfig | None = None,
+                 card: dict[str, Any] | None = None) -> None:
+        super().__init__(config)
+        if net.in_features != observation_size(self.config):
+            raise WeightsError(f"{name}: network expects {net.in_features} observation features, the configuration "
+                               f"gives {observation_size(self.config)} (different planner/observation settings)")
+        if net.out_features != NUM_MODES:
+            raise WeightsError(f"{name}: network gives {net.out_features} scores, expected {NUM_MODES}")
+        self.net, self.name = net, name
+        self.model_card = card = card or {}
+        self.version = str(card.get("version", "1"))
+        self.weights_sha256 = card.get("weights_sha256")
+        self.action_repeat = int(card.get("action_repeat", 1))
+        self.use_mask = bool(card.get("action_mask", False))
+        self.mask_version = int(card.get("action_mask_version", MASK_VERSION))
+        self.features = card.get("features")  # None: the raw observation (weights from before the features)
+        if self.features not in (None, FEATURES_VERSION):
+            raise WeightsError(f"{name}: unknown input features {self.features!r} (this version has "
+                               f"{FEATURES_VERSION!r})")
+
+    def scores(self, obs: np.ndarray) -> np.ndarray:
+        """(N, D) observations -> (N, 3) float64 Q-values (dqn) or logits (ppo)."""
+        x = np.asarray(obs, np.float64)
+        return self.net(speed_relative(x, self.config) if self.features else x)
+
+    q_values = logits = scores
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        """Argmax over the allowed modes (stateless: the hold is the runner's)."""
+        mask = action_mask(obs, self.config, self.mask_version) if self.use_mask else None
+        return masked_argmax(self.scores(obs), mask)
+
+    def card(self) -> str:
+        return describe(self.name, self.model_card)
+
+
+def describe(name: str, c: dict[str, Any]) -> str:
+    """The model card in a few lines."""
+    if not c:
+        return f"{name}: an untrained network."
+    a, hp = c.get("architecture", {}), c.get("hyperparameters", {})
+    hidden = a.get("hidden", a.get("hidden_dims"))
+    if a.get("kind") == "policy" or name == "ppo":
+        what = (f"{name} ({c.get('algorithm', 'PPO')}, {c.get('library', 'rsl-rl-lib')} "
+                f"{c.get('library_version', '')}): MLP {hidden} {a.get('activation')} actor over the "
+                f"{a.get('obs_dim')}-feature input, categorical over the 3 modes (argmax at test time)")
+    else:
+        version = int(c.get("action_mask_version", MASK_VERSION))
+        what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden}{' dueling' if a.get('dueling') else ''} "
+                f"Q-network over the {a.get('obs_dim')}-feature input"
+                + (f"; mode-transition mask v{version} (abort only from overtake, follow only from follow or "
+                   f"in lane{', aborts carried through' if version >= 3 else ''})" if c.get("action_mask") else ""))
+    suite = c.get("train_suite", "?")
+    suite = suite.get("name", "?") if isinstance(suite, dict) else suite
+    lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.",
+             f"  trained on {suite}, {c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, "
+             f"{c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')})."]
+    res = c.get("results", {}).get("table1") or {}
+    if res:
+        lines.append(f"  table1: success {100 * res['success_rate']:.1f} % "
+                     f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], crash "
+                     f"{100 * res['crash_rate']:.1f} % [{100 * res['crash_ci'][0]:.1f}, "
+                     f"{100 * res['crash_ci'][1]:.1f}] ({res['success']} successes, {res['crash']} crashes "
+                     f"of {res['count']}).")
+    lines.append(f"  weights sha256 {str(c.get('weights_sha256'))[:16]}...; reproduce: {c.get('reproduce', '?')}")
+    if c.get("selection_note"):
+        lines.append(f"  {c['selection_note']}")
+    return "\n".join(lines)
+
+
+def from_card(name: str, card: dict[str, Any], weights: str | Path, config: EnvConfig | None = None) -> MLPDecider:
+    return MLPDecider(load_weights(weights, card, name), name, config, card)
+
+
+def load_pretrained(name: str, config: EnvConfig | None = None, directory: str | Path | None = None) -> MLPDecider:
+    """The committed ``<name>.json`` and the ``.npz`` it names, from ``zoo/pretrained`` (or ``directory``)."""
+    directory = Path(directory) if directory else PRETRAINED
+    card = read_card(directory / f"{name}.json", name)
+    return from_card(name, card, directory / Path(card.get("weights_file") or f"{name}.npz").name, config)

@@ -1,0 +1,327 @@
+"""PPO training with rsl-rl-lib's ``OnPolicyRunner`` (the ``ppo`` member; acting is :mod:`.ppo`).
+
+Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.rsl_rl_env.OvertakeRslRlEnv`
+with our categorical action distribution (:mod:`overtakezoo.zoo.categorical`) plugged in through
+``actor.distribution_cfg["class_name"]``. The hyperparameters are data (``zoo/hyperparams/ppo.toml``),
+typed by :class:`PPOHyperparams`: ``[train]`` and ``[env]`` are ours; ``[runner]``, ``[algorithm]``,
+``[actor]``, ``[critic]`` go to rsl-rl as they are, their keys checked against what rsl-rl reads.
+
+Outputs: ``ppo.pt`` holds the actor's ``state_dict`` and the rsl-rl model settings needed to rebuild
+it (a plain dict, read with ``torch.load(weights_only=True)``); :func:`overtakezoo.zoo.export.export`
+turns it into ``ppo.npz``, and the model card ``ppo.json`` names both with their sha256.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import csv
+import dataclasses
+import inspect
+import io
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from overtakezoo.benchmark.suites import load_training
+from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
+from overtakezoo.envs.io import atomic_path, atomic_write_bytes, atomic_write_json, check_writable_dir
+
+from .base import Decider
+from .common import evaluate, reject_reward_keys, sha256_bytes
+from .export import export
+from .features import FEATURES_VERSION, speed_relative
+from .learned import load_pretrained
+from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, param, read_toml, unknown_key
+
+os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
+
+HERE = Path(__file__).resolve().parent
+HYPERPARAMS = HERE / "hyperparams" / "ppo.toml"
+WEIGHTS_FORMAT = "overtakezoo-ppo/1"
+NUM_MODES = 3
+
+
+# ----------------------------------------------------------------------------- hyperparameters
+@dataclass(frozen=True)
+class TrainSection:
+    steps: int = param(lo=1)  # decisions (env steps: num_envs * num_steps_per_env per iteration)
+    threads: int = param(1, 1, 1024)  # torch CPU threads
+    checkpoint_every: int = param(lo=1)  # iterations between checkpoints
+    select_every: int = param(0, 0)  # iterations between model-selection runs (0: none, keep the last)
+    select_scenarios: int = param(500, 1)  # training scenarios the greedy policy is scored on
+
+
+@dataclass(frozen=True)
+class EnvSection:
+    num_envs: int = param(lo=1, hi=1_000_000)
+    bootstrap_timeouts: bool = param(True)
+    action_repeat: int = param(1, 1, 1000)
+
+
+@dataclass(frozen=True)
+class PPOHyperparams:
+    train: TrainSection = param()
+    env: EnvSection = param()
+    runner: dict[str, Any] = param()
+    algorithm: dict[str, Any] = param()
+    actor: dict[str, Any] = param()
+    critic: dict[str, Any] = param()
+
+
+# [runner] keys rsl-rl-lib 5.5's OnPolicyRunner and its logger read (it ignores any other key).
+RUNNER_KEYS = ("num_steps_per_env", "save_interval", "obs_groups", "check_for_nan", "logger", "wandb_project",
+               "neptune_project", "run_name", "torch_compile_mode")
+# Constructor arguments rsl-rl fills itself (not settings of a hyperparameter file).
+_SUPPLIED = {"self", "actor", "critic", "storage", "device", "multi_gpu_cfg", "obs", "obs_groups", "obs_set",
+             "output_dim"}
+
+
+def load_hyperparams(path: str | Path | None = None, overrides: dict[str, Any] | None = None
+                     ) -> tuple[PPOHyperparams, str]:
+    """The hyperparameters (``overrides`` applied, tables merged) and the file's name; one
+    :class:`HyperparameterError` naming ``file: section.key`` for anything unknown or out of range."""
+    from .schema import merged
+
+    path = Path(path or HYPERPARAMS)
+    data = merged(read_toml(path), overrides or {})
+    reject_reward_keys(data, f"hyperparameter file {path}")
+    hp = load_schema(PPOHyperparams, data, str(path))
+    check_rsl_rl_keys(hp, str(path))
+    return hp, path.name
+
+
+def check_rsl_rl_keys(hp: PPOHyperparams, where: str) -> None:
+    """Refuse keys rsl-rl would ignore ([runner]) or fail on later ([algorithm], [actor], [critic]:
+    the keyword arguments of the classes they name), naming the key."""
+    for key in hp.runner:
+        if key not in RUNNER_KEYS:
+            raise HyperparameterError(f"{where}: runner.{key}: {unknown_key(key, RUNNER_KEYS)}")
+    from rsl_rl.utils import resolve_callable
+
+    for section in ("algorithm", "actor", "critic"):
+        cfg = getattr(hp, section)
+        if "class_name" not in cfg:
+            raise HyperparameterError(f"{where}: {section}.class_name: missing (required)")
+        try:
+            cls = resolve_callable(cfg["class_name"])
+        except Exception as exc:
+            raise HyperparameterError(f"{where}: {section}.class_name: {cfg['class_name']!r} cannot be resolved "
+                                      f"({type(exc).__name__}: {exc})") from None
+        params = inspect.signature(cls).parameters
+        if any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            continue  # the class takes any keyword
+        known = ["class_name", *(n for n in params if n not in _SUPPLIED)]
+        for key in cfg:
+            if key not in known:
+                raise HyperparameterError(f"{where}: {section}.{key}: {unknown_key(key, known)}")
+
+
+def train_cfg(hp: PPOHyperparams) -> dict[str, Any]:
+    """rsl-rl's ``train_cfg`` from the hyperparameter sections (deep-copied: rsl-rl edits it)."""
+    cfg = copy.deepcopy(hp.runner)
+    for key in ("algorithm", "actor", "critic"):
+        cfg[key] = copy.deepcopy(getattr(hp, key))
+    return cfg
+
+
+# ----------------------------------------------------------------------------- policy
+def build_actor(obs_dim: int, actor_cfg: dict[str, Any]) -> torch.nn.Module:
+    """rsl-rl's ``MLPModel`` as the runner builds it (one observation group, one action column)."""
+    from rsl_rl.utils import resolve_class
+
+    cls, kwargs = resolve_class(actor_cfg)
+    obs = TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
+    return cls(obs, {"actor": ["policy"]}, "actor", 1, **kwargs)
+
+
+def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]) -> bytes:
+    buf = io.BytesIO()
+    torch.save({"format": WEIGHTS_FORMAT, "obs_dim": obs_dim, "actor_cfg": actor_cfg,
+                "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()}}, buf)
+    return buf.getvalue()
+
+
+class TorchPolicy(Decider):
+    """The actor being trained, acting greedily (float32, through torch) for model selection."""
+
+    name = "ppo"
+
+    def __init__(self, actor: torch.nn.Module, config: EnvConfig, action_repeat: int) -> None:
+        super().__init__(config)
+        self.actor, self.action_repeat = actor.eval(), int(action_repeat)
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        x = speed_relative(np.asarray(obs), self.config)
+        with torch.inference_mode():
+            x = self.actor.obs_normalizer(torch.as_tensor(x, dtype=torch.float32))
+            return self.actor.mlp(x).numpy().argmax(axis=1).astype(np.int64)
+
+
+# ----------------------------------------------------------------------------- evaluation
+def rollout(decider: Decider, config: EnvConfig, scenarios: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every scenario run to its end under ``decider`` (one batch, each decision held as the runner
+    holds it): outcome, crash lane, completion time."""
+    from overtakezoo.envs.hold import hold, hold_steps
+
+    core = OvertakeCore(config)
+    obs = core.reset(scenarios)
+    decider.reset()
+    steps = hold_steps(config.decision_interval, decider.action_repeat)
+    while not core.done.all():
+        obs = hold(core, decider.act(obs), steps).obs
+    return core.outcome, core.crash_lane, core.stats["completion_time"]
+
+
+def greedy_score(decider: Decider, sets: list[tuple[EnvConfig, Any]]) -> float:
+    """Success rate minus crash rate of ``decider`` over ``(config, scenarios)`` sets, each set
+    weighted equally (model selection over a mixture of suites)."""
+    scores = []
+    for config, scenarios in sets:
+        decider.config = config
+        outcome, _, _ = rollout(decider, config, scenarios)
+        scores.append(np.mean(outcome == SUCCESS) - np.mean(outcome == CRASH))
+    return float(np.mean(scores))
+
+
+# ----------------------------------------------------------------------------- training
+def make_runner(env: Any, hp: dict[str, Any]) -> Any:
+    from rsl_rl.runners import OnPolicyRunner
+
+    with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the models and observation sets
+        return OnPolicyRunner(env, train_cfg(hp), log_dir=None, device="cpu")
+
+
+def _library_version() -> str:
+    from importlib.metadata import version
+
+    return version("rsl-rl-lib")
+
+
+def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, out: str | Path | None = None,
+          resume: str | Path | None = None, progress: bool = True, hyperparams: str | Path | None = None,
+          eval_suite: str | None = "table1", overrides: dict[str, Any] | None = None) -> Path:
+    """Train PPO on ``suite`` (one suite, ``a+b``, or a mixture such as ``core-train``) for ``steps``
+    transitions (decisions); write ``out/ppo.pt``, its export ``out/ppo.npz`` and the model card
+    ``out/ppo.json`` (with ``eval_suite`` results), ``out/train_log.csv`` and ``out/checkpoints/``.
+    ``resume`` continues from a checkpoint; ``overrides`` ({"train": {"steps": ...}}) go through the
+    same checks as the file. Returns the path of the torch weights file."""
+    from overtakezoo.envs.mixture import MixedCore, split_rows
+    from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv, pool_source
+
+    hp, hp_file = load_hyperparams(hyperparams, overrides)
+    steps = int(steps if steps is not None else hp.train.steps)
+    out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
+    check_writable_dir(out / "checkpoints")  # fail before training, not after it
+    torch.set_num_threads(hp.train.threads)
+    torch.manual_seed(seed)
+    suites = load_training(suite)
+    config = suites[0].config  # the observation layout, shared by every training suite
+    pools = [s.scenarios() for s in suites]
+    meta = {"name": suite, "suites": {s.name: s.hash for s in suites}}
+    num_envs = hp.env.num_envs
+    repeat = hp.env.action_repeat
+    core = MixedCore([s.config for s in suites], [pool_source(p) for p in pools], split_rows(num_envs, len(pools)),
+                     seed=seed)
+    env = OvertakeRslRlEnv(num_envs, config, seed=seed, core=core, transform=lambda o: speed_relative(o, config),
+                           bootstrap_timeouts=hp.env.bootstrap_timeouts, action_repeat=repeat)
+    # Model selection: the greedy (argmax) policy on the first scenarios of each training suite.
+    select_every = hp.train.select_every
+    per_suite = max(1, hp.train.select_scenarios // len(suites))
+    select_sets = [(s.config, p.take(np.arange(min(per_suite, p.num)))) for s, p in zip(suites, pools)]
+    selected = sum(sc.num for _, sc in select_sets)
+    best: dict[str, Any] = {"score": -np.inf, "iteration": None, "state": None}
+    runner = make_runner(env, hp)
+    per_iter = num_envs * int(hp.runner["num_steps_per_env"])
+    iterations = max(1, math.ceil(steps / per_iter))
+    start_it, wall_before = 0, 0.0
+    if resume is not None:
+        infos = runner.load(str(resume), map_location="cpu") or {}
+        start_it, wall_before = int(infos.get("iterations", 0)), float(infos.get("wall_time_s", 0.0))
+        best = infos.get("best", best)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it")
+    log_path = out / "train_log.csv"
+    new_log = resume is None or not log_path.exists()
+    t0 = time.perf_counter()
+    with open(log_path, "w" if new_log else "a", newline="") as f:
+        log = csv.writer(f)
+        if new_log:
+            log.writerow(["iteration", "env_steps", "wall_s", "episodes", "success_rate", "crash_rate",
+                          "crash_ego_lane_rate", "crash_opposite_lane_rate", "timeout_rate", "learning_rate"])
+        for it in range(start_it, iterations):
+            before = dict(env.episode_counts)
+            runner.learn(1)
+            runner.current_learning_iteration = it + 1  # learn(1) does not advance it past the last iteration
+            wall = wall_before + time.perf_counter() - t0
+            done = {k: v - before.get(k, 0) for k, v in env.episode_counts.items()}
+            eps = max(done.get("episodes", 0), 1)
+            rates = {k: done.get(k, 0) / eps for k in ("success", "crash", "crash_ego_lane",
+                                                          "crash_opposite_lane", "timeout")}
+            log.writerow([it + 1, (it + 1) * per_iter, f"{wall:.1f}", done.get("episodes", 0)]
+                         + [f"{rates[k]:.4f}" for k in rates] + [f"{runner.alg.learning_rate:.2e}"])
+            f.flush()
+            if bar is not None:
+                bar.set_postfix(success=f"{rates['success']:.2f}", crash=f"{rates['crash']:.2f}")
+                bar.update(1)
+            if select_every and ((it + 1) % select_every == 0 or it + 1 == iterations):
+                policy = runner.alg.get_policy()
+                score = greedy_score(TorchPolicy(policy, config, repeat), select_sets)
+                runner.alg.train_mode()  # the decider switched the shared actor to eval mode
+                if score > best["score"]:
+                    best = {"score": score, "iteration": it + 1,
+                            "state": {k: v.detach().clone() for k, v in policy.state_dict().items()}}
+                if bar is not None:
+                    bar.write(f"iteration {it + 1}: greedy success - crash on {selected} training "
+                              f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})")
+            if (it + 1) % hp.train.checkpoint_every == 0 or it + 1 == iterations:
+                with atomic_path(out / "checkpoints" / f"ppo_{it + 1:05d}.pt") as tmp:  # complete or absent
+                    runner.save(str(tmp), infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed,
+                                                 "suite": meta, "best": best})
+    if bar is not None:
+        bar.close()
+    wall = wall_before + time.perf_counter() - t0
+
+    actor = runner.get_inference_policy("cpu")
+    if best["state"] is not None:
+        actor.load_state_dict(best["state"])
+    blob = weights_blob(actor, observation_size(config), hp.actor)
+    card = {
+        "name": "ppo", "version": "1", "algorithm": "PPO (clipped surrogate, GAE, adaptive KL learning rate)",
+        "library": "rsl-rl-lib OnPolicyRunner", "library_version": _library_version(),
+        "torch_version": torch.__version__,
+        "features": FEATURES_VERSION,
+        "architecture": {"obs_dim": observation_size(config), "hidden_dims": hp.actor["hidden_dims"],
+                         "activation": hp.actor["activation"], "num_modes": NUM_MODES,
+                         "distribution": hp.actor["distribution_cfg"]["class_name"]},
+        "hyperparameters": {"file": hp_file, **as_dict(hp)},
+        "action_repeat": repeat, "training_reward": dataclasses.asdict(env.cfg.reward),
+        "train_suite": meta, "steps": iterations * per_iter, "steps_unit": "decisions (env steps)",
+        "iterations": iterations, "seed": seed,
+        "selection": {"rule": "greedy success rate minus crash rate on the first training scenarios",
+                      "scenarios": selected, "every": select_every, "iteration": best["iteration"],
+                      "score": None if best["state"] is None else round(best["score"], 4)},
+        "wall_time_s": round(wall, 1), "weights_sha256": sha256_bytes(blob), "weights_bytes": len(blob),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "results": {},
+    }
+    weights = out / "ppo.pt"
+    atomic_write_bytes(weights, blob)
+    atomic_write_json(out / "ppo.json", card)
+    export(out, out, "ppo")  # ppo.npz, and the card naming it: what the zoo and `eval --policy` load
+    if eval_suite:  # measured with what ships: the numpy actor
+        decider = load_pretrained("ppo", config, out)
+        card = decider.model_card
+        card["results"][eval_suite] = evaluate(decider, eval_suite, progress=progress)[0]
+        atomic_write_json(out / "ppo.json", card)
+    return weights
