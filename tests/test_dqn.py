@@ -168,21 +168,18 @@ def test_decider_is_stateless_and_declares_its_hold_for_the_runner(learned_dir):
     assert [dec.act(o) for o in obs] == first.tolist()  # one observation (D,) -> int
 
 
-def _success(net_or_card, algo, suite):
+def _score(net_or_card, algo, suite):
+    """Success rate - 2 x crash rate (the OvertakeZoo score's per-suite term) on table1's first 200."""
     from overtakezoo.zoo.common import evaluate
     from overtakezoo.zoo.train_dqn import load_hyperparams
 
     hp, _ = load_hyperparams(algo)
     dec = DQNDecider(net_or_card.to_numpy(), algo, suite.config,
                      {"action_repeat": hp.action_repeat, "action_mask": True, "features": FEATURES_VERSION})
-    return evaluate(dec, suite, limit=200)[0]["success_rate"]  # table1's first 200 scenarios
+    summary = evaluate(dec, suite, limit=200)[0]
+    return summary["success_rate"] - 2 * summary["crash_rate"]
 
 
-# Measured after observation v2 (33 features): the untrained net (seed 0) overtakes and passes 52 % of
-# table1's first 200 scenarios, the 20k-step net 3 % (it mostly waits: 55 % timeouts); on main the
-# same holds with the raw-observation input. Not a loading or export question: left to the trainer.
-@pytest.mark.xfail(reason="after observation v2 a 20k-step dqn no longer beats the untrained net on table1",
-                   strict=False)
 def test_short_training_beats_an_untrained_network(tmp_path):
     from overtakezoo.zoo.train_dqn import load_hyperparams, train
 
@@ -190,13 +187,15 @@ def test_short_training_beats_an_untrained_network(tmp_path):
     hp, _ = load_hyperparams("dqn")
     untrained = QNetwork(observation_size(EnvConfig()), hp.hidden, hp.dueling)
     scen = load_suite("table1")
-    base = _success(untrained, "dqn", scen)
-    # ~6 s of CPU: the untrained net follows forever (0 %), this one passes about half the time.
-    card = train("dqn", steps=20000, seed=0, out=tmp_path, eval_suite=None, progress=False,
+    base = _score(untrained, "dqn", scen)
+    # Measured: the untrained net (seed 0) overtakes blindly (52 % success, 48 % crash: score -0.44);
+    # 40k steps on table1-train pass about half and crash about 1 % (score ~ +0.44). 20k steps are
+    # not enough with the speed-relative features (the net still mostly waits).
+    card = train("dqn", steps=40000, seed=0, out=tmp_path, eval_suite=None, progress=False,
                  overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 10000,
                             "log_every": 5000})
-    trained = _success(card["_net"], "dqn", scen)
-    assert trained > base + 0.2, (base, trained)
+    trained = _score(card["_net"], "dqn", scen)
+    assert trained > base + 0.5, (base, trained)
     log = (tmp_path / "log.csv").read_text().splitlines()
     assert log[0].startswith("steps,episodes,success_rate,crash_rate,loss,epsilon")
     assert (tmp_path / "checkpoint.pt").is_file() and (tmp_path / "dqn.json").is_file()
