@@ -2,8 +2,9 @@
 
 Layout (all float32, O(1) after scaling):
 
-- ego (5): speed, yaw rate, lateral offset / lane width, distance from the front to the goal, the
-  speed limit (the road's scale: what a decider needs to read speeds and gaps relative to it);
+- ego (6): speed, yaw rate, lateral offset / lane width, distance from the front to the goal, the
+  speed limit and the sensor range (the road's scale and how far the ego can see: what a decider
+  needs to read speeds and gaps relative to the road, and to know what an empty slot means);
 - mode (3): one-hot of the current mode;
 - planner (n + 1): 1 where the shared planner marks a rollout blocked (what OpenPlanner's own
   behaviour selector sees);
@@ -24,7 +25,7 @@ from .config import EnvConfig
 if TYPE_CHECKING:
     from .core import OvertakeCore
 
-EGO_FEATURES = 5
+EGO_FEATURES = 6
 SLOT_FEATURES = 5
 
 
@@ -61,6 +62,7 @@ def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
     out[2] = y / lane_width
     out[3] = (E["goal_s"][sel] - core.x[sel] - E["ego_length"][sel] / 2) / oc.position_scale
     out[4] = E["speed_limit"][sel] / oc.speed_scale
+    out[5] = E["sensor_range"][sel] / oc.position_scale
     out[EGO_FEATURES + core.mode[sel], xp.arange(n)] = 1.0
     r = cfg.planner.num_rollouts + 1
     if core.last_plan is not None and core.last_plan.blocked.shape[0] == core.num:

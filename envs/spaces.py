@@ -73,9 +73,9 @@ def ego_observation_space(cfg: EnvConfig, npc_agents: bool | None = None) -> spa
     yaw = lim.v * math.tan(pc.max_steer) / pc.wheelbase
     ego_front = d.ego_length / 2
     low = [0.0, -yaw, lim.y_lo / d.lane_width, (d.goal - lim.x_hi - ego_front) / oc.position_scale,
-           d.speed_limit / oc.speed_scale]
+           d.speed_limit / oc.speed_scale, d.sensor_range / oc.position_scale]
     high = [lim.v / oc.speed_scale, yaw, lim.y_hi / d.lane_width, (d.goal - lim.x_lo - ego_front) / oc.position_scale,
-            d.speed_limit / oc.speed_scale]
+            d.speed_limit / oc.speed_scale, d.sensor_range / oc.position_scale]
     flags = 3 + pc.num_rollouts + 1  # mode one-hot and blocked flags
     low += [0.0] * flags
     high += [1.0] * flags

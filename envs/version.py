@@ -7,4 +7,4 @@ version are shown as stale. ``tests/test_sim_version.py`` pins reference traject
 behaviour change fails.
 """
 
-SIM_VERSION = 2  # 2: the observation gained the speed limit (ego feature 4)
+SIM_VERSION = 2  # 2: the observation gained the speed limit and the sensor range (ego features 4, 5)

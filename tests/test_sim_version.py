@@ -25,7 +25,7 @@ REFERENCE = {
                             "ae569e52e41398326f8ef65b49648d523b46bd42ae64968b8b6ccf5e6e137067"),
     },
 }
-# 2: the observation gained the speed limit; the rule deciders' trajectories are those of version 1.
+# 2: the observation gained the speed limit and the sensor range; the rule deciders' trajectories are those of version 1.
 REFERENCE[2] = REFERENCE[1]
 SCENARIOS = 6  # table1-reactive scenarios 0..5
 

@@ -4,7 +4,8 @@ The env's observation scales speeds and distances by fixed constants (``observat
 ``position_scale``), chosen for table1's 15 km/h. At urban-50's 50 km/h the same features are ~3x
 larger, so a network trained at one speed sees inputs it never met at another. Here every speed is
 divided by the row's speed limit ``L`` (ego feature 4 of the observation) and every distance by
-``L * HORIZON_S``, the distance covered in ``HORIZON_S`` seconds at the limit: a gap becomes a time,
+``L * HORIZON_S``, the distance covered in ``HORIZON_S`` seconds at the limit (the sensor range too:
+how far the ego sees becomes how long it sees ahead): a gap becomes a time,
 a closing speed a fraction of the limit. A scenario driven at k times the speeds with k times the
 distances gives the same features. The speed limit itself is kept as ``log(L / speed_scale)``, so
 the network can still tell a 15 km/h shuttle road from a 50 km/h street (braking distances do not
@@ -38,6 +39,7 @@ def speed_relative(obs: np.ndarray, config: EnvConfig) -> np.ndarray:
     out[:, ego + 0] *= speed
     out[:, ego + 3] *= dist
     out[:, ego + 4] = np.log(limit / oc.speed_scale)
+    out[:, ego + 5] *= dist
     for lane in ("ego_lane", "opposite_lane"):
         s = lay[lane]
         slots = out[:, s].reshape(len(out), -1, SLOT_FEATURES)  # presence, x, y, vx, vy
