@@ -66,7 +66,8 @@ def main() -> None:
             if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == weights_sha:
                 entry["suites"][name] = hit
                 continue
-            results = run_suite(suite, load_policy(str(run / f"{algo}.pt"), suite.config), progress=False)
+            weights = run / f"{algo}.npz" if (run / f"{algo}.npz").is_file() else run / f"{algo}.pt"
+            results = run_suite(suite, load_policy(str(weights), suite.config), progress=False)
             entry["suites"][name] = {"suite_version": suite.version, "suite_sha256": suite.hash,
                                      **counts(results.summary)}
             print(f"{algo} seed {card['seed']} {name}: success {results.summary['success_rate']['value']:.4f} "
