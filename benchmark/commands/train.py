@@ -1,4 +1,5 @@
-"""``overtakezoo train``: train a learned decider (dqn, double-dqn, ppo) on a training suite."""
+"""``overtakezoo train``: train a learned decider (dqn, double-dqn, ppo) on a training suite, or an
+offline one (bc, cql) from a recorded dataset."""
 
 from __future__ import annotations
 
@@ -10,24 +11,30 @@ from typing import Any
 from ..errors import UserError
 from ..io import check_writable_dir
 
-ALGORITHMS = ("dqn", "double-dqn", "ppo")
+ALGORITHMS = ("dqn", "double-dqn", "ppo", "bc", "cql")
+OFFLINE = ("bc", "cql")  # trained from a dataset (--dataset), not by interaction
 
 EPILOG = """examples:
   overtakezoo train dqn --suite table1-train --out runs/dqn
   overtakezoo train double-dqn --suite table1-train --steps 200000 --seed 3 --out runs/ddqn
   overtakezoo train dqn --suite table1-train --out runs/dqn --resume runs/dqn/checkpoint.pt
+  overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
+  overtakezoo train cql --dataset overtakezoo/table1/rule-fsm-v0 --seed 1 --out runs/cql
 
 Writes into --out: log.csv (steps, episodes, success / crash rate, loss, epsilon, wall time),
 checkpoint.pt (resumable), the weights <algo>.pt and the model card <algo>.json with the
-table1 evaluation. Copy both into zoo/pretrained/ to publish them."""
+table1 evaluation. Copy both into zoo/pretrained/ to publish them. bc / cql (offline, from a
+dataset of `overtakezoo dataset`) write <algo>.npz and <algo>.json, and no log or checkpoint."""
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser("train", help="train dqn / double-dqn / ppo and evaluate on table1",
+    p = subparsers.add_parser("train", help="train dqn / double-dqn / ppo / bc / cql and evaluate on table1",
                               description=__doc__, epilog=EPILOG,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("algorithm", choices=ALGORITHMS, help="what to train")
     p.add_argument("--suite", default="table1-train", help="training suite (default: table1-train)")
+    p.add_argument("--dataset", default=None, metavar="NAME",
+                   help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)")
     p.add_argument("--steps", type=int, default=None,
                    help="total training length, also when resuming (dqn: decision transitions summed over "
                         "all parallel rows; default: the hyperparameter file)")
@@ -49,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{args.algorithm}")
     check_writable_dir(out)  # an unwritable --out fails now, not after training
     eval_suite = None if args.eval_suite.lower() == "none" else args.eval_suite
+    if args.algorithm in OFFLINE:
+        return _run_offline(args, out, eval_suite)
+    if args.dataset:
+        raise UserError(f"--dataset is for bc / cql; {args.algorithm} trains on --suite")
     if args.algorithm == "ppo":
         return _run_ppo(args, out, eval_suite)
     from overtakezoo.zoo.train_dqn import TrainError, train
@@ -59,6 +70,23 @@ def run(args: argparse.Namespace) -> int:
                      progress=not args.no_progress)
     except TrainError as exc:  # bad hyperparameter file or checkpoint (unknown suites raise UserError)
         raise UserError(str(exc)) from None
+    _report(card, out)
+    return 0
+
+
+def _run_offline(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
+    if not args.dataset:
+        raise UserError(f"{args.algorithm} learns from a dataset: give --dataset NAME (see `overtakezoo dataset list`)")
+    if args.resume:
+        raise UserError(f"{args.algorithm} keeps no checkpoint (it trains in minutes): run it again without --resume")
+    import importlib
+
+    module = importlib.import_module(f"overtakezoo.zoo.train_{args.algorithm}")
+    try:
+        card = module.train(args.dataset, seed=args.seed, steps=args.steps, out=out, hyperparams=args.hyperparams,
+                            eval_suite=eval_suite, progress=not args.no_progress)
+    except ValueError as exc:  # a bad hyperparameter file or dataset (missing datasets raise UserError)
+        raise UserError(f"{args.algorithm}: {exc}") from None
     _report(card, out)
     return 0
 
@@ -81,7 +109,8 @@ def _run_ppo(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int
 
 
 def _report(card: dict[str, Any], out: Path) -> None:
-    print(f"trained {card.get('name', '?')}: {card.get('steps', '?')} steps in {card.get('wall_time_s', 0):.0f} s; "
+    steps = card.get("steps", card.get("training", {}).get("gradient_steps", "?"))
+    print(f"trained {card.get('name', '?')}: {steps} steps in {card.get('wall_time_s', 0):.0f} s; "
           f"files in {out}")
     res = (card.get("results") or {}).get("table1")
     if res:
