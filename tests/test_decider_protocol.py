@@ -14,7 +14,7 @@ from overtakezoo.envs.hold import hold, hold_steps
 from overtakezoo.zoo.testing import check_decider
 
 MEMBERS = ["always-follow", "always-overtake", "always-abort", "rule-fsm", "fuzzy", "oracle", "dqn", "double-dqn",
-           "ppo"]
+           "ppo", "bc", "cql"]
 
 
 def test_every_member_is_listed():

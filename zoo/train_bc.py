@@ -73,7 +73,7 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     x, y = torch.from_numpy(data.obs[train_rows]), torch.from_numpy(data.action[train_rows])
     net = mlp(data.obs.shape[1], hp.hidden)
     optim = torch.optim.Adam(net.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     bar = _bar(hp.steps, "bc", progress)
     for step in range(hp.steps):
         idx = torch.from_numpy(rng.integers(0, len(y), hp.batch_size))
@@ -91,7 +91,8 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     stats = {"train_accuracy": accuracy(net, data.obs[train_rows], data.action[train_rows]),
              "heldout_accuracy": accuracy(net, data.obs[held_rows], data.action[held_rows]),
              "heldout_episodes": int(len(np.unique(data.episode[held_rows]))),
-             "gradient_steps": hp.steps, "transitions": len(data), "wall_time_s": time.perf_counter() - t0}
+             "gradient_steps": hp.steps, "transitions": len(data), "cpu_time_s": round(time.process_time() - cpu0, 1),
+             "wall_time_s": time.perf_counter() - t0}
     return net, stats
 
 
