@@ -181,6 +181,6 @@ def test_pretrained_members_load_and_say_what_data_they_learned_from():
     for name in ("bc", "cql"):
         d = zoo.load(name)
         assert d.action_repeat == 1 and d.weights_sha256
-        assert d.model_card["dataset"]["name"].startswith("overtakezoo/table1/")
+        assert d.model_card["dataset"]["name"].startswith("overtakezoo/")
         assert "table1" in d.model_card["results"]
         assert "reproduce" in d.card()

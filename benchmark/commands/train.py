@@ -37,7 +37,7 @@ def register(subparsers: Any) -> None:
                    help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)")
     p.add_argument("--steps", type=int, default=None,
                    help="total training length, also when resuming (dqn: decision transitions summed over "
-                        "all parallel rows; default: the hyperparameter file)")
+                        "all parallel rows; bc / cql: gradient steps; default: the hyperparameter file)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the hyperparameter file)")
     p.add_argument("--out", default=None, help="output directory (default: runs/<algorithm>)")
     p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint.pt")
