@@ -104,7 +104,7 @@ def test_cql_trains_acts_and_refuses_tampered_weights(home):
     assert main(["train", "cql", "--dataset", NAME, "--steps", "300", "--out", str(out), "--eval-suite", "none",
                  "--no-progress"]) == 0
     card = json.loads((out / "cql.json").read_text())
-    assert card["hyperparameters"]["alpha"] == 1.0 and card["training"]["gradient_steps"] == 300
+    assert card["hyperparameters"]["alpha"] == 0.1 and card["training"]["gradient_steps"] == 300
     d = load_pretrained("cql", directory=out)
     check_decider(d, EnvConfig())
     core = OvertakeCore(EnvConfig())

@@ -43,7 +43,7 @@ class CQLHyperparams:
     batch_size: int = param(256, 1, 1 << 20)
     lr: float = param(3e-4, 1e-7, 1.0)
     gamma: float = param(0.995, 0.0, 1.0)  # per 0.1 s step
-    alpha: float = param(1.0, 0.0, 1e4)  # weight of the conservative term
+    alpha: float = param(0.1, 0.0, 1e4)  # weight of the conservative term (cql.toml says why 0.1)
     target_update: int = param(1000, 1, 10**8)  # gradient steps between hard target copies
     huber_delta: float = param(1.0, 1e-6, 1e6)
     grad_clip: float = param(10.0, 1e-6, 1e6)
