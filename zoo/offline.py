@@ -97,6 +97,9 @@ class OfflineDecider(Decider):
             lines.append(f"  table1: success {100 * res['success_rate']:.1f} % [{100 * res['success_ci'][0]:.1f}, "
                          f"{100 * res['success_ci'][1]:.1f}], crash {100 * res['crash_rate']:.1f} % "
                          f"[{100 * res['crash_ci'][0]:.1f}, {100 * res['crash_ci'][1]:.1f}] of {res['count']}.")
+        sel = c.get("seed_selection")
+        if sel:
+            lines.append(f"  seed {sel['shipped_seed']} of {len(sel['seeds'])}: {sel['rule']}.")
         lines.append(f"  weights sha256 {str(self.weights_sha256)[:16]}...; reproduce: {c.get('reproduce', '?')}")
         return "\n".join(lines)
 
