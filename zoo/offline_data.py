@@ -1,0 +1,255 @@
+"""What the offline-RL trainers (bc, cql) share: a Minari dataset as arrays of transitions, the
+dataset's identity for the model card, typed hyperparameter files, and the card itself. Numpy only.
+
+**One transition per simulator step, and the learned decider acts every step (``action_repeat`` =
+1).** The datasets record a decider that decides every control cycle (``table1``'s
+``decision_interval`` is 1; rule-fsm is a per-tick state machine) with its epsilon-random mode drawn
+per decision, i.e. per step. Each recorded step is therefore an exact transition of the per-step
+problem: (features of obs[t], the mode applied at t, reward[t], obs[t+1], done). Grouping 10 steps
+into one decision held 1 s (what dqn / ppo do) would label each group with one mode although the
+recorded mode changes inside 55 % of the 10-step groups (measured on rule-fsm, epsilon 0.1, the
+whole table1-train), and behaviour cloning would copy a 10 Hz rule at 1 Hz. A dataset of a decider
+that holds its decisions (dqn's 10 steps) is still exact per step; the clone may then switch at any
+step. Acting every step costs evaluation little (one numpy MLP pass over the batch per step). The
+discount is therefore per 0.1 s (``gamma`` in ``cql.toml``).
+
+A timeout ends the episode as a failure (``timeout_terminal``, as for dqn): the observation has no
+clock. The input is the speed-relative features of :mod:`overtakezoo.zoo.features`, computed with
+the configuration recorded in the dataset's env spec.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import numbers
+import tomllib
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from overtakezoo.envs import EnvConfig
+
+from .features import FEATURES_VERSION, speed_relative
+
+HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
+T = TypeVar("T")
+
+
+# ----------------------------------------------------------------------------- hyperparameters
+def param(default: Any, lo: float | None = None, hi: float | None = None) -> Any:
+    """A hyperparameter field: default, the closed range of a number (or of each list element)."""
+    factory = (lambda: list(default)) if isinstance(default, list) else None
+    meta = {"lo": lo, "hi": hi}
+    if factory:
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def load_hyperparams(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
+    """Dataclass ``cls`` from a TOML file (+ ``overrides``): an unknown key, a wrong type or an
+    out-of-range value is a ValueError naming the file and the key (as the env config does)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"hyperparameter file {path} not found") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"hyperparameter file {path}: {exc}") from None
+    data.update(overrides or {})
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
+    for key, value in data.items():
+        if key not in fields:
+            raise ValueError(f"{path}: {key}: unknown key (known: {', '.join(sorted(fields))})")
+        meta = fields[key].metadata
+        kind = hints[key]
+        items = value if typing.get_origin(kind) is list else [value]
+        elem = typing.get_args(kind)[0] if typing.get_origin(kind) is list else kind
+        if typing.get_origin(kind) is list and not isinstance(value, list):
+            raise ValueError(f"{path}: {key}: expected an array, got {value!r}")
+        for v in items:
+            _check_value(path, key, v, elem, meta)
+        if kind is float:
+            data[key] = float(value)
+    return cls(**data)
+
+
+def _check_value(path: Path, key: str, v: Any, kind: Any, meta: Any) -> None:
+    if kind is bool:
+        if not isinstance(v, bool):
+            raise ValueError(f"{path}: {key}: expected true or false, got {v!r}")
+        return
+    # Counts must be integers: 2.0 is refused (not rounded), so a typo cannot pass silently.
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or (kind is int and not isinstance(v, numbers.Integral)):
+        raise ValueError(f"{path}: {key}: expected {'an integer' if kind is int else 'a number'}, got {v!r}")
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if math.isnan(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise ValueError(f"{path}: {key}: {v!r} is out of range [{lo}, {hi}]")
+
+
+# ----------------------------------------------------------------------------- data
+@dataclass
+class Transitions:
+    """Per-step transitions of a dataset, features already computed (float32)."""
+
+    obs: np.ndarray  # (M, D) features of the observation a mode was chosen on
+    action: np.ndarray  # (M,) int64 mode applied for the step
+    reward: np.ndarray  # (M,) float32
+    next_obs: np.ndarray  # (M, D) features of the next observation
+    done: np.ndarray  # (M,) float32: the episode ended (a timeout too, with timeout_terminal)
+    episode: np.ndarray  # (M,) int64 episode number, for held-out splits
+    config: EnvConfig  # the configuration the data was recorded with (observation layout, scales)
+
+    def __len__(self) -> int:
+        return len(self.action)
+
+
+def load_dataset(name: str) -> Any:
+    """A Minari dataset by name through ``overtakezoo.benchmark.datasets.load`` (imported here: the
+    command layer owns the datasets folder; training is the only caller)."""
+    from overtakezoo.benchmark import datasets
+
+    return datasets.load(name)
+
+
+def transitions(dataset: Any, timeout_terminal: bool = True) -> Transitions:
+    """Every step of every episode of a Minari ``dataset`` as a :class:`Transitions`."""
+    config = dataset_config(dataset)
+    obs, nxt, act, rew, done, ep = [], [], [], [], [], []
+    for i, e in enumerate(dataset.iterate_episodes()):  # one slice per episode; features are batched below
+        o = np.asarray(e.observations)
+        obs.append(o[:-1])
+        nxt.append(o[1:])
+        act.append(np.asarray(e.actions, np.int64))
+        rew.append(np.asarray(e.rewards, np.float32))
+        end = np.asarray(e.terminations, bool) | (np.asarray(e.truncations, bool) & timeout_terminal)
+        done.append(end.astype(np.float32))
+        ep.append(np.full(len(e.actions), i, np.int64))
+    if not act:
+        raise ValueError("dataset has no episodes")
+
+    def feats(parts: list[np.ndarray]) -> np.ndarray:
+        return speed_relative(np.concatenate(parts), config).astype(np.float32)
+
+    return Transitions(feats(obs), np.concatenate(act), np.concatenate(rew), feats(nxt), np.concatenate(done),
+                       np.concatenate(ep), config)
+
+
+def dataset_config(dataset: Any) -> EnvConfig:
+    """The env configuration recorded in the dataset's env spec (``overtakezoo dataset build``)."""
+    spec = getattr(dataset.spec, "env_spec", None)
+    cfg = (getattr(spec, "kwargs", None) or {}).get("config")
+    if cfg is None:
+        raise ValueError("dataset records no OvertakeZoo env configuration (not built by `overtakezoo dataset build`)")
+    return EnvConfig.from_dict(cfg)
+
+
+def dataset_identity(name: str, dataset: Any, data: Transitions) -> dict[str, Any]:
+    """What the model card records about the training data: name, recipe, and content hashes.
+
+    ``content_sha256`` is ``overtakezoo.benchmark.datasets.content_sha256(name)`` when that exists
+    (the registry's identity); otherwise the sha256 over the dataset's files (each file's relative
+    path and bytes, in sorted order). ``transitions_sha256`` hashes the arrays trained on, which
+    does not depend on how HDF5 laid the bytes out."""
+    from overtakezoo.benchmark import datasets
+
+    official = getattr(datasets, "content_sha256", None)
+    if official is not None:
+        content, kind = official(name), "overtakezoo.benchmark.datasets.content_sha256"
+    else:
+        content, kind = files_sha256(Path(dataset.spec.data_path)), "sha256 over the dataset files (path + bytes)"
+    meta = dict(getattr(dataset.storage, "metadata", {}) or {})
+    h = hashlib.sha256()
+    for a in (data.obs, data.action, data.reward, data.next_obs, data.done, data.episode):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return {"name": name, "description": meta.get("description"), "algorithm_name": meta.get("algorithm_name"),
+            "episodes": int(dataset.total_episodes), "steps": int(dataset.total_steps),
+            "content_sha256": content, "content_hash": kind, "transitions_sha256": h.hexdigest()}
+
+
+def files_sha256(folder: Path) -> str:
+    h = hashlib.sha256()
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(str(path.relative_to(folder)).encode() + b"\0")
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return h.hexdigest()
+
+
+# ----------------------------------------------------------------------------- card
+def model_card(name: str, algorithm: str, arrays_sha256: str, hidden: list[int], obs_dim: int, hp: Any,
+               identity: dict[str, Any], seed: int, wall_time_s: float, extra: dict[str, Any]) -> dict[str, Any]:
+    """The model card of an offline-trained decider (``zoo/pretrained/<name>.json``)."""
+    from .offline import MASK_VERSION
+
+    return {
+        "name": name, "version": "1", "algorithm": algorithm,
+        "architecture": {"obs_dim": obs_dim, "hidden": list(hidden), "num_actions": 3, "activation": "relu",
+                         "output": "logits" if name == "bc" else "q-values"},
+        "features": FEATURES_VERSION, "action_repeat": 1, "action_mask": bool(hp.action_mask),
+        "action_mask_version": MASK_VERSION,
+        "hyperparameters": dataclasses.asdict(hp), "dataset": identity, "seed": seed,
+        "wall_time_s": round(wall_time_s, 1), **extra,
+        "weights_file": f"{name}.npz", "weights_sha256": arrays_sha256,
+        "results": {},
+        "reproduce": f"overtakezoo train {name} --dataset {identity['name']} --seed {seed}",
+    }
+
+
+# ----------------------------------------------------------------------------- train + export
+def prepare(name: str, timeout_terminal: bool, out: str | Path | None
+            ) -> tuple[Transitions, dict[str, Any], Path | None]:
+    """Load dataset ``name`` as transitions, with its identity; check ``out`` is writable first."""
+    from overtakezoo.envs.io import check_writable_dir
+
+    out_dir = check_writable_dir(out) if out else None  # fail before training, not after it
+    dataset = load_dataset(name)
+    data = transitions(dataset, timeout_terminal)
+    return data, dataset_identity(name, dataset, data), out_dir
+
+
+def export(net: Any) -> tuple[bytes, Any]:
+    """A trained torch MLP (``nn.Linear`` layers with ReLU between) as ``.npz`` bytes (float32
+    weights) and the :class:`NumpyMLP` read back from those bytes, so evaluation here uses exactly
+    what the file holds."""
+    from .mlp import NumpyMLP, npz_bytes, read_npz
+
+    linears = [m for m in net.modules() if type(m).__name__ == "Linear"]
+    arrays = {}
+    for i, lin in enumerate(linears):
+        arrays[f"layer{i}.weight"] = lin.weight.detach().cpu().numpy().astype(np.float32)
+        arrays[f"layer{i}.bias"] = lin.bias.detach().cpu().numpy().astype(np.float32)
+    data = npz_bytes(arrays)
+    return data, NumpyMLP.from_arrays(read_npz(data))
+
+
+def finish(name: str, algorithm: str, net: Any, data: Transitions, hp: Any, identity: dict[str, Any],
+           stats: dict[str, Any], out_dir: Path | None, eval_suite: str | None, progress: bool) -> dict[str, Any]:
+    """Export ``net``, evaluate it on ``eval_suite`` (the benchmark runner), write ``<name>.npz``,
+    ``<name>.json`` and the results file into ``out_dir``; returns the model card."""
+    from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
+
+    from .common import evaluate, sha256_bytes
+    from .offline import OfflineDecider
+
+    weights, mlp = export(net)
+    wall = float(stats.pop("wall_time_s"))
+    card = model_card(name, algorithm, sha256_bytes(weights), hp.hidden, data.obs.shape[1], hp, identity,
+                      hp.seed, wall, {"training": stats})
+    full = None
+    if eval_suite:
+        from overtakezoo.benchmark.suites import load_suite
+
+        suite = load_suite(eval_suite)
+        summary, full = evaluate(OfflineDecider(mlp, name, suite.config, card), suite, progress=progress)
+        card["results"][suite.name] = summary
+    if out_dir:
+        atomic_write_bytes(out_dir / f"{name}.npz", weights)
+        atomic_write_json(out_dir / f"{name}.json", card)
+        if full is not None:  # the runner's results file, ready for `overtakezoo submit`
+            full.save(out_dir / f"{name}-{eval_suite}.results.json")
+    return card

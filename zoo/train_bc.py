@@ -1,0 +1,117 @@
+"""Behaviour cloning (the ``bc`` decider): an MLP classifier of a dataset's modes.
+
+Reads top to bottom: the hyperparameters (``zoo/hyperparams/bc.toml``), the network, the loop
+(minibatches of per-step transitions, cross-entropy against the recorded mode, Adam), then the
+export (numpy weights + model card, :func:`overtakezoo.zoo.offline_data.model_card`). The data are
+per-step transitions (the ``offline_data`` module docstring says why); the features are the
+speed-relative ones the other learned members use.
+
+    overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, param, prepare
+
+
+@dataclass(frozen=True)
+class BCHyperparams:
+    seed: int = param(0, 0, 2**31 - 1)
+    steps: int = param(20000, 1, 10**8)  # gradient steps
+    batch_size: int = param(512, 1, 1 << 20)
+    lr: float = param(1e-3, 1e-7, 1.0)
+    weight_decay: float = param(0.0, 0.0, 1.0)
+    hidden: list[int] = param([128, 128], 1, 4096)
+    holdout: float = param(0.1, 0.0, 0.5)  # share of episodes kept out of training, for the accuracy report
+    action_mask: bool = param(True)  # act among the modes dqn's mode-transition mask allows
+    timeout_terminal: bool = param(True)  # unused by bc (no bootstrapping); kept for one data recipe
+    threads: int = param(1, 1, 256)
+
+
+def mlp(obs_dim: int, hidden: list[int], out: int = 3) -> nn.Sequential:
+    """Linear / ReLU layers; :func:`export` reads the ``nn.Linear`` modules in order."""
+    layers: list[nn.Module] = []
+    width = obs_dim
+    for h in hidden:
+        layers += [nn.Linear(width, h), nn.ReLU()]
+        width = h
+    layers.append(nn.Linear(width, out))
+    return nn.Sequential(*layers)
+
+
+def split(data: Transitions, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices of the training and held-out transitions, split by whole episodes."""
+    episodes = np.unique(data.episode)
+    rng = np.random.default_rng(seed)
+    held = rng.permutation(episodes)[:int(round(holdout * len(episodes)))]
+    out = np.isin(data.episode, held)
+    return np.flatnonzero(~out), np.flatnonzero(out)
+
+
+def accuracy(net: nn.Module, x: np.ndarray, y: np.ndarray) -> float | None:
+    if len(y) == 0:
+        return None
+    with torch.no_grad():
+        return float((net(torch.from_numpy(x)).argmax(1).numpy() == y).mean())
+
+
+def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn.Sequential, dict[str, Any]]:
+    """Train the classifier; returns it with training statistics (accuracies, wall time)."""
+    torch.manual_seed(hp.seed)
+    torch.set_num_threads(hp.threads)
+    rng = np.random.default_rng(hp.seed)
+    train_rows, held_rows = split(data, hp.holdout, hp.seed)
+    x, y = torch.from_numpy(data.obs[train_rows]), torch.from_numpy(data.action[train_rows])
+    net = mlp(data.obs.shape[1], hp.hidden)
+    optim = torch.optim.Adam(net.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    bar = _bar(hp.steps, "bc", progress)
+    for step in range(hp.steps):
+        idx = torch.from_numpy(rng.integers(0, len(y), hp.batch_size))
+        loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
+        optim.zero_grad(set_to_none=True)
+        loss.backward()
+        optim.step()
+        if bar is not None:
+            bar.update(1)
+            if step % 500 == 0:
+                bar.set_postfix(loss=f"{float(loss):.4f}", refresh=False)
+    if bar is not None:
+        bar.close()
+    net.eval()
+    stats = {"train_accuracy": accuracy(net, data.obs[train_rows], data.action[train_rows]),
+             "heldout_accuracy": accuracy(net, data.obs[held_rows], data.action[held_rows]),
+             "heldout_episodes": int(len(np.unique(data.episode[held_rows]))),
+             "gradient_steps": hp.steps, "transitions": len(data), "cpu_time_s": round(time.process_time() - cpu0, 1),
+             "wall_time_s": time.perf_counter() - t0}
+    return net, stats
+
+
+def _bar(total: int, desc: str, progress: bool) -> Any:
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="step", desc=desc, dynamic_ncols=True, mininterval=1.0)
+
+
+def train(dataset: str, seed: int | None = None, steps: int | None = None, out: str | Path | None = None,
+          hyperparams: str | Path | None = None, eval_suite: str | None = "table1", progress: bool = True
+          ) -> dict[str, Any]:
+    """Train bc on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets``),
+    evaluate on ``eval_suite`` and write ``bc.npz`` + ``bc.json`` into ``out``; returns the card."""
+    overrides = {k: v for k, v in {"seed": seed, "steps": steps}.items() if v is not None}
+    hp = load_hyperparams(BCHyperparams, hyperparams or HYPERPARAMS / "bc.toml", overrides)
+    data, identity, out_dir = prepare(dataset, hp.timeout_terminal, out)
+    net, stats = fit(data, hp, progress)
+    return finish("bc", "behaviour cloning (cross-entropy on the recorded modes)", net, data, hp, identity,
+                  stats, out_dir, eval_suite, progress)
