@@ -131,6 +131,9 @@ def describe(name: str, c: dict[str, Any]) -> str:
         what = (f"{name} ({c.get('algorithm', 'PPO')}, {c.get('library', 'rsl-rl-lib')} "
                 f"{c.get('library_version', '')}): MLP {hidden} {a.get('activation')} actor over the "
                 f"{a.get('obs_dim')}-feature input, categorical over the 3 modes (argmax at test time)")
+    elif a.get("output") == "logits":  # bc: a classifier of the recorded modes
+        what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden} classifier over the {a.get('obs_dim')}-feature "
+                f"input, the most likely mode among those the action mask allows")
     else:
         version = int(c.get("action_mask_version", MASK_VERSION))
         what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden}{' dueling' if a.get('dueling') else ''} "
@@ -139,9 +142,14 @@ def describe(name: str, c: dict[str, Any]) -> str:
                    f"in lane{', aborts carried through' if version >= 3 else ''})" if c.get("action_mask") else ""))
     suite = c.get("train_suite", "?")
     suite = suite.get("name", "?") if isinstance(suite, dict) else suite
-    lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.",
-             f"  trained on {suite}, {c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, "
-             f"{c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')})."]
+    if c.get("dataset"):  # offline members (bc, cql) learn from a recorded dataset, not a suite
+        ds = c["dataset"]
+        trained = (f"  trained offline on dataset {ds.get('name', '?')} (content sha256 "
+                   f"{str(ds.get('content_sha256'))[:12]}), seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
+    else:
+        trained = (f"  trained on {suite}, {c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, "
+                   f"{c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
+    lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
         lines.append(f"  table1: success {100 * res['success_rate']:.1f} % "

@@ -22,10 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
-import numbers
-import tomllib
-import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -41,55 +37,12 @@ T = TypeVar("T")
 
 
 # ----------------------------------------------------------------------------- hyperparameters
-def param(default: Any, lo: float | None = None, hi: float | None = None) -> Any:
-    """A hyperparameter field: default, the closed range of a number (or of each list element)."""
-    factory = (lambda: list(default)) if isinstance(default, list) else None
-    meta = {"lo": lo, "hi": hi}
-    if factory:
-        return dataclasses.field(default_factory=factory, metadata=meta)
-    return dataclasses.field(default=default, metadata=meta)
-
-
 def load_hyperparams(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
-    """Dataclass ``cls`` from a TOML file (+ ``overrides``): an unknown key, a wrong type or an
-    out-of-range value is a ValueError naming the file and the key (as the env config does)."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"hyperparameter file {path} not found") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ValueError(f"hyperparameter file {path}: {exc}") from None
-    data.update(overrides or {})
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    hints = typing.get_type_hints(cls)
-    for key, value in data.items():
-        if key not in fields:
-            raise ValueError(f"{path}: {key}: unknown key (known: {', '.join(sorted(fields))})")
-        meta = fields[key].metadata
-        kind = hints[key]
-        items = value if typing.get_origin(kind) is list else [value]
-        elem = typing.get_args(kind)[0] if typing.get_origin(kind) is list else kind
-        if typing.get_origin(kind) is list and not isinstance(value, list):
-            raise ValueError(f"{path}: {key}: expected an array, got {value!r}")
-        for v in items:
-            _check_value(path, key, v, elem, meta)
-        if kind is float:
-            data[key] = float(value)
-    return cls(**data)
+    """Schema ``cls`` (zoo/schema.py) from a TOML file + ``overrides``: an unknown key, a wrong type
+    or an out-of-range value is one error naming the file and the key."""
+    from .schema import load_hyperparams as load, merged, read_toml
 
-
-def _check_value(path: Path, key: str, v: Any, kind: Any, meta: Any) -> None:
-    if kind is bool:
-        if not isinstance(v, bool):
-            raise ValueError(f"{path}: {key}: expected true or false, got {v!r}")
-        return
-    # Counts must be integers: 2.0 is refused (not rounded), so a typo cannot pass silently.
-    if isinstance(v, bool) or not isinstance(v, numbers.Real) or (kind is int and not isinstance(v, numbers.Integral)):
-        raise ValueError(f"{path}: {key}: expected {'an integer' if kind is int else 'a number'}, got {v!r}")
-    lo, hi = meta.get("lo"), meta.get("hi")
-    if math.isnan(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ValueError(f"{path}: {key}: {v!r} is out of range [{lo}, {hi}]")
+    return load(cls, merged(read_toml(path), overrides or {}), str(path))
 
 
 # ----------------------------------------------------------------------------- data
@@ -150,19 +103,13 @@ def dataset_config(dataset: Any) -> EnvConfig:
 
 
 def dataset_identity(name: str, dataset: Any, data: Transitions) -> dict[str, Any]:
-    """What the model card records about the training data: name, recipe, and content hashes.
+    """What the model card records about the training data: name, description, and content hashes:
+    ``content_sha256`` is the registry's identity (``overtakezoo.benchmark.datasets.content_sha256``:
+    the episode arrays and fixed metadata, not the HDF5 bytes); ``transitions_sha256`` hashes the
+    arrays trained on."""
+    from overtakezoo.benchmark.datasets import content_sha256
 
-    ``content_sha256`` is ``overtakezoo.benchmark.datasets.content_sha256(name)`` when that exists
-    (the registry's identity); otherwise the sha256 over the dataset's files (each file's relative
-    path and bytes, in sorted order). ``transitions_sha256`` hashes the arrays trained on, which
-    does not depend on how HDF5 laid the bytes out."""
-    from overtakezoo.benchmark import datasets
-
-    official = getattr(datasets, "content_sha256", None)
-    if official is not None:
-        content, kind = official(name), "overtakezoo.benchmark.datasets.content_sha256"
-    else:
-        content, kind = files_sha256(Path(dataset.spec.data_path)), "sha256 over the dataset files (path + bytes)"
+    content, kind = content_sha256(dataset), "overtakezoo.benchmark.datasets.content_sha256"
     meta = dict(getattr(dataset.storage, "metadata", {}) or {})
     h = hashlib.sha256()
     for a in (data.obs, data.action, data.reward, data.next_obs, data.done, data.episode):
@@ -172,19 +119,11 @@ def dataset_identity(name: str, dataset: Any, data: Transitions) -> dict[str, An
             "content_sha256": content, "content_hash": kind, "transitions_sha256": h.hexdigest()}
 
 
-def files_sha256(folder: Path) -> str:
-    h = hashlib.sha256()
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
-        h.update(str(path.relative_to(folder)).encode() + b"\0")
-        h.update(hashlib.sha256(path.read_bytes()).digest())
-    return h.hexdigest()
-
-
 # ----------------------------------------------------------------------------- card
 def model_card(name: str, algorithm: str, arrays_sha256: str, hidden: list[int], obs_dim: int, hp: Any,
                identity: dict[str, Any], seed: int, wall_time_s: float, extra: dict[str, Any]) -> dict[str, Any]:
     """The model card of an offline-trained decider (``zoo/pretrained/<name>.json``)."""
-    from .offline import MASK_VERSION
+    from .learned import MASK_VERSION
 
     return {
         "name": name, "version": "1", "algorithm": algorithm,
@@ -213,17 +152,11 @@ def prepare(name: str, timeout_terminal: bool, out: str | Path | None
 
 
 def export(net: Any) -> tuple[bytes, Any]:
-    """A trained torch MLP (``nn.Linear`` layers with ReLU between) as ``.npz`` bytes (float32
-    weights) and the :class:`NumpyMLP` read back from those bytes, so evaluation here uses exactly
-    what the file holds."""
+    """A trained torch MLP (``nn.Linear`` layers with ReLU between) as ``.npz`` bytes and the
+    :class:`NumpyMLP` read back from those bytes, so evaluation here uses exactly what the file holds."""
     from .mlp import NumpyMLP, npz_bytes, read_npz
 
-    linears = [m for m in net.modules() if type(m).__name__ == "Linear"]
-    arrays = {}
-    for i, lin in enumerate(linears):
-        arrays[f"layer{i}.weight"] = lin.weight.detach().cpu().numpy().astype(np.float32)
-        arrays[f"layer{i}.bias"] = lin.bias.detach().cpu().numpy().astype(np.float32)
-    data = npz_bytes(arrays)
+    data = npz_bytes(NumpyMLP.from_linears([m for m in net.modules() if type(m).__name__ == "Linear"]).arrays())
     return data, NumpyMLP.from_arrays(read_npz(data))
 
 
@@ -234,7 +167,7 @@ def finish(name: str, algorithm: str, net: Any, data: Transitions, hp: Any, iden
     from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
 
     from .common import evaluate, sha256_bytes
-    from .offline import OfflineDecider
+    from .learned import MLPDecider
 
     weights, mlp = export(net)
     wall = float(stats.pop("wall_time_s"))
@@ -245,7 +178,7 @@ def finish(name: str, algorithm: str, net: Any, data: Transitions, hp: Any, iden
         from overtakezoo.benchmark.suites import load_suite
 
         suite = load_suite(eval_suite)
-        summary, full = evaluate(OfflineDecider(mlp, name, suite.config, card), suite, progress=progress)
+        summary, full = evaluate(MLPDecider(mlp, name, suite.config, card), suite, progress=progress)
         card["results"][suite.name] = summary
     if out_dir:
         atomic_write_bytes(out_dir / f"{name}.npz", weights)

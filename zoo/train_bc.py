@@ -20,7 +20,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, param, prepare
+from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
+from .schema import param
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,7 @@ class BCHyperparams:
     batch_size: int = param(512, 1, 1 << 20)
     lr: float = param(1e-3, 1e-7, 1.0)
     weight_decay: float = param(0.0, 0.0, 1.0)
-    hidden: list[int] = param([128, 128], 1, 4096)
+    hidden: tuple[int, ...] = param((128, 128), 1, 4096)
     holdout: float = param(0.1, 0.0, 0.5)  # share of episodes kept out of training, for the accuracy report
     action_mask: bool = param(True)  # act among the modes dqn's mode-transition mask allows
     timeout_terminal: bool = param(True)  # unused by bc (no bootstrapping); kept for one data recipe

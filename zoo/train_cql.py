@@ -31,8 +31,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from .offline import action_mask
-from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, param, prepare
+from .learned import action_mask
+from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
+from .schema import param
 from .train_bc import _bar, mlp
 
 
@@ -47,7 +48,7 @@ class CQLHyperparams:
     target_update: int = param(1000, 1, 10**8)  # gradient steps between hard target copies
     huber_delta: float = param(1.0, 1e-6, 1e6)
     grad_clip: float = param(10.0, 1e-6, 1e6)
-    hidden: list[int] = param([128, 128], 1, 4096)
+    hidden: tuple[int, ...] = param((128, 128), 1, 4096)
     action_mask: bool = param(True)  # the next mode (TD target) and the acting mode among the allowed ones
     timeout_terminal: bool = param(True)  # a timeout ends the episode (the observation has no clock)
     threads: int = param(1, 1, 256)
