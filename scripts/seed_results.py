@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 from overtakezoo.benchmark.headline import CORE
@@ -92,9 +93,16 @@ def main() -> None:
         note = (f"Seed {chosen['seed']} of {len(seeds)} training seeds "
                 f"({', '.join(str(e['seed']) for e in doc['seeds'])}), chosen by the rule above.")
         seed_results = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
-        card = export(run, ROOT / "zoo" / "pretrained", algo, {"selection_rule": RULE, "selection_note": note,
-                                                                "seed_results": seed_results})
-        print(f"{algo}: exported {run / (algo + '.pt')} to {card.with_suffix('.npz')} + {card.name}")
+        updates = {"selection_rule": RULE, "selection_note": note, "seed_results": seed_results}
+        dest = ROOT / "zoo" / "pretrained"
+        if (run / f"{algo}.pt").is_file():  # a torch trainer's output: export it to numpy
+            card = export(run, dest, algo, updates)
+        else:  # bc / cql write their .npz directly: publish it as it is, the card completed
+            shutil.copyfile(run / f"{algo}.npz", dest / f"{algo}.npz")
+            card = dest / f"{algo}.json"
+            atomic_write_bytes(card, (json.dumps({**json.loads((run / f"{algo}.json").read_text()), **updates},
+                                                 indent=1, sort_keys=True) + "\n").encode())
+        print(f"{algo}: published {run.name} as {card.with_suffix('.npz')} + {card.name}")
 
 
 if __name__ == "__main__":
