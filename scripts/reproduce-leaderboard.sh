@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded)
-deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo oracle)
+deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql oracle)
 for suite in "${suites[@]}"; do
   for decider in "${deciders[@]}"; do
     out="results/$suite/$decider.json"
