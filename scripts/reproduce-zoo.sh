@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Retrain every learned member from scratch and publish it: what zoo/pretrained/ holds came from these
+# commands (the cards' `reproduce` lines name each run). Then scripts/reproduce-leaderboard.sh
+# re-measures the rows. Usage: scripts/reproduce-zoo.sh [RUNS_DIR]   (default: runs/zoo)
+#
+# 1. dqn, double-dqn, ppo: 3 seeds each on core-train (every core suite's training split);
+#    scripts/seed_results.py evaluates every seed and ships the median by training-split success.
+# 2. The official datasets are rebuilt (the expert dataset is the shipped dqn's) and the registry
+#    rewritten with their content hashes.
+# 3. bc and cql: 3 seeds each on the official medium dataset (rule-fsm, epsilon 0.1, table1-train),
+#    shipped by the same rule.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+runs="${1:-runs/zoo}"
+mkdir -p "$runs"
+for seed in 0 1 2; do
+  overtakezoo train dqn --suite core-train --seed "$seed" --out "$runs/dqn-s$seed" --eval-suite none --no-progress
+  overtakezoo train double-dqn --suite core-train --seed "$seed" --out "$runs/double-dqn-s$seed" --eval-suite none --no-progress
+  overtakezoo train ppo --suite core-train --seed "$seed" --steps 1000000 --out "$runs/ppo-s$seed" --eval-suite none --no-progress
+done
+for algo in dqn double-dqn ppo; do
+  python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
+done
+overtakezoo dataset regenerate
+dataset=overtakezoo/table1/rule-fsm-v0
+for seed in 0 1 2; do
+  overtakezoo train bc --dataset "$dataset" --seed "$seed" --out "$runs/bc-s$seed" --eval-suite none --no-progress
+  overtakezoo train cql --dataset "$dataset" --seed "$seed" --out "$runs/cql-s$seed" --eval-suite none --no-progress
+done
+for algo in bc cql; do
+  python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
+done
