@@ -16,7 +16,7 @@ mkdir -p "$runs"
 for seed in 0 1 2; do
   overtakezoo train dqn --suite core-train --seed "$seed" --out "$runs/dqn-s$seed" --eval-suite none --no-progress
   overtakezoo train double-dqn --suite core-train --seed "$seed" --out "$runs/double-dqn-s$seed" --eval-suite none --no-progress
-  overtakezoo train ppo --suite core-train --seed "$seed" --steps 1000000 --out "$runs/ppo-s$seed" --eval-suite none --no-progress
+  overtakezoo train ppo --suite core-train --seed "$seed" --out "$runs/ppo-s$seed" --eval-suite none --no-progress
 done
 for algo in dqn double-dqn ppo; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
