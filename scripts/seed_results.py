@@ -58,7 +58,7 @@ def main() -> None:
         card = json.loads((run / f"{algo}.json").read_text())
         weights_sha = trained_sha256(card)  # the torch file's: the same before and after an export
         entry = {"seed": card["seed"], "run": run.name, "weights_sha256": weights_sha,
-                 "steps": card["steps"], "suites": {}}
+                 "steps": card.get("steps", card.get("training", {}).get("gradient_steps")), "suites": {}}
         cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
         cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
         for name in [*TRAIN_SPLITS, *args.suites.split(",")]:
