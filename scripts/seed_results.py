@@ -93,7 +93,9 @@ def main() -> None:
         note = (f"Seed {chosen['seed']} of {len(seeds)} training seeds "
                 f"({', '.join(str(e['seed']) for e in doc['seeds'])}), chosen by the rule above.")
         seed_results = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
-        updates = {"selection_rule": RULE, "selection_note": note, "seed_results": seed_results}
+        # The shipped seed's results on every suite it was run on, in the card's summary form.
+        results = {k: {**v, "count": v["n"]} for k, v in chosen["suites"].items()}
+        updates = {"selection_rule": RULE, "selection_note": note, "seed_results": seed_results, "results": results}
         dest = ROOT / "zoo" / "pretrained"
         if (run / f"{algo}.pt").is_file():  # a torch trainer's output: export it to numpy
             card = export(run, dest, algo, updates)

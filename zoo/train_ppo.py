@@ -314,6 +314,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
                       "score": None if best["state"] is None else round(best["score"], 4)},
         "wall_time_s": round(wall, 1), "weights_sha256": sha256_bytes(blob), "weights_bytes": len(blob),
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "results": {},
+        "reproduce": f"overtakezoo train ppo --suite {suite} --steps {steps} --seed {seed}",
     }
     weights = out / "ppo.pt"
     atomic_write_bytes(weights, blob)
