@@ -8,7 +8,7 @@ from its suite and the mixture's proportions stay fixed. The observation layouts
 same planner rollouts and observation slots), which every built-in suite's does.
 
 It offers what :func:`overtakezoo.envs.hold.hold` and the trainers use (``step``, ``done``,
-``auto_reset``, ``num``, ``rng``), so a trainer steps a mixture as it steps one core.
+``auto_reset``, ``num``, ``observe``), so a trainer steps a mixture as it steps one core.
 """
 
 from __future__ import annotations
@@ -48,7 +48,6 @@ class MixedCore:
         self.cores = [OvertakeCore(c, auto_reset=True, source=src, seed=np.random.default_rng(s))
                       for c, src, s in zip(configs, sources, seeds)]
         self.sizes = [int(n) for n in sizes]
-        self.rng = np.random.default_rng(seeds[0].spawn(1)[0])
         self._obs = np.concatenate([core.reset(src(n, core.rng)) for core, src, n in zip(self.cores, sources,
                                                                                           self.sizes)])
 

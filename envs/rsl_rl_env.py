@@ -1,9 +1,10 @@
 """The rsl-rl ``VecEnv`` face of the core: a thin adapter for ``rsl_rl.runners.OnPolicyRunner``.
 
 One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios; finished rows are
-refilled from ``source`` (or pass ``core``, e.g. a :class:`~.mixture.MixedCore` over several suites).
-``transform`` (obs -> obs) maps what the policy sees, e.g. a decider's input features. The action is one column holding the mode index as a float (what a
-categorical action distribution samples); observations are a TensorDict with one group,
+refilled from ``source`` (or pass ``core``, e.g. a :class:`~.mixture.MixedCore` over several
+suites). ``transform`` (obs -> obs) maps what the policy sees, e.g. a decider's input features. The
+action is one column holding the mode index as a float (what a categorical action distribution
+samples); observations are a TensorDict with one group,
 ``"policy"``, which the runner's ``obs_groups`` route to both actor and critic. With
 ``action_repeat`` = k one env step holds the decision for k core steps (:func:`.hold.hold`,
 rewards summed).
