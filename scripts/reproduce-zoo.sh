@@ -5,7 +5,7 @@
 #
 # 1. dqn, double-dqn, ppo: 3 seeds each on core-train (every core suite's training split);
 #    scripts/seed_results.py evaluates every seed and ships the median by training-split success.
-# 2. The official datasets are rebuilt (the expert dataset is the shipped dqn's) and the registry
+# 2. The official datasets are rebuilt (the expert dataset is the shipped ppo's, the best learned member) and the registry
 #    rewritten with their content hashes.
 # 3. bc and cql: 3 seeds each on the official medium dataset (rule-fsm, epsilon 0.1, table1-train),
 #    shipped by the same rule.

@@ -5,6 +5,7 @@ download tries the mirrors in order on a real 127.0.0.1 server, resuming from a 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import socket
 
 import numpy as np
@@ -155,7 +156,12 @@ def test_pack_is_byte_deterministic_and_recipe_table_is_checked(home, tmp_path, 
 
     table = read_recipes(RECIPES_FILE)  # the shipped table is valid, with the four levels
     assert set(table["levels"]) == {"random", "medium", "expert", "mixed"}
-    assert table["levels"]["expert"]["decider"] == "dqn"
+    # The expert is the best learned member by the leaderboard's OvertakeZoo score.
+    from overtakezoo.benchmark.leaderboard import LEARNED
+
+    scores = json.loads((Path(__file__).resolve().parents[1] / "leaderboards" / "index.json").read_text())
+    learned = {k: v["value"] for k, v in scores["headline"]["scores"].items() if k in LEARNED}
+    assert table["levels"]["expert"]["decider"] == max(learned, key=learned.get)
     bad = tmp_path / "bad.toml"
     bad.write_text(RECIPES.format(base="http://x").replace("epsilon = 0.1", "epsilon = 0.1\nepsilom = 2"))
     assert main(["dataset", "regenerate", "--recipes", str(bad), "--no-progress"]) == 2
