@@ -5,8 +5,8 @@ download tries the mirrors in order on a real 127.0.0.1 server, resuming from a 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 import socket
+from pathlib import Path
 
 import numpy as np
 import pytest
