@@ -17,19 +17,8 @@ card ``<name>.json`` (dataset, hyperparameters, seed, results, reproduce command
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from overtakezoo.envs import EnvConfig
-
 from .base import register
-from .learned import MASK_VERSION, MLPDecider, action_mask, load_pretrained  # noqa: F401 (re-exported)
+from .learned import load_pretrained
 
-OfflineDecider = MLPDecider
-
-
-def _load(name: str, config: EnvConfig | None = None, directory: str | Path | None = None) -> MLPDecider:
-    return load_pretrained(name, config, directory)
-
-
-register("bc", lambda config=None, **kw: _load("bc", config, **kw))
-register("cql", lambda config=None, **kw: _load("cql", config, **kw))
+register("bc", lambda config=None, **kw: load_pretrained("bc", config, **kw))
+register("cql", lambda config=None, **kw: load_pretrained("cql", config, **kw))

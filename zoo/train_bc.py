@@ -22,6 +22,7 @@ from torch import nn
 
 from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
 from .schema import param
+from .train_dqn import QNetwork  # the one torch MLP of the zoo (Linear / ReLU layers)
 
 
 @dataclass(frozen=True)
@@ -36,17 +37,6 @@ class BCHyperparams:
     action_mask: bool = param(True)  # act among the modes dqn's mode-transition mask allows
     timeout_terminal: bool = param(True)  # unused by bc (no bootstrapping); kept for one data recipe
     threads: int = param(1, 1, 256)
-
-
-def mlp(obs_dim: int, hidden: list[int], out: int = 3) -> nn.Sequential:
-    """Linear / ReLU layers; :func:`export` reads the ``nn.Linear`` modules in order."""
-    layers: list[nn.Module] = []
-    width = obs_dim
-    for h in hidden:
-        layers += [nn.Linear(width, h), nn.ReLU()]
-        width = h
-    layers.append(nn.Linear(width, out))
-    return nn.Sequential(*layers)
 
 
 def split(data: Transitions, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -72,7 +62,7 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     rng = np.random.default_rng(hp.seed)
     train_rows, held_rows = split(data, hp.holdout, hp.seed)
     x, y = torch.from_numpy(data.obs[train_rows]), torch.from_numpy(data.action[train_rows])
-    net = mlp(data.obs.shape[1], hp.hidden)
+    net = QNetwork(data.obs.shape[1], hp.hidden, dueling=False)  # logits over the modes
     optim = torch.optim.Adam(net.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
     t0, cpu0 = time.perf_counter(), time.process_time()
     bar = _bar(hp.steps, "bc", progress)

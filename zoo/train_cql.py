@@ -34,7 +34,8 @@ from torch import nn
 from .learned import action_mask
 from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
 from .schema import param
-from .train_bc import _bar, mlp
+from .train_bc import _bar
+from .train_dqn import QNetwork
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
                "done": torch.from_numpy(data.done)}
     if hp.action_mask:  # the mask reads the observation layout, which the features keep
         tensors["next_mask"] = torch.from_numpy(action_mask(data.next_obs, data.config))
-    net = mlp(data.obs.shape[1], hp.hidden)
+    net = QNetwork(data.obs.shape[1], hp.hidden, dueling=False)
     target = copy.deepcopy(net)
     optim = torch.optim.Adam(net.parameters(), lr=hp.lr)
     t0, cpu0 = time.perf_counter(), time.process_time()
