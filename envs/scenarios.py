@@ -4,6 +4,11 @@ Coordinates are Frenet on a straight road (s along the road, d lateral, metres):
 centre is d = 0 and the opposite lane's centre is d = +lane_width (right-hand traffic, the ego drives
 towards +s). NPC slots are padded: ``npc_present`` says which slots hold a vehicle. Slot order from a
 distribution is: the lead (NPC1), the oncoming vehicles (NPC2, ...), then the followers.
+
+A scenario may hold more than one automated vehicle (AV). The ego (``ego_*``) is AV 0; ``av_*``
+arrays (N, K) describe the K others: where they start, their direction of travel (+1 towards +s in
+lane 0 like the ego, -1 towards -s in lane 1), their goal line and the NPC slot each must pass to
+succeed (its own slow lead). Every AV shares the row's size, speed limit, sensor range and time limit.
 """
 
 from __future__ import annotations
@@ -55,10 +60,28 @@ class Scenarios:
     npc_reaction: np.ndarray  # (N, M) s before an NPC reacts to the ego entering its lane
     npc_reveal: np.ndarray  # (N, M) m: the vehicle is perceived only this close (occlusion); inf = always
     npc_must_pass: np.ndarray  # (N, M) bool: success requires the ego ahead of these (NPC1)
+    # Further automated vehicles (N, K), world coordinates; K = 0 (the default) is the single-ego road.
+    av_s: np.ndarray | None = None  # centre position
+    av_d: np.ndarray | None = None  # lateral position (0 = lane 0's centre, lane_width = lane 1's)
+    av_v: np.ndarray | None = None  # speed along its own direction
+    av_direction: np.ndarray | None = None  # int8: +1 drives towards +s (lane 0), -1 towards -s (lane 1)
+    av_goal_s: np.ndarray | None = None  # world s its front must pass (for direction -1: reach s <= goal)
+    av_lead: np.ndarray | None = None  # int16: the NPC slot it must pass to succeed, -1 none
+
+    def __post_init__(self) -> None:
+        n = self.lane_width.shape[0]
+        for name, dtype in _AV_DTYPES.items():
+            if getattr(self, name) is None:
+                setattr(self, name, np.zeros((n, 0), dtype))
 
     @property
     def num(self) -> int:
         return int(self.lane_width.shape[0])
+
+    @property
+    def num_avs(self) -> int:
+        """Automated vehicles per scenario, the ego included."""
+        return 1 + int(self.av_s.shape[1])
 
     @property
     def num_npcs(self) -> int:
@@ -73,11 +96,15 @@ class Scenarios:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, Any]) -> "Scenarios":
-        return cls(**{f.name: np.asarray(arrays[f.name]) for f in dataclasses.fields(cls)})
+        """The inverse of :meth:`to_arrays`; files written before AVs existed have no ``av_*``."""
+        return cls(**{f.name: np.asarray(arrays[f.name]) for f in dataclasses.fields(cls)
+                      if f.name in arrays or f.name not in _AV_DTYPES})
 
     @classmethod
     def concat(cls, batches: list["Scenarios"]) -> "Scenarios":
-        """Stack batches, padding NPC slots to the widest batch."""
+        """Stack batches, padding NPC slots to the widest batch (their AV counts must agree)."""
+        if len({b.num_avs for b in batches}) > 1:
+            raise ValueError("cannot stack scenarios with different numbers of automated vehicles")
         width = max(b.num_npcs for b in batches)
         padded = [b.pad_npcs(width) for b in batches]
         return cls(**{f.name: np.concatenate([getattr(b, f.name) for b in padded])
@@ -99,6 +126,9 @@ class Scenarios:
             out[f.name] = a
         return Scenarios(**out)
 
+
+_AV_DTYPES = {"av_s": np.float64, "av_d": np.float64, "av_v": np.float64, "av_direction": np.int8,
+              "av_goal_s": np.float64, "av_lead": np.int16}
 
 Range = tuple[float, float]
 
