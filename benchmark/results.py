@@ -71,10 +71,18 @@ def git_commit() -> str | None:
     return commit if len(commit) == 40 else None
 
 
+# (table, key) -> the value under which the setting changes nothing that was measured before it existed.
+ADDED_LATER = {("planner", "emergency_braking"): False}
+
+
 def config_sha256(config: Any) -> str:
     """Hash of the resolved settings: catches a change of library defaults the suite file does not name.
-    The reward is left out: it changes no outcome or statistic a results file records."""
+    The reward is left out: it changes no outcome or statistic a results file records. A setting added
+    after rows were recorded is left out while it holds the value that reproduces them (ADDED_LATER)."""
     settings = {k: v for k, v in config.to_dict().items() if k != "reward"}
+    for (table, key), neutral in ADDED_LATER.items():
+        if settings[table].get(key) == neutral:
+            del settings[table][key]
     text = json.dumps(settings, sort_keys=True, default=repr)
     return hashlib.sha256(text.encode()).hexdigest()
 

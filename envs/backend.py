@@ -33,6 +33,7 @@ class NumpyBackend:
     any = staticmethod(np.logical_or.reduce)
     all = staticmethod(np.logical_and.reduce)
     sum = staticmethod(np.add.reduce)
+    concatenate = staticmethod(np.concatenate)
 
     def __init__(self, device: Any = None, dtype: Any = None) -> None:
         self.float = np.dtype(dtype or np.float64).type
@@ -132,6 +133,9 @@ class TorchBackend:
 
     def sum(self, a: Any, axis: int = 0) -> Any:
         return self.torch.sum(a, dim=axis)
+
+    def concatenate(self, xs: Any, axis: int = 0) -> Any:
+        return self.torch.cat([self._t(x) for x in xs], dim=axis)
 
     def stack(self, xs: Any, axis: int = 0) -> Any:
         return self.torch.stack(list(xs), dim=axis)

@@ -89,6 +89,10 @@ class PlannerConfig:
     time_headway: float = 1.0  # s, ego IDM headway behind a leader
     comfortable_braking: float = 2.0  # m/s^2, ego IDM b
     max_braking: float = 5.0  # m/s^2, ego emergency braking bound
+    # Off (OpenPlanner's follow behaviour, and every single-ego suite): the speed plan follows only
+    # same-direction vehicles, and the jerk limit bounds every brake. On: an oncoming vehicle on the
+    # path is braked for too, and a brake beyond comfortable_braking is applied without the jerk limit.
+    emergency_braking: bool = False
     max_jerk: float = 3.0  # m/s^3
     abort_clearance: float = 2.0  # m between the ego and the lead before an abort merges back
     abort_drop_back: float = 1.5  # m/s below the lead's speed while an abort drops back
@@ -114,6 +118,9 @@ class PlannerConfig:
             _check(f"planner.{key}", getattr(self, key), 1e-6, 100.0)
         for key in ("weight_priority", "weight_transition", "weight_lateral", "weight_longitudinal"):
             _check(f"planner.{key}", getattr(self, key), 0.0, 100.0)
+        for key in ("enable_prediction", "emergency_braking"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"planner.{key}: expected true or false, got {getattr(self, key)!r}")
         unknown = set(self.modes) - set(MODE_NAMES)
         if unknown:
             raise ConfigError(f"planner.modes: unknown mode {sorted(unknown)[0]!r} "

@@ -1,12 +1,19 @@
-"""The batched simulation core: N scenarios stepped at once as a structure of arrays.
+"""The batched simulation core: N roads stepped at once as a structure of arrays.
 
-One call to :meth:`OvertakeCore.step` advances every scenario by ``dt``: the shared planner turns
-each row's mode into a path and an acceleration, the ego tracks the path (kinematic bicycle +
-pure pursuit, acceleration / jerk / steering-rate limits), the NPCs drive with IDM reacting to
-whatever is ahead in their lane (the ego included, after their reaction delay), then collisions
-(oriented boxes, separating axes) and outcomes are resolved. There is no Python loop over scenarios
-or vehicles. Finished rows are either held frozen (evaluation; their ``dt`` is zero) or replaced by
+A road holds E automated vehicles (AVs; E = 1 is the paper's single-ego road) and M NPCs. One call
+to :meth:`OvertakeCore.step` advances every road by ``dt``: the shared planner turns each AV's mode
+into a path and an acceleration (planner.py) that the AV tracks (dynamics.py), the NPCs' controllers
+set their accelerations (controllers.py: one IDM for everyone), then contacts (collisions.py),
+outcomes (outcomes.py) and rewards (reward.py) are resolved. There is no Python loop over roads or
+vehicles. Finished rows are either held frozen (evaluation; their ``dt`` is zero) or replaced by
 fresh scenarios (training, ``auto_reset=True``).
+
+AV rows: the batch the deciders see has one row per AV, ``B = E * N`` rows, AV ``e`` of road ``n``
+in row ``e * N + n``. Each AV's state (``x, y, psi, v, ...``, (B,)) is kept in its own frame: x along
+its direction of travel, y from its own lane's centre towards the lane it overtakes through. For an
+AV driving towards -s that frame is the road turned half a turn (x = -s, y = lane_width - d), so the
+planner, the observation and every decider work unchanged for AVs in either direction. What an AV
+sees (``geometry()``, (B, M + E - 1)) is every NPC of its road and every other AV, in its frame.
 
 Layout: public arrays are batch-first, (N,) and (N, M). Internally every per-NPC array is kept
 batch-last, (M, N), and the planner works on (R, M, N): numpy reduces a short trailing axis at
@@ -19,40 +26,43 @@ torch tensors on a device (``backend="torch"``), e.g. to step very large batches
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
-from .config import ABORT, OVERTAKE, EnvConfig
-from .observation import observe, observation_size
 from .backend import make_backend
-from .planner import ModeTable, Plan, clip, first_argmin, first_true, lateral_profile, plan, rollout_geometry
-from .scenarios import OPPOSITE_LANE, SCRIPTED, SPEEDUP_WHEN_PASSED, Scenarios
+from .collisions import av_contacts, lane_contacts
+from .config import ABORT, OVERTAKE, EnvConfig
+from .controllers import AGENT, IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
+from .dynamics import advance_npcs, track
+from .observation import observe, observation_size
+from .outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
+from .planner import ModeTable, Plan, plan, rollout_geometry
+from .reward import step_reward
+from .scenarios import OPPOSITE_LANE, SCRIPTED, Scenarios
 
-RUNNING, SUCCESS, CRASH, TIMEOUT, OFFROAD = 0, 1, 2, 3, 4
-OUTCOME_NAMES = ("running", "success", "crash", "timeout", "offroad")
+__all__ = ["OvertakeCore", "StepResult", "RUNNING", "SUCCESS", "CRASH", "TIMEOUT", "OFFROAD", "OUTCOME_NAMES"]
 
 ScenarioSource = Callable[[int, np.random.Generator], Scenarios]
 
 
 @dataclass
 class StepResult:
-    obs: np.ndarray  # (N, D) float32, after any auto-reset
-    reward: np.ndarray  # (N,)
-    terminated: np.ndarray  # (N,) bool: success / crash / off-road this step
-    truncated: np.ndarray  # (N,) bool: time limit this step
-    final_obs: np.ndarray | None  # (N, D) the observation before an auto-reset (auto_reset only)
+    obs: np.ndarray  # (B, D) float32, after any auto-reset
+    reward: np.ndarray  # (B,)
+    terminated: np.ndarray  # (B,) bool: success / crash / off-road this step
+    truncated: np.ndarray  # (B,) bool: time limit this step
+    final_obs: np.ndarray | None  # (B, D) the observation before an auto-reset (auto_reset only)
     info: dict[str, np.ndarray]  # per-row arrays (outcome, crash vehicle/lane, episode stats)
 
 
 class OvertakeCore:
-    """Steps a batch of scenarios. ``modes`` are ints: 0 follow, 1 overtake, 2 abort."""
+    """Steps a batch of roads. ``modes`` are ints, one per AV row: 0 follow, 1 overtake, 2 abort."""
 
-    _NPC_STATE = ("npc_s", "npc_v", "npc_a", "npc_aware", "npc_boosted")
+    _NPC_STATE = ("npc_s", "npc_v", "npc_a", "npc_boosted", "npc_crashed")
     _STATE = ("x", "y", "psi", "v", "a", "steer", "yaw_rate", "mode", "rollout", "t", "done", "outcome",
-              "crash_npc", "crash_lane", "episode_return", "episode_steps")
+              "crash_npc", "crash_lane", "crash_av", "episode_return", "episode_steps")
 
     def __init__(self, config: EnvConfig | None = None, auto_reset: bool = False,
                  source: ScenarioSource | None = None, seed: int | None = None,
@@ -70,14 +80,15 @@ class OvertakeCore:
     npc_s = property(lambda self: self._npc_s.T, lambda self, v: setattr(self, "_npc_s", self.xp.batch_last(v)))
     npc_v = property(lambda self: self._npc_v.T, lambda self, v: setattr(self, "_npc_v", self.xp.batch_last(v)))
     npc_a = property(lambda self: self._npc_a.T, lambda self, v: setattr(self, "_npc_a", self.xp.batch_last(v)))
-    npc_aware = property(lambda self: self._npc_aware.T,
-                         lambda self, v: setattr(self, "_npc_aware", self.xp.batch_last(v)))
     npc_boosted = property(lambda self: self._npc_boosted.T,
                            lambda self, v: setattr(self, "_npc_boosted", self.xp.batch_last(v)))
+    npc_crashed = property(lambda self: self._npc_crashed.T,
+                           lambda self, v: setattr(self, "_npc_crashed", self.xp.batch_last(v)))
 
     @property
     def num(self) -> int:
-        return self.scen.num
+        """AV rows: one per automated vehicle, ``num_avs * num_roads``."""
+        return self.num_avs * self.scen.num
 
     @property
     def obs_size(self) -> int:
@@ -85,16 +96,21 @@ class OvertakeCore:
 
     # ------------------------------------------------------------------ reset
     def reset(self, scenarios: Scenarios) -> np.ndarray:
-        """Start every row on ``scenarios``; returns the first observation."""
-        xp, n, m = self.xp, scenarios.num, scenarios.num_npcs
+        """Start every road on ``scenarios``; returns the first observation of every AV row."""
+        xp, n, m, e = self.xp, scenarios.num, scenarios.num_npcs, scenarios.num_avs
+        b = n * e
+        self.num_roads, self.num_npcs, self.num_avs = n, m, e
         self.x, self.y, self.v, self.psi, self.a, self.steer, self.yaw_rate, self.t, self.episode_return = (
-            xp.zeros(n) for _ in range(9))
-        self.mode, self.rollout, self.episode_steps = (xp.zeros(n, xp.int) for _ in range(3))
-        self.done, self.outcome = xp.zeros(n, xp.bool), xp.zeros(n, xp.int8)
-        self.crash_npc, self.crash_lane = xp.full(n, -1, xp.int), xp.full(n, -1, xp.int)
-        self.stats = {key: xp.zeros(n, xp.int if key in ("aborts", "switches") else None) for key in _STAT_INIT}
-        self._npc_s, self._npc_v, self._npc_a, self._npc_aware = (xp.zeros((m, n)) for _ in range(4))
-        self._npc_boosted = xp.zeros((m, n), xp.bool)
+            xp.zeros(b) for _ in range(9))
+        self.mode, self.rollout, self.episode_steps = (xp.zeros(b, xp.int) for _ in range(3))
+        self.done, self.outcome = xp.zeros(b, xp.bool), xp.zeros(b, xp.int8)
+        self.crash_npc, self.crash_lane, self.crash_av = (xp.full(b, -1, xp.int) for _ in range(3))
+        self.stats = {key: xp.zeros(b, xp.int if key in ("aborts", "switches") else None) for key in _STAT_INIT}
+        self._npc_s, self._npc_v, self._npc_a = (xp.zeros((m, n)) for _ in range(3))
+        self._npc_aware = xp.zeros((e, m, n))
+        self._npc_boosted, self._npc_crashed = xp.zeros((m, n), xp.bool), xp.zeros((m, n), xp.bool)
+        self._npc_crashed_any = False
+        self._npc_leader = xp.full((m, n), -1, xp.int)
         if self.auto_reset:  # auto-reset rewrites rows of the batch in place: keep a private copy
             scenarios = Scenarios.from_arrays({k: v.copy() for k, v in scenarios.to_arrays().items()})
         self.scen = scenarios
@@ -104,70 +120,124 @@ class OvertakeCore:
         return self.observe()
 
     def _set_scenarios(self, sc: Scenarios, rows: Any = None) -> None:
-        """Cache the scenarios' constants in the backend's layout: per-row (N,) and batch-last (M, N)
-        NPC arrays (they do not change within an episode). With ``rows``, ``sc`` holds only those
-        rows' scenarios and just their columns are rewritten (auto-reset)."""
+        """Cache the scenarios' constants in the backend's layout: per AV row (B,), per NPC (M, N) and
+        the view each AV row has of the NPCs (M, B); they do not change within an episode. With
+        ``rows`` (roads), ``sc`` holds only those roads' scenarios and just their columns are rewritten."""
         ego, npc = self._constants(sc)
         if rows is None:
-            self._ego, self._sc = ego, npc
-            return
-        for key, value in ego.items():
-            self._ego[key][rows] = value
-        for key, value in npc.items():
-            self._sc[key][..., rows] = value
+            self._ego, self._npc = ego, npc
+        else:
+            cols = self._av_rows(rows)
+            for key, value in ego.items():
+                self._ego[key][cols] = value
+            for key, value in npc.items():
+                self._npc[key][..., rows] = value
+        if self.num_avs == 1:  # the single-AV road: its view of the NPCs is the NPCs
+            self._sc = self._npc
+        else:
+            self._npc_view = self._view_constants(self._npc, self._ego)
+
+    def _av_rows(self, roads: Any) -> Any:
+        """The AV rows of ``roads`` (all AVs of each)."""
+        xp = self.xp
+        roads = xp.asarray(roads, xp.int).reshape(-1)
+        return (xp.arange(self.num_avs)[:, None] * self.scen.num + roads[None, :]).reshape(-1)
 
     def _constants(self, sc: Scenarios) -> tuple[dict[str, Any], dict[str, Any]]:
-        xp = self.xp
+        xp, e = self.xp, sc.num_avs
         ego = {name: xp.asarray(getattr(sc, name), xp.float) for name in _EGO_FIELDS}
         T = {name[4:]: xp.batch_last(getattr(sc, name)) for name in _NPC_FIELDS}
         T["same_dir"] = T["lane"] != OPPOSITE_LANE
         T["direction"] = xp.where(T["same_dir"], 1.0, -1.0)
         w = ego["lane_width"]
         T["d"] = T["lane"] * w
-        T["half_len"] = (ego["ego_length"] + T["length"]) / 2
-        T["half_wid"] = (ego["ego_width"] + T["width"]) / 2
-        T["reach"] = xp.minimum(ego["sensor_range"], T["reveal"])
-        T.update(rollout_geometry(self.cfg.planner, w, T["d"], T["half_wid"], T["half_len"], xp))
-        # Per-episode terms of the step (computed once here, not every step; same expressions).
         T["half_length"], T["half_width"] = T["length"] / 2, T["width"] / 2
-        T["speedup"] = T["behaviour"] == SPEEDUP_WHEN_PASSED
-        T["notices_ego"] = T["behaviour"] != SCRIPTED  # a scripted NPC drives its speed profile, blind to the ego
-        T["not_must_pass"] = ~T["must_pass"]
+        T["speedup"] = speeds_up(T["behaviour"])
+        T["notices_ego"] = notices_avs(T["behaviour"])  # a scripted NPC drives its speed profile, blind to AVs
         T["pair_same_lane"] = (T["lane"][:, None] == T["lane"][None, :]) & T["present"][None, :]  # (M, M, N)
         T["pair_half_len"] = (T["length"][:, None] + T["length"][None, :]) / 2
         others = xp.arange(T["lane"].shape[0])[:, None] != xp.arange(T["lane"].shape[0])[None, :]
         T["lane_mates"] = xp.any(xp.any(T["pair_same_lane"] & others[:, :, None], axis=0), axis=0)  # (N,)
+        if e > 1:  # every AV row gets its road's constants, and its own direction, goal and lead
+            ego = {k: xp.concatenate([v] * e) for k, v in ego.items()}
+            ego.update(self._av_constants(sc, ego))
+        else:
+            T.update(self._view_terms(T, ego))
         ego["half_ego_length"], ego["half_ego_width"] = ego["ego_length"] / 2, ego["ego_width"] / 2
-        ego["half_lane_width"] = half_w = w / 2
+        ego["half_lane_width"] = half_w = ego["lane_width"] / 2
         ego["offroad_low"], ego["offroad_high"] = -half_w - 0.5, 3 * half_w + 0.5
         ego["time_up"] = ego["time_limit"] - 1e-9
         return ego, T
 
-    def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
-        """Initial state of ``rows`` from the scenarios ``fresh`` (one per row)."""
+    def _av_constants(self, sc: Scenarios, ego: dict[str, Any]) -> dict[str, Any]:
+        """Per AV row: direction, goal and road end in its own frame, its start, and its lead."""
+        xp, n = self.xp, sc.num
+        direction = np.concatenate([np.ones(n), sc.av_direction.T.reshape(-1).astype(float)])
+        goal = np.concatenate([sc.goal_s, (sc.av_goal_s * sc.av_direction).T.reshape(-1)])
+        beyond = np.concatenate([sc.road_length] * sc.num_avs) - np.concatenate([sc.goal_s] * sc.num_avs)
+        lead = np.concatenate([np.full(n, -1), sc.av_lead.T.reshape(-1).astype(int)])
+        return {"direction": xp.asarray(direction, xp.float), "goal_s": xp.asarray(goal, xp.float),
+                "road_length": xp.asarray(goal + beyond, xp.float), "lead": xp.asarray(lead, xp.int)}
+
+    def _view_terms(self, V: dict[str, Any], ego: dict[str, Any]) -> dict[str, Any]:
+        """What the planner, the outcomes and the observation need of the vehicles an AV row sees,
+        from their ``lane``, ``d``, sizes and flags (all (M', B))."""
         xp = self.xp
-        self.x[rows], self.y[rows], self.v[rows] = (xp.asarray(getattr(fresh, k), xp.float)
-                                                    for k in ("ego_s", "ego_d", "ego_v"))
+        out = {"half_len": (ego["ego_length"] + V["length"]) / 2, "half_wid": (ego["ego_width"] + V["width"]) / 2,
+               "reach": xp.minimum(ego["sensor_range"], V["reveal"]), "not_must_pass": ~V["must_pass"]}
+        out.update(rollout_geometry(self.cfg.planner, ego["lane_width"], V["d"], out["half_wid"], out["half_len"], xp))
+        return out
+
+    def _view_constants(self, T: dict[str, Any], ego: dict[str, Any]) -> dict[str, Any]:
+        """The NPCs as each AV row sees them (M, B), mirrored for AVs driving towards -s."""
+        xp, e = self.xp, self.num_avs
+        tile = lambda a: xp.concatenate([a] * e, axis=-1)  # noqa: E731  (M, N) -> (M, B), AV-major
+        flip = ego["direction"] < 0
+        lane = xp.where(flip, 1 - tile(T["lane"]), tile(T["lane"]))
+        slot = xp.arange(T["lane"].shape[0])[:, None]
+        must_pass = xp.where(ego["lead"] >= 0, slot == ego["lead"], tile(T["must_pass"]))
+        return {"lane": lane, "d": lane * ego["lane_width"], "same_dir": lane != OPPOSITE_LANE,
+                "length": tile(T["length"]), "width": tile(T["width"]), "present": tile(T["present"]),
+                "reveal": tile(T["reveal"]), "must_pass": must_pass, "psi": xp.zeros(lane.shape)}
+
+    def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
+        """Initial state of roads ``rows`` from the scenarios ``fresh`` (one per road)."""
+        xp = self.xp
+        cols = rows if self.num_avs == 1 else self._av_rows(rows)
+        start_x, start_y, start_v = (np.asarray(getattr(fresh, k), float) for k in ("ego_s", "ego_d", "ego_v"))
+        if self.num_avs > 1:  # the further AVs' starts, in their own frames
+            flip = fresh.av_direction < 0
+            start_x = np.concatenate([start_x, (fresh.av_s * fresh.av_direction).T.reshape(-1)])
+            start_y = np.concatenate([start_y, np.where(flip, fresh.lane_width[:, None] - fresh.av_d,
+                                                        fresh.av_d).T.reshape(-1)])
+            start_v = np.concatenate([start_v, fresh.av_v.T.reshape(-1)])
+        self.x[cols], self.y[cols], self.v[cols] = (xp.asarray(a, xp.float) for a in (start_x, start_y, start_v))
         for name in ("psi", "a", "steer", "yaw_rate", "t", "episode_return"):
-            getattr(self, name)[rows] = 0.0
+            getattr(self, name)[cols] = 0.0
         self._npc_s[:, rows] = xp.batch_last(fresh.npc_s, xp.float)
         self._npc_v[:, rows] = xp.batch_last(fresh.npc_v, xp.float)
         self._npc_a[:, rows] = 0.0
         # NPCs that start with the ego ahead in their lane (followers) already know it is there.
         behind_ego = (fresh.npc_lane == 0) & (fresh.npc_s < fresh.ego_s[:, None])
-        self._npc_aware[:, rows] = xp.batch_last(np.where(behind_ego, np.inf, 0.0), xp.float)
+        self._npc_aware[:, :, rows] = 0.0
+        first_av = self._npc_aware[0]  # (a view: the other AVs start unnoticed)
+        first_av[:, rows] = xp.batch_last(np.where(behind_ego, np.inf, 0.0), xp.float)
         self._npc_boosted[:, rows] = False
-        self.mode[rows], self.rollout[rows] = 0, 0
-        self.done[rows], self.outcome[rows] = False, RUNNING
-        self.crash_npc[rows], self.crash_lane[rows] = -1, -1
-        self.episode_steps[rows] = 0
+        self._npc_crashed[:, rows] = False
+        self._npc_leader[:, rows] = -1
+        self.mode[cols], self.rollout[cols] = 0, 0
+        self.done[cols], self.outcome[cols] = False, RUNNING
+        self.crash_npc[cols], self.crash_lane[cols], self.crash_av[cols] = -1, -1, -1
+        self.episode_steps[cols] = 0
         for key, arr in self.stats.items():
-            arr[rows] = _STAT_INIT[key]
+            arr[cols] = _STAT_INIT[key]
 
     def _replace_rows(self, rows: Any, fresh: Scenarios) -> None:
-        """Put ``fresh`` scenarios into ``rows`` (auto-reset) without touching other rows."""
+        """Put ``fresh`` scenarios into roads ``rows`` (auto-reset) without touching other roads."""
         if fresh.num_npcs > self.scen.num_npcs:
             raise ValueError("auto-reset scenarios have more NPC slots than the batch")
+        if fresh.num_avs != self.num_avs:
+            raise ValueError("auto-reset scenarios have another number of automated vehicles than the batch")
         fresh = fresh.pad_npcs(self.scen.num_npcs)
         host_rows = self.xp.to_numpy(rows)
         for name, value in fresh.to_arrays().items():  # in place: the batch's Scenarios is private
@@ -175,41 +245,105 @@ class OvertakeCore:
         self._set_scenarios(fresh, rows)
         self._start_rows(rows, fresh)
         if self.last_plan is not None:  # a new episode starts with no planner flags, as after reset()
-            self.last_plan.blocked[rows] = False
+            self.last_plan.blocked[rows if self.num_avs == 1 else self._av_rows(rows)] = False
 
     def restart(self, rows: Any, fresh: Scenarios) -> Any:
-        """Start ``fresh`` scenarios in ``rows`` (the other rows untouched); their first observations.
-        The batch's Scenarios are rewritten in place: reset the core on a private copy."""
+        """Start ``fresh`` scenarios in roads ``rows`` (the other roads untouched); the first
+        observations of their AV rows. The batch's Scenarios are rewritten in place: reset the core
+        on a private copy."""
         self._replace_rows(rows, fresh)
-        return observe(self, self._geometry(), rows)
+        return observe(self, self._geometry(), rows if self.num_avs == 1 else self._av_rows(rows))
 
     def clone(self, rows: Any = None) -> "OvertakeCore":
-        """An independent copy of ``rows`` (all rows when None), e.g. for look-ahead search."""
+        """An independent copy of roads ``rows`` (all when None), e.g. for look-ahead search."""
         xp = self.xp
-        idx = xp.arange(self.num) if rows is None else xp.asarray(rows)
+        idx = xp.arange(self.scen.num) if rows is None else xp.asarray(rows)
+        cols = idx if self.num_avs == 1 else self._av_rows(idx)
         other = OvertakeCore(self.cfg, auto_reset=False)
         other.xp, other.table = xp, self.table
         other.scen = self.scen.take(xp.to_numpy(idx))
+        other.num_roads, other.num_npcs, other.num_avs = other.scen.num, self.num_npcs, self.num_avs
         other._set_scenarios(other.scen)
         for name in self._STATE:
-            setattr(other, name, xp.copy(getattr(self, name)[idx]))
+            setattr(other, name, xp.copy(getattr(self, name)[cols]))
         for name in self._NPC_STATE:
             setattr(other, "_" + name, xp.copy(getattr(self, "_" + name)[:, idx]))
-        other.stats = {k: xp.copy(v[idx]) for k, v in self.stats.items()}
+        other._npc_aware = xp.copy(self._npc_aware[:, :, idx])
+        other._npc_leader = xp.copy(self._npc_leader[:, idx])
+        other._npc_crashed_any = bool(other._npc_crashed.any())
+        other.stats = {k: xp.copy(v[cols]) for k, v in self.stats.items()}
         return other
 
     # ------------------------------------------------------------- geometry
+    def _avs_world(self) -> dict[str, Any]:
+        """The AVs in world coordinates, (E, N) arrays (for the NPCs' controllers and the views)."""
+        xp, e, n, E = self.xp, self.num_avs, self.scen.num, self._ego
+        if e == 1:  # the ego's frame is the world's
+            return {"s": self.x[None], "d": self.y[None], "psi": self.psi[None], "v_along": self._av_velocity(),
+                    "present": xp.full((1, n), True, xp.bool)}
+        direction = E["direction"]
+        present = ~(self.done & (self.outcome != CRASH))  # a crashed AV stays where it stopped
+        return {"s": (direction * self.x).reshape(e, n),
+                "d": xp.where(direction > 0, self.y, E["lane_width"] - self.y).reshape(e, n),
+                "psi": self.psi.reshape(e, n), "v_along": self._av_velocity(), "present": present.reshape(e, n)}
+
+    def _av_velocity(self) -> Any:
+        """(E, N): each AV's velocity along +s (zero once it is done: it has stopped or left)."""
+        xp = self.xp
+        if self.num_avs == 1:
+            return (self.v * xp.cos(self.psi))[None]
+        along = self._ego["direction"] * self.v * xp.cos(self.psi) * ~self.done
+        return along.reshape(self.num_avs, -1)
+
     def _geometry(self) -> dict[str, Any]:
-        """Relative geometry of every NPC w.r.t. the ego, batch-last (M, N); shared by the planner,
-        the NPC model, collisions, observation and statistics."""
-        T = self._sc
-        dx = self._npc_s - self.x
-        return {
-            "dx": dx, "dy": T["d"] - self.y, "d": T["d"], "same_dir": T["same_dir"], "direction": T["direction"],
-            "v_along": T["direction"] * self._npc_v,  # NPC velocity along +s
-            "half_len": T["half_len"], "half_wid": T["half_wid"],
-            "visible": T["present"] & (self.xp.abs(dx) <= T["reach"]),
-        }
+        """Relative geometry of every vehicle an AV row sees, in its frame, batch-last (M', B); shared
+        by the planner, collisions, outcomes, observation and statistics. ``s`` is their position."""
+        if self.num_avs == 1:
+            T = self._sc
+            dx = self._npc_s - self.x
+            return {
+                "s": self._npc_s, "dx": dx, "dy": T["d"] - self.y, "d": T["d"], "same_dir": T["same_dir"],
+                "direction": T["direction"],
+                "v_along": T["direction"] * self._npc_v,  # NPC velocity along +s
+                "half_len": T["half_len"], "half_wid": T["half_wid"],
+                "visible": T["present"] & (self.xp.abs(dx) <= T["reach"]),
+            }
+        return self._multi_geometry()
+
+    def _multi_geometry(self) -> dict[str, Any]:
+        """:meth:`_geometry` on a road with several AVs: NPCs then the other AVs, mirrored into each
+        AV's frame. The other AVs move sideways, so their view terms are rebuilt every step."""
+        xp, e, n, E = self.xp, self.num_avs, self.scen.num, self._ego
+        direction, w = E["direction"], E["lane_width"]
+        tile = lambda a: xp.concatenate([a] * e, axis=-1)  # noqa: E731
+        avs = self._avs_world()
+        others = self._other_av  # (E - 1, B): the AV index each column of an AV row's view holds
+        cols = xp.arange(self.num)[None, :] % n
+        o_s, o_d = avs["s"][others, cols], avs["d"][others, cols]
+        o_dir = E["direction"].reshape(e, n)[others, cols]
+        V = dict(self._npc_view)
+        av_lane = xp.astype(xp.where(direction > 0, o_d, w - o_d) > w / 2, xp.int)
+        av_part = {"lane": av_lane, "d": xp.where(direction > 0, o_d, w - o_d), "same_dir": o_dir == direction,
+                   "length": E["ego_length"] + 0 * o_s, "width": E["ego_width"] + 0 * o_s,
+                   "present": avs["present"][others, cols], "reveal": xp.full(o_s.shape, INF),
+                   "must_pass": xp.zeros(o_s.shape, xp.bool), "psi": avs["psi"][others, cols]}
+        V = {k: xp.concatenate([V[k], av_part[k]]) for k in V}
+        V.update(self._view_terms(V, E))
+        V["half_length"], V["half_width"] = V["length"] / 2, V["width"] / 2
+        m = V["lane"].shape[0]
+        V["pair_same_lane"] = (V["lane"][:, None] == V["lane"][None, :]) & V["present"][None, :]
+        mates = xp.arange(m)[:, None] != xp.arange(m)[None, :]
+        V["lane_mates"] = xp.any(xp.any(V["pair_same_lane"] & mates[:, :, None], axis=0), axis=0)
+        V["direction"] = xp.where(V["same_dir"], 1.0, -1.0)
+        self._sc = V
+        s = xp.concatenate([tile(self._npc_s) * direction, direction * o_s])
+        v_along = xp.concatenate([tile(self._npc["direction"] * self._npc_v) * direction,
+                                  direction * avs["v_along"][others, cols]])
+        dx = s - self.x
+        return {"s": s, "dx": dx, "dy": V["d"] - self.y, "d": V["d"], "same_dir": V["same_dir"],
+                "direction": V["direction"], "v_along": v_along, "half_len": V["half_len"],
+                "half_wid": V["half_wid"], "visible": V["present"] & (xp.abs(dx) <= V["reach"]),
+                "psi": V["psi"]}
 
     def _plan_inputs(self, geo: dict[str, Any]) -> dict[str, Any]:
         T = self._sc
@@ -218,17 +352,25 @@ class OvertakeCore:
                 "beside_reach": T["beside_reach"]}
 
     def geometry(self) -> dict[str, Any]:
-        """The same geometry as (N, M) arrays: dx, dy, d, same_dir, direction, v_along, half_len,
+        """The same geometry as (B, M') arrays: dx, dy, d, same_dir, direction, v_along, half_len,
         half_wid, visible."""
-        return {key: value.T for key, value in self._geometry().items()}
+        return {key: value.T for key, value in self._geometry().items() if key not in ("s", "psi")}
 
     def observe(self, geo: dict[str, Any] | None = None) -> Any:
         return observe(self, geo if geo is not None else self._geometry())
 
+    @property
+    def _other_av(self) -> Any:
+        """(E - 1, B): for each AV row, the index of each other AV of its road, in order."""
+        xp, e = self.xp, self.num_avs
+        mine = xp.arange(self.num) // self.scen.num
+        k = xp.arange(e - 1)[:, None]
+        return k + (k >= mine[None, :])
+
     # ----------------------------------------------------------------- step
     def step(self, modes: Any, npc_accel: Any = None) -> StepResult:
-        """Advance every row by one ``dt`` under ``modes`` (N,). ``npc_accel`` (N, M) overrides the
-        IDM acceleration of NPCs where it is finite (NPCs exposed as agents)."""
+        """Advance every road by one ``dt`` under ``modes`` (B,), one per AV row. ``npc_accel`` (N, M)
+        overrides the IDM acceleration of NPCs where it is finite (NPCs exposed as agents)."""
         xp, cfg, pc, E = self.xp, self.cfg, self.cfg.planner, self._ego
         modes = xp.asarray(modes, xp.int).reshape(-1)
         if modes.shape[0] != self.num:
@@ -252,35 +394,22 @@ class OvertakeCore:
         self.last_plan = p
         self.rollout = xp.where(active, p.rollout, self.rollout)
 
-        # Ego longitudinal: jerk-limited acceleration, speed in [0, limit].
-        jerk_step = pc.max_jerk * dt
-        a_new = self.a + clip(p.accel - self.a, -jerk_step, jerk_step, xp)
-        jerk = xp.abs(a_new - self.a) / cfg.dt
-        v_new = clip(self.v + a_new * dt, 0.0, E["speed_limit"], xp)
-        self.a = xp.where(v_new <= 0.0, xp.maximum(a_new, 0.0), a_new)  # at standstill the brake holds
-        # Ego lateral: pure pursuit on the chosen rollout, steering angle and rate limited.
-        lookahead = xp.maximum(pc.lookahead_gain * self.v, pc.lookahead_min)
-        roll_in = pc.roll_in_speed_factor * self.v + pc.roll_in_margin
-        target_y = lateral_profile(self.y, p.target_d, lookahead, E["lane_width"], roll_in, pc.car_tip_margin, xp)
-        alpha = xp.arctan2(target_y - self.y, lookahead) - self.psi
-        steer_cmd = clip(xp.arctan(2.0 * pc.wheelbase * xp.sin(alpha) / lookahead), -pc.max_steer, pc.max_steer, xp)
-        rate = pc.max_steer_rate * dt
-        self.steer = self.steer + clip(steer_cmd - self.steer, -rate, rate, xp)
-        self.yaw_rate = v_new * xp.tan(self.steer) / pc.wheelbase
-        self.x = self.x + v_new * xp.cos(self.psi) * dt
-        self.y = self.y + v_new * xp.sin(self.psi) * dt
-        self.psi = self.psi + self.yaw_rate * dt
-        self.v = v_new
-
-        self._step_npcs(geo, dt, npc_accel)
+        road_dt = dt if self.num_avs == 1 else cfg.dt * xp.astype(
+            xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
+        avs = self._avs_world()  # where the NPCs see the AVs: before they move, as the planner did
+        avs["half_len"], avs["half_wid"] = self._npc_sizes_with_avs(geo)
+        jerk = track(self, p, dt)
+        avs["v_along"] = self._av_velocity()  # ... and how fast they now go
+        advance_npcs(self, npc_accelerations(self, avs, road_dt, npc_accel), road_dt)
         self.t = self.t + dt
         self.episode_steps += active
 
         geo = self._geometry()
-        hit = self._collisions(geo)
-        terminated, truncated = self._resolve(hit, active)
+        hit = self._contacts(geo)
+        self._npc_collisions(hit)
+        terminated, truncated = resolve(self, geo, hit, active)
         self._update_stats(geo, active, jerk)
-        reward = self._reward(terminated, truncated, switched, active)
+        reward = step_reward(self, terminated, truncated, switched, active)
         self.episode_return += reward
         finished = terminated | truncated
         info = self.info()
@@ -288,91 +417,52 @@ class OvertakeCore:
         obs = observe(self, geo)
         final_obs = None
         if self.auto_reset and finished.any():
-            final_obs = obs
-            rows = xp.nonzero(finished)
-            obs = xp.copy(obs)
-            obs[rows] = self.restart(rows, self.source(len(rows), self.rng))  # only the restarted rows change
+            ended = self._ended_roads()
+            if ended.any():
+                final_obs = obs
+                roads = xp.nonzero(ended)
+                obs = xp.copy(obs)
+                cols = roads if self.num_avs == 1 else self._av_rows(roads)
+                obs[cols] = self.restart(roads, self.source(len(roads), self.rng))  # only those rows change
         return StepResult(obs, reward, terminated, truncated, final_obs, info)
 
-    def _step_npcs(self, geo: dict[str, Any], dt: Any, npc_accel: Any) -> None:
-        """IDM for every NPC behind the nearest vehicle ahead in its lane (NPC or, once noticed, ego;
-        scripted NPCs never notice the ego)."""
-        xp, T, nc = self.xp, self._sc, self.cfg.npc
-        direction, half_wid, s, v = geo["direction"], geo["half_wid"], self._npc_s, self._npc_v
-        # Other NPCs ahead in the same lane, along each NPC's own direction: pairs (j, k, N).
-        ahead = direction[:, None] * (s[None, :] - s[:, None])
-        pair_gap = ahead - T["pair_half_len"]
-        pair_gap = xp.where(T["pair_same_lane"] & (ahead > 0), pair_gap, INF)
-        gap = xp.amin(pair_gap, axis=1)
-        lead_v = v[first_argmin(pair_gap, 1, xp), xp.arange(self.num)]
-        # The ego counts once it occupies this lane ahead and the reaction delay has passed.
-        ego_gap = -direction * geo["dx"] - geo["half_len"]
-        ego_in_lane = (xp.abs(geo["dy"]) < half_wid) & (ego_gap > -2 * geo["half_len"])
-        self._npc_aware = xp.where(ego_in_lane, self._npc_aware + dt, 0.0)
-        if ego_in_lane.any():  # (the ego in no NPC's lane: every NPC keeps its lead)
-            sees_ego = ego_in_lane & T["notices_ego"] & (self._npc_aware >= T["reaction"]) & (ego_gap < gap)
-            gap = xp.where(sees_ego, ego_gap, gap)
-            lead_v = xp.where(sees_ego, direction * (self.v * xp.cos(self.psi)), lead_v)
-        # A speed-up lead raises its desired speed once the ego draws level in the other lane.
-        v_des = T["v_des"]
-        if T["speedup"].any():  # (no speed-up lead in the batch: nothing to boost)
-            passing = T["speedup"] & (geo["dy"] < -half_wid) & (geo["dx"] - geo["half_len"] < nc.speedup_trigger)
-            self._npc_boosted |= passing & (dt > 0)
-            v_des = v_des + xp.where(self._npc_boosted, T["boost"], 0.0)
-        s_star = nc.min_gap + xp.maximum(
-            v * nc.time_headway + v * (v - lead_v) / (2.0 * math.sqrt(nc.max_acceleration * nc.comfortable_braking)), 0.0)
-        interaction = xp.where(xp.isfinite(gap), (s_star / xp.maximum(gap, 0.1)) ** 2, 0.0)
-        acc = nc.max_acceleration * (1.0 - (v / xp.maximum(v_des, 1e-3)) ** 4 - interaction)
-        if npc_accel is not None:
-            override = xp.batch_last(npc_accel, xp.float)
-            acc = xp.where(xp.isfinite(override), override, acc)
-        acc = clip(acc, -nc.max_braking, nc.max_acceleration, xp)
-        self._npc_a = acc
-        self._npc_v = xp.maximum(v + acc * dt, 0.0) * T["present"]
-        self._npc_s = s + direction * self._npc_v * dt
+    def _contacts(self, geo: dict[str, Any]) -> Any:
+        E, T = self._ego, self._sc
+        return av_contacts(self.xp, self.psi, E["half_ego_length"], E["half_ego_width"], geo["dx"], geo["dy"],
+                           T["half_length"], T["half_width"], T["present"], geo.get("psi"))
 
-    def _collisions(self, geo: dict[str, Any]) -> Any:
-        """Ego (oriented box) against every NPC (axis-aligned box) by separating axes, (M, N) bool."""
-        xp, T, E = self.xp, self._sc, self._ego
-        cs, sn = xp.cos(self.psi), xp.sin(self.psi)
-        c, s = xp.abs(cs), xp.abs(sn)
-        he_l, he_w = E["half_ego_length"], E["half_ego_width"]
-        hn_l, hn_w = T["half_length"], T["half_width"]
-        dx, dy = geo["dx"], geo["dy"]
-        hit = xp.abs(dx) <= hn_l + he_l * c + he_w * s
-        if not hit.any():  # (no vehicle overlaps the ego along the road: no contact, skip the other axes)
-            return hit
-        hit &= xp.abs(dy) <= hn_w + he_l * s + he_w * c
-        hit &= xp.abs(dx * cs + dy * sn) <= he_l + hn_l * c + hn_w * s
-        hit &= xp.abs(-dx * sn + dy * cs) <= he_w + hn_l * s + hn_w * c
-        return hit & T["present"]
+    def contacts(self) -> Any:
+        """(B, M') bool: which vehicles in each AV row's view touch that AV now."""
+        return self._contacts(self._geometry()).T
 
-    def _resolve(self, hit: Any, active: Any) -> tuple[Any, Any]:
-        xp, T, E = self.xp, self._sc, self._ego
-        crash = active & xp.any(hit, axis=0)
-        half_w = E["half_lane_width"]
-        left, right = self.y + E["half_ego_width"], self.y - E["half_ego_width"]
-        offroad = active & ~crash & ((right < E["offroad_low"]) | (left > E["offroad_high"]))
-        front, rear = self.x + E["half_ego_length"], self.x - E["half_ego_length"]
-        passed = xp.all(T["not_must_pass"] | (rear >= self._npc_s + T["half_length"]), axis=0)
-        in_lane = left <= half_w
-        going = active & ~crash & ~offroad
-        success = going & (front >= E["goal_s"]) & in_lane & passed
-        # Out of time, or out of road (a follower stuck behind the lead past the goal): truncation.
-        timeout = going & ~success & ((self.t >= E["time_up"]) | (self.x > E["road_length"]))
-        if crash.any():  # (which vehicle was hit matters only in a crash)
-            hit_idx = xp.minimum(first_true(hit, 0, xp), max(hit.shape[0] - 1, 0))
-            cols = xp.arange(self.num)
-            self.crash_npc = xp.where(crash, hit_idx, self.crash_npc)
-            self.crash_lane = xp.where(crash, xp.astype(T["lane"][hit_idx, cols], xp.int), self.crash_lane)
-        outcome = xp.where(timeout, TIMEOUT, self.outcome)
-        outcome = xp.where(success, SUCCESS, outcome)
-        outcome = xp.where(offroad, OFFROAD, outcome)
-        self.outcome = xp.astype(xp.where(crash, CRASH, outcome), xp.int8)
-        self.stats["completion_time"] = xp.where(success, self.t, self.stats["completion_time"])
-        terminated = crash | offroad | success
-        self.done |= terminated | timeout
-        return terminated, timeout
+    def _ended_roads(self) -> Any:
+        """(N,) bool: roads whose every AV is done."""
+        return self.done if self.num_avs == 1 else self.xp.all(self.done.reshape(self.num_avs, -1), axis=0)
+
+    def _npc_sizes_with_avs(self, geo: dict[str, Any]) -> tuple[Any, Any]:
+        """Half-length and half-width sums of each AV with each NPC, (E, M, N)."""
+        if self.num_avs == 1:
+            return geo["half_len"][None], geo["half_wid"][None]
+        E, T, e = self._ego, self._npc, self.num_avs
+        length, width = E["ego_length"].reshape(e, 1, -1), E["ego_width"].reshape(e, 1, -1)
+        return (length + T["length"][None]) / 2, (width + T["width"][None]) / 2
+
+    def _npc_collisions(self, hit: Any) -> None:
+        """NPC-NPC contacts, and NPCs hit by an AV: a crashed NPC stops where it is."""
+        xp = self.xp
+        follower, lead = lane_contacts(xp, self._npc_s, self._npc["direction"], self._npc["half_length"],
+                                       self._npc_leader, self._npc["present"])
+        m = self.num_npcs
+        struck = hit.any() and xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1).any()
+        if not (struck or follower.any()):  # (the usual step: nobody touched anybody)
+            return
+        crashed = self._npc_crashed | follower
+        if struck:
+            crashed = crashed | xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
+        rows_j, rows_n = xp.nonzero2(follower)
+        crashed[lead[rows_j, rows_n], rows_n] = True  # both parties of a rear-end contact
+        self._npc_crashed = crashed
+        self._npc_crashed_any = True
 
     def _update_stats(self, geo: dict[str, Any], active: Any, jerk: Any) -> None:
         xp, st, E = self.xp, self.stats, self._ego
@@ -388,27 +478,40 @@ class OvertakeCore:
         st["peak_lat_accel"] = xp.where(active, xp.maximum(st["peak_lat_accel"], lat_acc), st["peak_lat_accel"])
         st["peak_jerk"] = xp.where(active, xp.maximum(st["peak_jerk"], jerk), st["peak_jerk"])
 
-    def _reward(self, terminated: Any, truncated: Any, switched: Any, active: Any) -> Any:
-        xp, rc, E = self.xp, self.cfg.reward, self._ego
-        dist = xp.maximum(E["goal_s"] - (self.x + E["ego_length"] / 2), 0.0)
-        r = (rc.progress / (1.0 + dist / rc.progress_scale) + rc.time) * active
-        r = r + rc.switch * xp.astype(switched, xp.float)
-        terminal = xp.asarray([0.0, rc.success, rc.crash, rc.timeout, rc.offroad], xp.float)[xp.astype(self.outcome, xp.int)]
-        return r + terminal * (terminated | truncated)
-
     def info(self) -> dict[str, Any]:
         xp = self.xp
         out = {"outcome": xp.copy(self.outcome), "crash_npc": xp.copy(self.crash_npc),
                "crash_lane": xp.copy(self.crash_lane), "t": xp.copy(self.t),
                "episode_return": xp.copy(self.episode_return), "episode_steps": xp.copy(self.episode_steps)}
+        if self.num_avs > 1:
+            out["crash_av"] = xp.copy(self.crash_av)
         out.update({k: xp.copy(v) for k, v in self.stats.items()})
         return out
 
     def state_arrays(self) -> dict[str, Any]:
-        """Ego and NPC state of every row, batch-first (for recording, rendering, privileged deciders)."""
+        """AV and NPC state of every row, batch-first (for recording, rendering, privileged deciders)."""
         return {"x": self.x, "y": self.y, "psi": self.psi, "v": self.v, "a": self.a, "steer": self.steer,
                 "mode": self.mode, "rollout": self.rollout, "t": self.t, "npc_s": self.npc_s,
                 "npc_v": self.npc_v, "done": self.done, "outcome": self.outcome}
+
+    def vehicles(self) -> dict[str, np.ndarray]:
+        """Every vehicle of every road in world coordinates, (N, V) host arrays with V = E + M: the
+        AVs first, then the NPC slots. ``kind`` is the controller (controllers.KIND_NAMES)."""
+        xp, e, n = self.xp, self.num_avs, self.scen.num
+        avs = self._avs_world()
+        host = lambda a: np.asarray(xp.to_numpy(a), float)  # noqa: E731
+        sc = self.scen
+        kind_npc = np.where(sc.npc_behaviour == SCRIPTED, SCRIPTED_KIND, IDM)
+        length = np.concatenate([np.repeat(sc.ego_length[:, None], e, 1), sc.npc_length], axis=1)
+        width = np.concatenate([np.repeat(sc.ego_width[:, None], e, 1), sc.npc_width], axis=1)
+        direction = np.concatenate([np.ones((n, 1)), sc.av_direction.astype(float),
+                                    np.where(sc.npc_lane == OPPOSITE_LANE, -1.0, 1.0)], axis=1)
+        return {"s": np.concatenate([host(avs["s"]).T, host(self._npc_s).T], axis=1),
+                "d": np.concatenate([host(avs["d"]).T, sc.npc_lane * sc.lane_width[:, None]], axis=1),
+                "v": np.concatenate([host(self.v).reshape(e, n).T, host(self._npc_v).T], axis=1),
+                "direction": direction, "length": length, "width": width,
+                "kind": np.concatenate([np.full((n, e), PLANNER), kind_npc], axis=1).astype(np.int8),
+                "present": np.concatenate([host(avs["present"]).T > 0, sc.npc_present], axis=1)}
 
 
 INF = float("inf")
@@ -418,3 +521,4 @@ _NPC_FIELDS = ("npc_present", "npc_lane", "npc_v_des", "npc_behaviour", "npc_boo
                "npc_reaction", "npc_reveal", "npc_must_pass")
 _STAT_INIT = {"completion_time": np.nan, "aborts": 0, "switches": 0, "opposite_time": 0.0, "min_ttc": np.inf,
               "peak_lat_accel": 0.0, "peak_jerk": 0.0}
+AGENT_KIND = AGENT

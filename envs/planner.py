@@ -23,8 +23,10 @@ Per step and per scenario the planner (after OpenPlanner's ``TrajectoryEvaluator
 4. picks the cheapest allowed unblocked rollout, keeping the current one when it is within
    ``keep_margin`` of the best. With every allowed rollout blocked, OVERTAKE holds its current
    rollout (it commits: aborting is the decider's call), FOLLOW and ABORT use the centre;
-5. plans speed with IDM behind the nearest same-direction vehicle on the chosen path, keeping the
-   mode's following distance. ABORT merges back only where the ego lane beside the ego is clear by
+5. plans speed with IDM (controllers.idm) behind the nearest same-direction vehicle on the chosen
+   path, keeping the mode's following distance. With ``emergency_braking`` an oncoming vehicle on
+   the path counts too, as a standing obstacle where the two would meet, and braking beyond the
+   comfortable deceleration skips the jerk limit (dynamics.py). ABORT merges back only where the ego lane beside the ego is clear by
    ``abort_clearance``; until then it holds its offset and drops back below the lead's speed.
 """
 
@@ -32,19 +34,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-INF = float("inf")
-
 import numpy as np
 
-from .backend import NumpyBackend
 from .config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
-
-NP = NumpyBackend()
-
-
-def clip(x, lo, hi, xp=NP):
-    """``np.clip`` without its Python-level dispatch (it dominates at N = 1)."""
-    return xp.minimum(xp.maximum(x, lo), hi)
+from .controllers import idm
+from .ops import INF, NP, SMALL_BATCH, clip, first_argmin, first_true  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -84,6 +78,7 @@ class Plan:
     target_d: np.ndarray  # (N,) the chosen path's end offset (the current offset while an abort waits)
     accel: np.ndarray  # (N,) commanded acceleration before jerk limits
     leader_gap: np.ndarray  # (N,) bumper gap to the followed vehicle (inf if none)
+    emergency: np.ndarray | None = None  # (N,) bool: braking beyond comfort (emergency_braking only)
 
 
 def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_width: np.ndarray,
@@ -93,30 +88,6 @@ def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_w
     then the end offset. Arrays broadcast; used by the evaluator and by the tracking controller."""
     reach = lane_width / roll_in * xp.maximum(ahead - tip, 0.0)
     return y + clip(target - y, -reach, reach, xp)
-
-
-# Up to this many rows (the batch, the last axis) numpy's own argmin/argmax is cheaper than the
-# elementwise passes below: at small N each numpy call costs ~1 us whatever its size.
-SMALL_BATCH = 256
-
-
-def first_argmin(a: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
-    """Index of the first minimum along ``axis``, like ``argmin``. The core keeps the batch as the
-    last (contiguous) axis; numpy's argmin over a leading axis copies a transpose and its reductions
-    over a short trailing axis cost ~20 ns per row, so both are avoided with fast elementwise passes."""
-    if xp.name == "numpy" and a.shape[-1] <= SMALL_BATCH:
-        return a.argmin(axis=axis)
-    low = xp.amin(a, axis=axis, keepdims=True)
-    return first_true(a == low, axis, xp)
-
-
-def first_true(mask: np.ndarray, axis: int = 0, xp=NP) -> np.ndarray:
-    """Index of the first True along ``axis`` (the axis length where there is none)."""
-    length = mask.shape[axis]
-    if xp.name == "numpy" and mask.shape[-1] <= SMALL_BATCH:
-        return np.where(mask.any(axis=axis), mask.argmax(axis=axis), length)
-    index = xp.arange(length).reshape((-1,) + (1,) * (mask.ndim - 1 - axis % mask.ndim))
-    return xp.amin(xp.where(mask, index, length), axis=axis)
 
 
 def _swept_conflict(y, v, offsets, dj, margin, lane_width, roll_in, tip, t_from, t_to, xp):
@@ -255,14 +226,23 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     # that turns into it makes the ego brake hard and fall in behind, as OpenPlanner's follow does.
     on_path = visible & same_dir & (dx > 0.0) & ((xp.abs(d_path - dj) < half_wid) | (xp.abs(y - dj) < half_wid))
     path_gap = xp.where(on_path, gap, INF)
+    head_on = None
+    if cfg.emergency_braking:  # (off: like OpenPlanner's follow, only same-direction vehicles are followed)
+        # An oncoming vehicle on the path: stop short of where the two would meet at today's speeds.
+        near = (xp.abs(d_path - dj) < half_wid) | (xp.abs(y - dj) < half_wid)
+        head_on = visible & ~same_dir & (dx > 0.0) & near
+        meet = gap * v / xp.maximum(v - npc["v_along"], 1e-3)
+        head_on = head_on & (meet < path_gap)
+        path_gap = xp.where(head_on, meet, path_gap)
     leader_gap = xp.amin(path_gap, axis=0)
-    leader_v = npc["v_along"][first_argmin(path_gap, xp=xp), cols]
+    leader = first_argmin(path_gap, xp=xp)
+    leader_v = npc["v_along"][leader, cols]
+    if head_on is not None:
+        leader_v = xp.where(head_on[leader, cols], 0.0, leader_v)  # the meeting point does not move
     a_max = table.acceleration[mode]
-    free_term = 1.0 - (v / xp.maximum(v0, 1e-3)) ** 4
-    s_star = table.following_distance[mode] + xp.maximum(
-        0.0, v * cfg.time_headway + v * (v - leader_v) / (2.0 * xp.sqrt(a_max * cfg.comfortable_braking) + 1e-9))
-    interaction = xp.where(xp.isfinite(leader_gap), (s_star / xp.maximum(leader_gap, 0.1)) ** 2, 0.0)
-    accel = clip(a_max * (free_term - interaction), -cfg.max_braking, a_max, xp)
+    accel = clip(idm(v, v0, leader_gap, leader_v, a_max, table.following_distance[mode], cfg.time_headway,
+                     2.0 * xp.sqrt(a_max * cfg.comfortable_braking) + 1e-9, xp), -cfg.max_braking, a_max, xp)
+    emergency = (accel < -cfg.comfortable_braking) if cfg.emergency_braking else None
     # Plan fields are (N, R) views, batch first like every public array.
     return Plan(offsets=offsets.T, blocked=blocked.T, cost=cost.T, rollout=choice, target_d=target_d,
-                accel=accel, leader_gap=leader_gap)
+                accel=accel, leader_gap=leader_gap, emergency=emergency)

@@ -123,11 +123,11 @@ def test_oriented_box_collision_detects_overlap_and_clearance():
     scen = make_scenario(lead=(0.1, 0.0), oncoming=[])
     core = OvertakeCore()
     core.reset(scen)
-    assert not core._collisions(core.geometry())[0, 0]  # 10 cm apart, aligned: clear
+    assert not core.contacts()[0, 0]  # 10 cm apart, aligned: clear
     core.psi[:] = 0.3  # the same ego rotated: its front corner reaches the lead
-    assert core._collisions(core.geometry())[0, 0]
+    assert core.contacts()[0, 0]
     core.x[:] -= 2.0
-    assert not core._collisions(core.geometry())[0, 0]
+    assert not core.contacts()[0, 0]
 
 
 def test_scenarios_concat_pads_npc_slots():
