@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.suites import CORE, MIXTURES, MULTI, load_suite, load_training
 from overtakezoo.envs import ConfigError, ScenarioDistribution, make_scenario
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, Scenarios
@@ -248,3 +249,11 @@ def test_multi_suites_step_on_the_core(name):
     assert all(av == {"success": 0.0, "crash": 0.0, "timeout": 1.0} for av in follow["per_av"])
     rush = _multi_rates().rates(suite, "always-overtake", 32)
     assert rush["any_crash"] > 0 and rush["all_succeed"] < 1
+
+
+def test_eval_refuses_a_multi_av_suite_with_one_error_line(tmp_path, capsys):
+    out = tmp_path / "duel.json"
+    assert main(["eval", "--suite", "duel", "--decider", "always-follow", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: suite 'duel' has 2 automated vehicles") and "\n" not in err
+    assert not out.exists() and not list(tmp_path.iterdir())
