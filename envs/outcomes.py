@@ -38,7 +38,7 @@ def resolve(core: Any, geo: dict[str, Any], hit: Any, active: Any) -> tuple[Any,
         core.crash_npc = xp.where(by_npc, hit_idx, core.crash_npc)
         core.crash_lane = xp.where(crash, xp.astype(T["lane"][hit_idx, cols], xp.int), core.crash_lane)
         if hit.shape[0] > m:  # other AVs in view: a contact with one names it
-            core.crash_av = xp.where(crash & ~by_npc, core._other_av[hit_idx - m, cols], core.crash_av)
+            core.crash_av = xp.where(crash & ~by_npc, core._other_av[xp.maximum(hit_idx - m, 0), cols], core.crash_av)
     outcome = xp.where(timeout, TIMEOUT, core.outcome)
     outcome = xp.where(success, SUCCESS, outcome)
     outcome = xp.where(offroad, OFFROAD, outcome)
