@@ -221,9 +221,15 @@ class OvertakeCore:
         self._npc_a[:, rows] = 0.0
         # NPCs that start with the ego ahead in their lane (followers) already know it is there.
         behind_ego = (fresh.npc_lane == 0) & (fresh.npc_s < fresh.ego_s[:, None])
-        self._npc_aware[:, :, rows] = 0.0
-        first_av = self._npc_aware[0]  # (a view: the other AVs start unnoticed)
-        first_av[:, rows] = xp.batch_last(np.where(behind_ego, np.inf, 0.0), xp.float)
+        aware = [behind_ego]
+        if self.num_avs > 1:  # ... and so do NPCs that start behind any other AV in its lane
+            lane = np.where(fresh.av_direction < 0, OPPOSITE_LANE, 0)[:, :, None]  # (N, K, 1)
+            ahead = np.where(fresh.npc_lane == OPPOSITE_LANE, -1.0, 1.0)[:, None, :] * (
+                fresh.av_s[:, :, None] - fresh.npc_s[:, None, :])
+            aware += list(np.moveaxis((fresh.npc_lane[:, None, :] == lane) & (ahead > 0), 1, 0))
+        for e, knows in enumerate(aware):
+            per_av = self._npc_aware[e]  # a view
+            per_av[:, rows] = xp.batch_last(np.where(knows, np.inf, 0.0), xp.float)
         self._npc_boosted[:, rows] = False
         self._npc_crashed[:, rows] = False
         self._npc_leader[:, rows] = -1
