@@ -270,3 +270,19 @@ def test_the_multi_train_mixture_steps_one_row_per_av():
     for _ in range(5):
         res = mix.step(np.ones(rows, np.int64))
     assert res.obs.shape[0] == rows and res.reward.shape == (rows,) and mix.done.shape == (rows,)
+
+
+@pytest.mark.parametrize("name", MULTI)
+def test_every_av_observation_lies_in_the_observation_space(name):
+    from overtakezoo.envs import OvertakeCore
+    from overtakezoo.envs.hold import hold
+    from overtakezoo.envs.spaces import ego_observation_space
+
+    suite = load_suite(name)
+    box = ego_observation_space(suite.config)
+    core = OvertakeCore(suite.config)
+    obs = core.reset(suite.scenarios().take(slice(0, 64)))
+    modes = np.random.default_rng(0).integers(0, 3, size=(40, obs.shape[0]))
+    for step_modes in modes:  # 40 decisions of 10 steps: most of an episode
+        assert ((obs >= box.low) & (obs <= box.high)).all()
+        obs = hold(core, step_modes, 10).obs
