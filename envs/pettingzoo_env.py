@@ -68,7 +68,7 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from .config import MODE_NAMES, ConfigError, EnvConfig
-from .core import OUTCOME_NAMES, TIMEOUT, OvertakeCore
+from .core import OUTCOME_NAMES, OvertakeCore
 from .face_render import RendersFirstRow
 from .hold import hold
 from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
@@ -94,7 +94,7 @@ def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str,
     """The config of a loaded suite (anything with an :class:`EnvConfig` ``config``, passed as
     ``suite`` or as ``config``), else ``config`` unchanged. A suite's name is refused with the way
     to load it: this package does not read suite files (``envs`` knows nothing of ``benchmark``)."""
-    if suite is None and isinstance(getattr(config, "config", None), EnvConfig):
+    if suite is None and (isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)):
         config, suite = None, config
     if suite is None:
         return config
@@ -244,7 +244,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             raise RuntimeError("step() before reset(): call reset() first")
         unknown = [a for a in actions if a not in self.observation_spaces]
         if unknown:
-            hint = (f"; agents are the road's automated vehicles av_0 .. (ego_<i> was renamed av_<i>)"
+            hint = ("; agents are the road's automated vehicles av_0 .. (ego_<i> was renamed av_<i>)"
                     if str(unknown[0]).startswith("ego_") else "")
             raise KeyError(f"action for unknown agent {unknown[0]!r} "
                            f"(agents: {', '.join(self.possible_agents)}){hint}")

@@ -23,7 +23,6 @@ from overtakezoo.envs import (  # noqa: E402
     OvertakeEnv,
     OvertakeVectorEnv,
     ScenarioDistribution,
-    Scenarios,
     draw_frame,
     env,
     frame_from_core,
