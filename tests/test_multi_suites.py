@@ -257,3 +257,16 @@ def test_eval_refuses_a_multi_av_suite_with_one_error_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: suite 'duel' has 2 automated vehicles") and "\n" not in err
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_the_multi_train_mixture_steps_one_row_per_av():
+    from overtakezoo.envs.mixture import MixedCore
+
+    suites = load_training("multi-train")
+    sources = [(lambda d: (lambda n, rng: d.sample(n, rng)))(s.distribution) for s in suites]
+    mix = MixedCore([s.config for s in suites], sources, [3, 2, 2], seed=0)
+    rows = 3 * 2 + 2 * 3 + 2 * 2  # duel, platoon, mixed-traffic: 2, 3, 2 AVs per road
+    assert mix.num == rows and mix.observe().shape[0] == rows
+    for _ in range(5):
+        res = mix.step(np.ones(rows, np.int64))
+    assert res.obs.shape[0] == rows and res.reward.shape == (rows,) and mix.done.shape == (rows,)
