@@ -200,6 +200,8 @@ class EnvConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     scenario: dict[str, Any] = field(default_factory=dict)  # a ScenarioDistribution as a dict
+    # Must be 1. Kept so that every stored configuration (and its hash) keeps its field set: the
+    # automated vehicles of a road come from the scenario distribution (platoon_size, oncoming_av).
     num_egos: int = 1
     npc_agents: bool = False
     render_mode: str | None = None
@@ -212,6 +214,12 @@ class EnvConfig:
         _check("dt", self.dt, 1e-3, 1.0)
         _check("decision_interval", self.decision_interval, 1, 1000, integer=True)
         _check("num_egos", self.num_egos, 1, 4096, integer=True)
+        if self.num_egos != 1:
+            raise ConfigError(
+                f"num_egos: {self.num_egos} is no longer supported (only 1): the agents of parallel_env are the "
+                "automated vehicles of one road (av_0, av_1, ...; set scenario.platoon_size / scenario.oncoming_av, "
+                "or use a multi-AV suite such as duel); for several roads at once use SuperSuit's vector of envs "
+                "or step OvertakeCore (see the PettingZoo section of the README)")
         if self.render_mode not in (None, "rgb_array", "human"):
             raise ConfigError(f"render_mode: {self.render_mode!r} is not one of None, 'rgb_array', 'human'")
         self.planner.validate()

@@ -1,26 +1,59 @@
-"""The PettingZoo face of the core: ``parallel_env(**config)`` and its AEC version ``env(**config)``.
+"""The PettingZoo face of the core: ``parallel_env(...)`` and its AEC version ``env(...)``.
 
-A thin adapter over one :class:`~.core.OvertakeCore` with ``N = num_egos`` rows and
-``auto_reset=False`` (a finished row is held; its agent leaves ``agents``).
+One env is one *road*: a thin adapter over an :class:`~.core.OvertakeCore` holding one scenario
+(``N = 1``, ``auto_reset=False``) whose automated vehicles (AVs) are the agents, so the agents share
+the road and meet: each sees the others in its observation slots, and two AVs can crash into each
+other.
+
+Building: ``parallel_env(config, **overrides)`` with an :class:`EnvConfig` or a dict (keyword
+arguments are EnvConfig keys), or ``parallel_env(suite)`` / ``parallel_env(suite=suite)`` with a
+loaded suite (``overtakezoo.benchmark.suites.load_suite("duel")``: its simulator settings and
+scenario distribution; this package does not read suite files itself). Each ``reset(seed=s)`` draws
+the road from the distribution with the env's generator (``ScenarioDistribution.sample(1, rng)``;
+without a seed, the next draw of the generator, first seeded by the config's ``seed``), or starts on
+``options={"scenarios": <Scenarios of one row>}``.
 
 Agents:
 
-- ``ego_0 .. ego_{E-1}``: one per row. The egos drive in *parallel, independent* scenarios (rows
-  never interact), each drawn from the config's ``scenario`` distribution; ``reset(seed=s)`` draws
-  the batch ``ScenarioDistribution.sample(E, s)``, so ego ``i`` gets the same scenario as row ``i``
-  of a suite with that seed. They are meant to share one policy (same spaces, same reward).
-  Action ``Discrete(3)``: 0 follow, 1 overtake, 2 abort. Observation: the core's vector
-  (``observation_layout``), a ``Box`` of finite bounds derived from the config (envs/spaces.py).
-- with ``npc_agents=True`` also ``npc_0 .. npc_{M-1}``: the NPC slots of ``ego_0``'s scenario
-  (slot 0 is NPC1, the lead; then the oncoming vehicles; then the followers). Action
+- ``av_0 .. av_{E-1}``: the road's AVs (E from the distribution: ``platoon_size`` AVs in lane 0, then
+  the ``oncoming_av``; ``av_0`` is the scenario's ego). A single-ego config has one agent ``av_0``
+  (formerly ``ego_0``; an action for ``ego_<i>`` raises a KeyError saying so). Every AV has the same
+  spaces, so one policy can drive them all (parameter sharing): action ``Discrete(3)`` (0 follow,
+  1 overtake, 2 abort), observation the core's vector for that AV, in its own frame
+  (``observation_layout``; a ``Box`` of finite bounds from the config, envs/spaces.py). Reward: the
+  core's, per AV. ``infos[av]`` is the core's per-row info plus ``outcome_name`` and ``crashed_into``
+  (``"av_1"``, ``"npc_0"``, or None: whom the AV crashed into; an AV-AV crash names each other).
+- with ``npc_agents=True`` also ``npc_<slot>`` for each NPC slot present on the road (slot 0 is the
+  lead, then the oncoming vehicles, the followers, and the oncoming AV's lead). Action
   ``Discrete(4)``: an acceleration from :data:`NPC_ACCELERATIONS` (m/s^2; the core clips it to the
-  IDM limits), applied instead of IDM. Observation (:data:`NPC_OBS_SIZE` floats): own speed, own
-  lane, distance to the ego along the NPC's own direction of travel (positive: ego ahead), the
-  closing speed to the ego, the ego's lateral offset from the NPC's lane centre, presence.
-  Reward: adversarial, zero-sum with ``ego_0`` (each NPC receives ``-reward(ego_0)``), so an
-  NPC population is a stress test of the ego policy. NPC agents end when ``ego_0``'s episode ends.
+  IDM limits), applied instead of IDM. Observation (:data:`NPC_OBS_SIZE` floats) relative to the
+  nearest AV still driving: own speed, own lane, distance to that AV along the NPC's direction of
+  travel (positive: AV ahead), the closing speed, the AV's lateral offset from the NPC's lane centre,
+  presence. Reward: adversarial, zero-sum with the AVs as a team (each NPC receives minus the sum of
+  the AVs' rewards). NPC agents end when the road ends.
 
-``reset(options={"scenarios": Scenarios})`` starts on given scenarios (E rows) instead of a draw.
+Finished agents: an AV whose episode ends (terminated: success / crash / off-road; truncated: time
+limit) leaves ``agents`` (PettingZoo's semantics); the core freezes it where it stopped (a crashed AV
+stays on the road as an obstacle). The episode ends when every AV is done; ``step({})`` after that
+returns empty dicts (as PettingZoo's ``aec_to_parallel`` does), any other action raises.
+
+Parameter sharing (SuperSuit): ``pettingzoo_env_to_vec_env_v1`` needs a fixed agent set, so wrap with
+``supersuit.black_death_v3`` first (a finished AV then receives zero observations and zero rewards
+until the road ends; ``npc_agents`` must stay off: their spaces differ from the AVs'). SuperSuit
+3.11.0's ``black_death_v3`` ends the episode one step after the last AV finishes (its done test is
+``terminations & truncations``, fixed by SuperSuit PR #265); that extra step is the ``step({})``
+above, zero reward for every AV.
+
+Batching for training: a PettingZoo env is one road; several roads per env would not be
+PettingZoo-shaped. The recommended route is SuperSuit's vector of envs::
+
+    vec = supersuit.pettingzoo_env_to_vec_env_v1(supersuit.black_death_v3(parallel_env(suite)))
+    vec = supersuit.concat_vec_envs_v1(vec, num_vec_envs=k, base_class="gymnasium")  # k * E rows
+
+(a Gymnasium ``VectorEnv`` that resets each road when it ends; ``base_class="stable_baselines3"`` for
+SB3, ``num_cpus`` for processes). Trainers that want speed step :class:`~.core.OvertakeCore`
+directly: ``reset`` on N roads gives ``E * N`` AV rows (AV ``e`` of road ``n`` in row ``e * N + n``)
+stepped as one array, with ``auto_reset=True`` refilling each road when its last AV is done.
 """
 
 from __future__ import annotations
@@ -57,11 +90,31 @@ def as_config(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any
     return EnvConfig.from_dict(config, **overrides)
 
 
+def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str, Any] | None:
+    """The config of a loaded suite (anything with an :class:`EnvConfig` ``config``, passed as
+    ``suite`` or as ``config``), else ``config`` unchanged. A suite's name is refused with the way
+    to load it: this package does not read suite files (``envs`` knows nothing of ``benchmark``)."""
+    if suite is None and (isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)):
+        config, suite = None, config
+    if suite is None:
+        return config
+    if config is not None:
+        raise ConfigError("suite: pass either a config or a suite, not both (override keys as keywords)")
+    if isinstance(suite, str):
+        raise ConfigError(f"suite: {suite!r} is a name; pass the loaded suite, e.g. "
+                          f"parallel_env(overtakezoo.benchmark.suites.load_suite({suite!r}))")
+    if not isinstance(getattr(suite, "config", None), EnvConfig):
+        raise ConfigError(f"suite: expected a loaded suite (with an EnvConfig .config), got {type(suite).__name__}")
+    return suite.config
+
+
 def single_ego(config: EnvConfig, face: str) -> EnvConfig:
-    """The Gymnasium faces drive one ego per scenario and no NPC agents: say so instead of ignoring."""
-    if config.num_egos != 1:
-        raise ConfigError(f"num_egos: {face} has one ego per scenario (got {config.num_egos}); "
-                          "use parallel_env(num_egos=...) or make_vec(num_envs=...)")
+    """The Gymnasium faces drive one AV per scenario and no NPC agents: say so instead of ignoring."""
+    dist = ScenarioDistribution.from_dict(config.scenario)
+    if dist.platoon_size > 1 or dist.oncoming_av:
+        raise ConfigError(f"scenario: {face} drives one automated vehicle per road, this distribution has "
+                          f"{dist.platoon_size + dist.oncoming_av} (platoon_size, oncoming_av); "
+                          "use parallel_env, whose agents are the road's AVs")
     if config.npc_agents:
         raise ConfigError(f"npc_agents: {face} has no NPC agents; use parallel_env(npc_agents=True)")
     return config
@@ -104,34 +157,45 @@ def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
     return out
 
 
-class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
-    """Egos (and optionally NPCs) as agents over one batched core; see the module docstring."""
+def av_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
+    """:func:`row_info` of AV ``row`` plus ``crashed_into``: the agent name of whom it hit, or None."""
+    out = row_info(info, row)
+    other = out.get("crash_av", -1)
+    out["crashed_into"] = (f"av_{other}" if other >= 0 else
+                           f"npc_{out['crash_npc']}" if out["crash_npc"] >= 0 else None)
+    return out
 
-    metadata = {"name": "overtake_v0", "render_modes": ["rgb_array", "human"], "render_fps": 10,
+
+class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
+    """The automated vehicles of one road (and optionally its NPCs) as agents; see the module docstring."""
+
+    metadata = {"name": "overtake_v1", "render_modes": ["rgb_array", "human"], "render_fps": 10,
                 "is_parallelizable": True}
 
-    def __init__(self, config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> None:
-        self.config = as_config(config, **overrides)
+    def __init__(self, config: Any = None, *, suite: Any = None, **overrides: Any) -> None:
+        self.config = as_config(suite_config(config, suite), **overrides)
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
-        self.num_egos = self.config.num_egos
-        self.num_npcs = self.distribution.sample(1, 0).num_npcs  # slots per scenario of this distribution
-        self._egos = [f"ego_{i}" for i in range(self.num_egos)]
+        probe = self.distribution.sample(1, 0)  # the road's layout: AVs and NPC slots
+        self.num_avs, self.num_npcs = probe.num_avs, probe.num_npcs
+        self._avs = [f"av_{e}" for e in range(self.num_avs)]
         self._npcs = [f"npc_{j}" for j in range(self.num_npcs)] if self.config.npc_agents else []
-        self.possible_agents = self._egos + self._npcs
+        self.possible_agents = self._avs + self._npcs
         self.agents: list[str] = []
         # Finite bounds (envs/spaces.py); observations are clipped to them, a no-op for scenarios
-        # of the config's distribution.
-        ego_obs = ego_observation_space(self.config)
-        npc_obs = npc_observation_space(self.config, npc_start_extent(self.distribution))
-        ego_act, npc_act = spaces.Discrete(len(MODE_NAMES)), spaces.Discrete(len(NPC_ACCELERATIONS))
+        # of the config's distribution. With several AVs an NPC's nearest AV may be any of them.
+        av_obs = ego_observation_space(self.config)
+        extent = npc_start_extent(self.distribution) * (2 if self.num_avs > 1 else 1)
+        npc_obs = npc_observation_space(self.config, extent)
+        av_act, npc_act = spaces.Discrete(len(MODE_NAMES)), spaces.Discrete(len(NPC_ACCELERATIONS))
         # Plain dicts (not lru_cache on the method, which would pin every env in a global cache):
         # each call returns the same space object, so seeding a space sticks.
-        self.observation_spaces = {a: ego_obs if a in self._egos else npc_obs for a in self.possible_agents}
-        self.action_spaces = {a: ego_act if a in self._egos else npc_act for a in self.possible_agents}
+        self.observation_spaces = {a: av_obs if a in self._avs else npc_obs for a in self.possible_agents}
+        self.action_spaces = {a: av_act if a in self._avs else npc_act for a in self.possible_agents}
         self._rng: np.random.Generator | None = None
         self._renderer = None
+        self._truncated = np.zeros(self.num_avs, bool)  # how each AV's episode ended (for the NPCs)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[agent]
@@ -147,22 +211,26 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             self._rng = np.random.default_rng(self.config.seed)
         scen = (options or {}).get("scenarios")
         if scen is None:
-            scen = self.distribution.sample(self.num_egos, self._rng)
-        elif not isinstance(scen, Scenarios) or scen.num != self.num_egos:
-            raise ValueError(f"options['scenarios'] must be a Scenarios batch of num_egos={self.num_egos} rows")
+            scen = self.distribution.sample(1, self._rng)
+        elif not isinstance(scen, Scenarios) or scen.num != 1:
+            raise ValueError("options['scenarios'] must be a Scenarios batch of one road (one row)")
+        elif scen.num_avs != self.num_avs:
+            raise ValueError(f"options['scenarios'] has {scen.num_avs} automated vehicles; this env's agents are "
+                             f"{', '.join(self._avs)} (build the env from a distribution with that many)")
         elif self._npcs and scen.num_npcs > self.num_npcs:
             raise ValueError(f"options['scenarios'] has {scen.num_npcs} NPC slots; "
                              f"this env has {self.num_npcs} NPC agents")
-        obs = self._clip_egos(self.core.reset(scen))
-        self.agents = list(self._egos)
+        obs = self._clip_avs(self.core.reset(scen))
+        self._truncated[:] = False
+        self.agents = list(self._avs)
         if self._npcs:
             self.agents += [self._npcs[j] for j in np.flatnonzero(scen.npc_present[0])]
         info = self.core.info()
-        observations = {a: obs[i] for i, a in enumerate(self._egos)}
-        infos = {a: row_info(info, i) for i, a in enumerate(self._egos)}
+        observations = {a: obs[e] for e, a in enumerate(self._avs)}
+        infos = {a: av_info(info, e) for e, a in enumerate(self._avs)}
         if self._npcs:
             npc_obs = self._npc_observations()
-            for a in self.agents[self.num_egos:]:
+            for a in self.agents[self.num_avs:]:
                 j = int(a[4:])
                 observations[a] = npc_obs[j]
                 infos[a] = {"slot": j, "lane": int(scen.npc_lane[0, j])}
@@ -172,75 +240,95 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
 
     # ----------------------------------------------------------------- step
     def step(self, actions: dict[str, Any]):
-        live = self.agents
-        if not live:
-            raise RuntimeError("step() called with no live agents: call reset() first")
+        if self.core.scen is None:
+            raise RuntimeError("step() before reset(): call reset() first")
         unknown = [a for a in actions if a not in self.observation_spaces]
         if unknown:
-            raise KeyError(f"action for unknown agent {unknown[0]!r} (agents: {', '.join(self.possible_agents)})")
-        modes = self.core.mode.copy()  # finished rows are frozen by the core whatever we pass
-        for i, a in enumerate(self._egos):
-            if a in actions and actions[a] is not None:
-                modes[i] = check_action(actions[a], len(MODE_NAMES), a)
-            elif not self.core.done[i]:
+            hint = ("; agents are the road's automated vehicles av_0 .. (ego_<i> was renamed av_<i>)"
+                    if str(unknown[0]).startswith("ego_") else "")
+            raise KeyError(f"action for unknown agent {unknown[0]!r} "
+                           f"(agents: {', '.join(self.possible_agents)}){hint}")
+        live = self.agents
+        if not live:
+            if any(v is not None for v in actions.values()):
+                raise RuntimeError("step() after every agent is done: call reset() first")
+            return {}, {}, {}, {}, {}  # as PettingZoo's aec_to_parallel (SuperSuit 3.11's black death needs it)
+        modes = self.core.mode.copy()  # finished AVs are frozen by the core whatever we pass
+        for e, a in enumerate(self._avs):
+            if actions.get(a) is not None:
+                modes[e] = check_action(actions[a], len(MODE_NAMES), a)
+            elif not self.core.done[e]:
                 raise KeyError(f"no action for live agent {a!r}")
         live_npcs = [a for a in live if a.startswith("npc_")] if self._npcs else []
         npc_accel = None
-        if live_npcs:  # NaN = IDM (NPCs of the other rows, and NPCs given no action)
-            npc_accel = np.full((self.num_egos, self.core.scen.num_npcs), np.nan)
+        if live_npcs:  # NaN = IDM (NPCs given no action)
+            npc_accel = np.full((1, self.core.scen.num_npcs), np.nan)
             for a in live_npcs:
                 if actions.get(a) is not None:
                     npc_accel[0, int(a[4:])] = NPC_ACCELERATIONS[check_action(actions[a], len(NPC_ACCELERATIONS), a)]
         # One env step holds the actions for decision_interval core steps (rewards summed).
         res = hold(self.core, modes, self.config.decision_interval, npc_accel)
+        self._truncated |= res.truncated
 
         obs, rew, term, trunc, infos = {}, {}, {}, {}, {}
-        ego_obs = self._clip_egos(res.obs)
-        for a in live:
-            if a.startswith("ego_"):
-                i = int(a[4:])
-                obs[a], rew[a] = ego_obs[i], float(res.reward[i])
-                term[a], trunc[a] = bool(res.terminated[i]), bool(res.truncated[i])
-                infos[a] = row_info(res.info, i)
+        av_obs = self._clip_avs(res.obs)
+        for e, a in enumerate(self._avs):
+            if a in live:
+                obs[a], rew[a] = av_obs[e], float(res.reward[e])
+                term[a], trunc[a] = bool(res.terminated[e]), bool(res.truncated[e])
+                infos[a] = av_info(res.info, e)
         if live_npcs:
             npc_obs = self._npc_observations()
-            r0, t0, u0 = -float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0])
-            outcome = OUTCOME_NAMES[int(res.info["outcome"][0])]
+            road_over = bool(self.core.done.all())
+            # The road ends by truncation only when every AV ran out of time (E = 1: the ego's own end).
+            npc_trunc = road_over and bool(self._truncated.all())
+            r = -float(res.reward.sum())
+            outcomes = {a: OUTCOME_NAMES[int(res.info["outcome"][e])] for e, a in enumerate(self._avs)}
             for a in live_npcs:
                 j = int(a[4:])
-                obs[a], rew[a], term[a], trunc[a] = npc_obs[j], r0, t0, u0
-                infos[a] = {"slot": j, "lane": int(self.core.scen.npc_lane[0, j]), "ego_outcome": outcome}
+                obs[a], rew[a], term[a], trunc[a] = npc_obs[j], r, road_over and not npc_trunc, npc_trunc
+                infos[a] = {"slot": j, "lane": int(self.core.scen.npc_lane[0, j]), "av_outcomes": outcomes}
         self.agents = [a for a in live if not (term[a] or trunc[a])]
         if self.render_mode == "human":
             self.render()
         return obs, rew, term, trunc, infos
 
     def _npc_observations(self) -> np.ndarray:
-        """(M, NPC_OBS_SIZE) float32 for the NPC slots of row 0 (ego_0's scenario)."""
+        """(M, NPC_OBS_SIZE) float32: each NPC slot relative to its nearest AV still driving (any AV
+        once all are done), all in world coordinates."""
         c, sc = self.core, self.core.scen
+        w = sc.lane_width[0]
+        # The AVs in the world frame from their own frames (E,): s = direction * x, d mirrored.
+        direction = np.concatenate([[1.0], sc.av_direction[0].astype(float)])
+        av_s = direction * c.x
+        av_d = np.where(direction > 0, c.y, w - c.y)
+        av_v = direction * c.v * np.cos(c.psi)  # velocity along +s
         lane = sc.npc_lane[0]
-        direction = np.where(lane == OPPOSITE_LANE, -1.0, 1.0)
+        npc_dir = np.where(lane == OPPOSITE_LANE, -1.0, 1.0)
         v = c.npc_v[0]
-        ego_vx = c.v[0] * np.cos(c.psi[0])
+        gaps = npc_dir[:, None] * (av_s[None, :] - c.npc_s[0][:, None])  # (M, E): AV ahead of the NPC: > 0
+        driving = ~np.asarray(c.done, bool)
+        far = np.where(driving | ~driving.any(), 0.0, np.inf)  # (E,): AVs that are done, while others drive
+        nearest = np.argmin(np.abs(gaps) + far[None, :], axis=1)  # (M,)
+        gap = np.take_along_axis(gaps, nearest[:, None], axis=1)[:, 0]
+        closing = v - npc_dir * av_v[nearest]  # rate at which that distance shrinks
+        lateral = (av_d[nearest] - lane * w) / w
         oc = self.config.observation
-        gap = direction * (c.x[0] - c.npc_s[0])  # ego ahead of the NPC along its travel: > 0
-        closing = v - direction * ego_vx  # rate at which that distance shrinks
-        lateral = (c.y[0] - lane * sc.lane_width[0]) / sc.lane_width[0]
         obs = np.stack([v / oc.speed_scale, lane.astype(float), gap / oc.position_scale,
                         closing / oc.speed_scale, lateral, sc.npc_present[0].astype(float)],
                        axis=1).astype(np.float32)
         space = self.observation_spaces[self._npcs[0]]
         return np.clip(obs, space.low, space.high)  # a no-op but for scenarios outside the distribution
 
-    def _clip_egos(self, obs: np.ndarray) -> np.ndarray:
+    def _clip_avs(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only scenarios given through
         # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
-        space = self.observation_spaces[self._egos[0]]
+        space = self.observation_spaces[self._avs[0]]
         return np.clip(obs, space.low, space.high)
 
     # --------------------------------------------------------------- render
     def render(self):
-        """Top view of ``ego_0``'s scenario (see :mod:`.render`)."""
+        """Top view of ``av_0``'s road (see :mod:`.render`)."""
         if self.render_mode is None:
             return None
         if self.core.scen is None:
@@ -248,13 +336,14 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         return self._render_first_row()
 
 
-def parallel_env(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> OvertakeParallelEnv:
-    """The PettingZoo ``ParallelEnv``; keyword arguments are :class:`EnvConfig` keys."""
-    return OvertakeParallelEnv(config, **overrides)
+def parallel_env(config: Any = None, *, suite: Any = None, **overrides: Any) -> OvertakeParallelEnv:
+    """The PettingZoo ``ParallelEnv`` of one road: ``config`` an :class:`EnvConfig`, a dict or a loaded
+    suite (or ``suite=``); keyword arguments are :class:`EnvConfig` keys."""
+    return OvertakeParallelEnv(config, suite=suite, **overrides)
 
 
-def env(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any):
+def env(config: Any = None, *, suite: Any = None, **overrides: Any):
     """The AEC version (PettingZoo's own conversion, with its bounds and order checks)."""
-    aec = parallel_to_aec_wrapper(parallel_env(config, **overrides))
+    aec = parallel_to_aec_wrapper(parallel_env(config, suite=suite, **overrides))
     aec = wrappers.AssertOutOfBoundsWrapper(aec)
     return wrappers.OrderEnforcingWrapper(aec)

@@ -14,7 +14,10 @@ distribution; none is fitted to data:
   ``npc.max_acceleration``; NPC agents (``npc_agents=True``) may accelerate at that rate for a whole
   episode;
 - a perceived vehicle is within ``sensor_range`` along the road and within the road across it, so
-  its ego-frame position is bounded whatever the ego's heading.
+  its ego-frame position is bounded whatever the ego's heading;
+- with several automated vehicles on a road (``platoon_size``, ``oncoming_av``), every AV has the same
+  Box (PettingZoo parameter sharing needs one): the farthest start from the goal (the back of the
+  platoon), and the other AVs seen in the slots at up to the speed limit, anywhere across the road.
 
 Bounds are padded outward by :data:`PAD` against float rounding. A scenario given through
 ``reset(options={"scenarios": ...})`` that lies outside the config's distribution (a faster lead, a
@@ -56,12 +59,17 @@ class _Limits:
             speeds.append(d.follower_speed[1])
         if d.oncoming_av:
             speeds.append(d.oncoming_av_lead_speed[1])
-        if d.platoon_size > 1 or d.oncoming_av:  # the other AVs are vehicles in view, capped as the ego is
-            speeds.append(self.v)
         top = max(speeds)
         accel = cfg.npc.max_acceleration
         self.npc_v = top + accel * (d.time_limit + cfg.dt if npc_agents else cfg.dt)
         self.dy = max(self.y_hi, d.lane_width - self.y_lo)  # |NPC lane centre - ego y|
+        if d.platoon_size > 1 or d.oncoming_av:
+            # Several AVs on the road: an AV at the back of a platoon starts that much farther from
+            # the goal; the other AVs appear in the slots at up to the speed limit, and anywhere
+            # across the road (their lateral offset is bounded like this AV's own).
+            self.x_lo -= (d.platoon_size - 1) * (d.platoon_gap[1] + d.ego_length)
+            self.npc_v = max(self.npc_v, self.v)
+            self.dy = self.y_hi - self.y_lo
         self.reach = math.hypot(d.sensor_range, self.dy)  # |ego-frame offset| of a perceived vehicle
 
 

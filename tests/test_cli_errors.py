@@ -53,7 +53,7 @@ def test_integer_settings_take_integers_only():
     # Documented choice: an integer setting refuses 2.0 rather than rounding it; numpy integers are fine.
     with pytest.raises(ConfigError, match="vehicles_per_lane: expected an integer, got 2.0"):
         EnvConfig.from_dict({"observation": {"vehicles_per_lane": 2.0}})
-    assert EnvConfig(decision_interval=np.int64(2), num_egos=np.int32(3)).decision_interval == 2
+    assert EnvConfig(decision_interval=np.int64(2), num_egos=np.int32(1)).decision_interval == 2
 
 
 def test_unwritable_train_out_fails_before_training(tmp_path, capsys, monkeypatch):

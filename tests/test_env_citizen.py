@@ -102,7 +102,7 @@ def test_observations_of_random_play_lie_in_the_box(suite):
 
 
 def test_npc_agents_observations_lie_in_their_boxes():
-    env = parallel_env(npc_agents=True, num_egos=2, scenario={"oncoming_count": 3, "follower_count": 1})
+    env = parallel_env(npc_agents=True, scenario={"platoon_size": 2, "oncoming_count": 3, "follower_count": 1})
     rng = np.random.default_rng(3)
     for seed in range(6):
         obs, _ = env.reset(seed=seed)
@@ -110,7 +110,7 @@ def test_npc_agents_observations_lie_in_their_boxes():
             for agent, o in obs.items():
                 _assert_in(o[None], env.observation_space(agent), agent)
             # NPCs mostly accelerate flat out: the fastest they can get.
-            actions = {a: (int(rng.integers(0, 3)) if a.startswith("ego") else int(rng.choice([2, 3, 3, 3])))
+            actions = {a: (int(rng.integers(0, 3)) if a.startswith("av_") else int(rng.choice([2, 3, 3, 3])))
                        for a in env.agents}
             obs, *_ = env.step(actions)
     dist = env.distribution
@@ -202,17 +202,19 @@ def test_gym_env_refuses_bad_actions(action):
     e.step(np.array(2))
 
 
-@pytest.mark.parametrize("agent,action", [("ego_0", -1), ("ego_0", 3), ("ego_0", 1.5), ("ego_1", 2.0),
+@pytest.mark.parametrize("agent,action", [("av_0", -1), ("av_0", 3), ("av_0", 1.5), ("av_1", 2.0),
                                           ("npc_0", -1), ("npc_1", 4), ("npc_0", 0.5)])
 def test_pettingzoo_bad_actions_raise_naming_the_agent(agent, action):
-    env = parallel_env(npc_agents=True, num_egos=2)
+    env = parallel_env(npc_agents=True, scenario={"platoon_size": 2})
     env.reset(seed=0)
     actions = {a: 0 for a in env.agents}
     actions[agent] = action
     with pytest.raises(ValueError, match=rf"^{agent}: action"):
         env.step(actions)
-    with pytest.raises(KeyError, match="unknown agent 'ego_9'"):
-        env.step({**{a: 0 for a in env.agents}, "ego_9": 1})
+    with pytest.raises(KeyError, match="unknown agent 'av_9'"):
+        env.step({**{a: 0 for a in env.agents}, "av_9": 1})
+    with pytest.raises(KeyError, match="ego_<i> was renamed av_<i>"):
+        env.step({**{a: 0 for a in env.agents}, "ego_0": 1})
 
 
 def test_vector_env_refuses_bad_actions():

@@ -23,7 +23,6 @@ from overtakezoo.envs import (  # noqa: E402
     OvertakeEnv,
     OvertakeVectorEnv,
     ScenarioDistribution,
-    Scenarios,
     draw_frame,
     env,
     frame_from_core,
@@ -53,22 +52,22 @@ def test_parallel_api_test_default():
     assert _unexpected(caught, INF_WARNINGS) == []
 
 
-def test_parallel_api_test_egos_and_npc_agents():
-    par = parallel_env(num_egos=3, npc_agents=True, scenario={"oncoming_count": 2, "follower_count": 1,
-                                                              "time_limit": 20.0})
-    assert par.possible_agents == ["ego_0", "ego_1", "ego_2", "npc_0", "npc_1", "npc_2", "npc_3"]
+def test_parallel_api_test_avs_and_npc_agents():
+    par = parallel_env(npc_agents=True, scenario={"platoon_size": 3, "oncoming_count": 2, "follower_count": 1,
+                                                  "time_limit": 20.0})
+    assert par.possible_agents == ["av_0", "av_1", "av_2", "npc_0", "npc_1", "npc_2", "npc_3"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         parallel_api_test(par, num_cycles=1000)
     assert _unexpected(caught, NPC_WARNINGS) == []
 
 
-@pytest.mark.parametrize("kwargs", [{}, {"num_egos": 2, "npc_agents": True}])
+@pytest.mark.parametrize("kwargs", [{}, {"npc_agents": True, "scenario": {"platoon_size": 2}}])
 def test_parallel_seed_test(kwargs):
     parallel_seed_test(lambda: parallel_env(**kwargs))
 
 
-@pytest.mark.parametrize("kwargs", [{}, {"num_egos": 2, "npc_agents": True, "scenario": {"time_limit": 15.0}}])
+@pytest.mark.parametrize("kwargs", [{}, {"npc_agents": True, "scenario": {"platoon_size": 2, "time_limit": 15.0}}])
 def test_aec_api_test(kwargs):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -77,7 +76,7 @@ def test_aec_api_test(kwargs):
 
 
 def test_aec_seed_test():
-    seed_test(lambda: env(num_egos=2, npc_agents=True), num_cycles=100)
+    seed_test(lambda: env(npc_agents=True, scenario={"platoon_size": 2}), num_cycles=100)
 
 
 def _rollout(par, seed: int, steps: int) -> list:
@@ -107,7 +106,7 @@ def _same(a, b) -> bool:
 
 
 def test_same_seed_bit_identical_over_200_steps():
-    cfg = {"num_egos": 2, "npc_agents": True, "scenario": {"time_limit": 8.0}}  # crosses resets too
+    cfg = {"npc_agents": True, "scenario": {"platoon_size": 2, "time_limit": 8.0}}  # crosses resets too
     a = _rollout(parallel_env(**cfg), seed=5, steps=200)
     b = _rollout(parallel_env(**cfg), seed=5, steps=200)
     assert len(a) == len(b) > 200
@@ -123,42 +122,52 @@ def test_config_errors_name_the_key():
         parallel_env(scenario={"lead_gapp": [1, 2]})
     with pytest.raises(ConfigError, match="num_egos"):
         parallel_env(num_egos=0)
+    with pytest.raises(ConfigError, match=r"num_egos: 2 is no longer supported .* scenario.platoon_size"):
+        parallel_env(num_egos=2)
     with pytest.raises(ConfigError, match="bogus"):
         gymnasium.make(ENV_ID, bogus=1)
     with pytest.raises(ConfigError, match="bogus"):
         make_vec(num_envs=2, bogus=1)
     with pytest.raises(ConfigError, match="num_egos"):
         OvertakeEnv(num_egos=2)
+    with pytest.raises(ConfigError, match="scenario: OvertakeEnv drives one automated vehicle"):
+        OvertakeEnv(scenario={"platoon_size": 2})
+    with pytest.raises(ConfigError, match="scenario: OvertakeVectorEnv"):
+        make_vec(num_envs=2, scenario={"oncoming_av": 1, "oncoming_count": 0})
     with pytest.raises(ConfigError, match="npc_agents"):
         make_vec(num_envs=2, npc_agents=True)
 
 
-def test_egos_run_independent_scenarios_from_the_seed():
-    par = parallel_env(num_egos=4)
+def test_the_road_is_drawn_from_the_seed_and_its_avs_are_the_agents():
+    par = parallel_env(scenario={"platoon_size": 4})
     obs, infos = par.reset(seed=7)
-    expected = ScenarioDistribution.from_dict({}).sample(4, 7)
+    expected = ScenarioDistribution.from_dict({"platoon_size": 4}).sample(1, 7)
     for name, value in expected.to_arrays().items():
         np.testing.assert_array_equal(getattr(par.core.scen, name), value)
-    assert len({float(v) for v in par.core.scen.npc_s[:, 0]}) == 4  # four different lead gaps
-    assert set(obs) == set(infos) == {"ego_0", "ego_1", "ego_2", "ego_3"}
-    space = par.observation_space("ego_0")
-    assert space is par.observation_space("ego_3") and space.shape == (par.core.obs_size,)
+    assert par.core.num_roads == 1 and par.core.num == 4
+    assert set(obs) == set(infos) == {"av_0", "av_1", "av_2", "av_3"}
+    space = par.observation_space("av_0")
+    assert space is par.observation_space("av_3") and space.shape == (par.core.obs_size,)
     assert all(space.contains(o) for o in obs.values())
-    assert par.action_space("ego_0") is par.action_space("ego_0") and par.action_space("ego_0").n == 3
+    assert par.action_space("av_0") is par.action_space("av_0") and par.action_space("av_0").n == 3
 
 
-def test_finished_ego_leaves_agents_while_others_run():
-    scen = Scenarios.concat([make_scenario(), make_scenario(time_limit=0.5)])
-    par = parallel_env(num_egos=2)
+def test_finished_av_leaves_agents_while_others_run():
+    # av_0 has no lead and its goal 10 m ahead: it succeeds in ~2 s; av_1 follows its slow lead.
+    scen = make_scenario(lead=None, oncoming_av=(80.0, 4.0, 10.0, 1.0), goal=10.0, time_limit=6.0)
+    par = parallel_env(scenario={"oncoming_av": 1, "oncoming_count": 0, "lead_gap": [0.0, 0.0]})
     par.reset(options={"scenarios": scen})
-    for _ in range(5):
-        _, _, _, trunc, infos = par.step({a: 0 for a in par.agents})
-    assert trunc == {"ego_0": False, "ego_1": True} and infos["ego_1"]["outcome_name"] == "timeout"
-    assert par.agents == ["ego_0"]
-    obs, *_ = par.step({"ego_0": 1})  # the finished ego needs no action
-    assert set(obs) == {"ego_0"}
-    with pytest.raises(KeyError, match="ego_0"):
+    while par.agents == ["av_0", "av_1"]:
+        _, _, term, trunc, infos = par.step({a: 0 for a in par.agents})
+    assert term == {"av_0": True, "av_1": False} and infos["av_0"]["outcome_name"] == "success"
+    assert par.agents == ["av_1"]
+    obs, *_ = par.step({"av_1": 0})  # the finished AV needs no action
+    assert set(obs) == {"av_1"}
+    with pytest.raises(KeyError, match="av_1"):
         par.step({})
+    while par.agents:
+        _, _, _, trunc, infos = par.step({"av_1": 0})
+    assert trunc == {"av_1": True} and infos["av_1"]["outcome_name"] == "timeout"
 
 
 def test_npc_agents_control_npc_acceleration():
@@ -167,14 +176,14 @@ def test_npc_agents_control_npc_acceleration():
     for action in (None, 0):  # IDM, then the strongest braking choice for the lead
         par = parallel_env(npc_agents=True)
         obs, _ = par.reset(options={"scenarios": scen})
-        assert par.agents == ["ego_0", "npc_0", "npc_1"]
+        assert par.agents == ["av_0", "npc_0", "npc_1"]
         assert obs["npc_0"].shape == (NPC_OBS_SIZE,) and par.observation_space("npc_0").contains(obs["npc_0"])
         for _ in range(5):
-            actions = {"ego_0": 0, "npc_1": 2}
+            actions = {"av_0": 0, "npc_1": 2}
             if action is not None:
                 actions["npc_0"] = action
             obs, rew, *_ = par.step(actions)
-        assert rew["npc_0"] == rew["npc_1"] == -rew["ego_0"]
+        assert rew["npc_0"] == rew["npc_1"] == -rew["av_0"]
         runs[action] = float(par.core.npc_v[0, 0])
     assert runs[0] == pytest.approx(0.0, abs=1e-9)  # 2 m/s - 5 steps x 0.4 m/s
     assert runs[None] > 1.5
@@ -190,10 +199,10 @@ def test_decision_interval_repeats_the_action():
     core = OvertakeCore(par.config)
     core.reset(scen)
     for _ in range(3):
-        obs, rew, *_ = par.step({"ego_0": 1})
+        obs, rew, *_ = par.step({"av_0": 1})
         rewards = [core.step(np.ones(1, np.int64)).reward[0] for _ in range(5)]
-        assert rew["ego_0"] == pytest.approx(sum(rewards), abs=1e-12)
-    np.testing.assert_array_equal(obs["ego_0"], core.observe()[0])
+        assert rew["av_0"] == pytest.approx(sum(rewards), abs=1e-12)
+    np.testing.assert_array_equal(obs["av_0"], core.observe()[0])
     assert par.core.t[0] == pytest.approx(1.5)
     e = OvertakeEnv(decision_interval=5, scenario={"time_limit": 2.0})
     e.reset(seed=0)
@@ -203,8 +212,8 @@ def test_decision_interval_repeats_the_action():
 
 
 def test_pettingzoo_registry():
-    par = pettingzoo.make("parallel", ENV_ID, num_egos=2)
-    assert isinstance(par, pettingzoo.ParallelEnv) and par.possible_agents == ["ego_0", "ego_1"]
+    par = pettingzoo.make("parallel", ENV_ID, scenario={"platoon_size": 2})
+    assert isinstance(par, pettingzoo.ParallelEnv) and par.possible_agents == ["av_0", "av_1"]
     aec = pettingzoo.make("aec", ENV_ID)
     assert isinstance(aec, pettingzoo.AECEnv)
     with warnings.catch_warnings():
@@ -294,7 +303,7 @@ def test_rgb_array_render_and_no_figure_leak(tmp_path):
     par = parallel_env(render_mode="rgb_array")
     par.reset(options={"scenarios": make_scenario(lead=(10.0, 2.0), oncoming=[(60.0, 2.0)])})
     for _ in range(30):
-        par.step({"ego_0": 1})
+        par.step({"av_0": 1})
     img = par.render()
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3 and img.shape[0] > 100
     assert img.std() > 10 and len(np.unique(img.reshape(-1, 3), axis=0)) > 20  # not blank
@@ -312,7 +321,7 @@ def test_rgb_array_render_and_no_figure_leak(tmp_path):
 def test_draw_frame_from_plain_values():
     par = parallel_env()
     par.reset(seed=2)
-    par.step({"ego_0": 1})
+    par.step({"av_0": 1})
     frame = frame_from_core(par.core, 0)
     for value in frame.values():  # plain values only, so recorded frames can be replayed
         assert isinstance(value, (int, float, np.ndarray))
