@@ -33,6 +33,9 @@ class Pairing:
             if getattr(d, "privileged", False):
                 raise UserError(f"{d.name}: privileged deciders bind the whole core; they cannot share a road "
                                 "in a pairing")
+        if len({id(d) for d in by_av}) != len(by_av):
+            raise UserError("a pairing needs its own decider object per AV (deciders keep per-row state): load "
+                            "the same member once per AV")
         self.by_av = list(by_av)
         holds = [hold_steps(decision_interval, int(getattr(d, "action_repeat", 1))) for d in self.by_av]
         self.action_repeat = math.gcd(*holds)  # a multiple of decision_interval: the runner holds exactly this

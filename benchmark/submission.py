@@ -34,7 +34,7 @@ from overtakezoo.envs import SIM_VERSION
 
 from .errors import UserError
 from .io import atomic_write_bytes
-from .results import PER_SCENARIO, Results, config_sha256
+from .results import Results, config_sha256, per_scenario_keys
 from .suites import Suite, load_suite, suite_names
 
 ARTIFACTS = "artifacts"
@@ -370,7 +370,8 @@ def _batches(todo: list, chunk_size: int) -> list[list]:
     size, key = 0, None
     for item in sorted(todo, key=lambda it: _batch_key(it[2])):  # stable
         n, privileged = item[1].size, getattr(item[2], "privileged", False)
-        if not out or size + n > chunk_size or privileged or _batch_key(item[2]) != key:
+        alone = privileged or item[0].results.num_avs > 1  # _Stacked splits rows of single-ego batches only
+        if not out or size + n > chunk_size or alone or _batch_key(item[2]) != key:
             out.append([])
             size, key = 0, _batch_key(item[2])
         out[-1].append(item)
@@ -396,17 +397,23 @@ def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
 
 
 def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
-    """Raise naming the first scenario (then the first field) where a re-run differs from the row."""
-    first: tuple[int, str, Any, Any] | None = None
-    for key in PER_SCENARIO:
-        want, have = row.results.per[key][indices], got[key]
+    """Raise naming the first scenario (then the first field) where a re-run differs from the row.
+    Multi-AV rows compare every AV's value (AV-major arrays, results.py)."""
+    first: tuple[int, str, Any, Any, int] | None = None
+    e = row.results.num_avs
+    for key in per_scenario_keys(e):
+        want, have = row.results.per[key].reshape(e, -1)[:, indices].reshape(-1), got[key]
+        indices_av = np.tile(indices, e)
         same = (want == have) | (np.isnan(want) & np.isnan(have)) if want.dtype.kind == "f" else want == have
         bad = np.flatnonzero(~same)
-        if bad.size and (first is None or indices[bad[0]] < first[0]):
-            first = (int(indices[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item())
+        if bad.size:
+            bad = bad[np.argsort(indices_av[bad], kind="stable")]  # the first scenario, then the lowest AV
+        if bad.size and (first is None or indices_av[bad[0]] < first[0]):
+            first = (int(indices_av[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item(), int(bad[0]) // indices.size)
     if first is not None:
-        i, key, want, have = first
-        raise UserError(f"{row.rel}: scenario {i}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
+        i, key, want, have, av = first
+        where = f"scenario {i}" + (f", AV {av}" if e > 1 else "")
+        raise UserError(f"{row.rel}: {where}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
                         "(results edited by hand, or not produced by this policy)")
 
 
