@@ -28,8 +28,8 @@ from .results import config_sha256
 from .suites import Suite, load_suite
 
 DATA = Path("crossplay")
-# 500 roads per pair: the 10 x 10 matrix of the zoo's non-privileged members takes about 3 min of
-# CPU on one core (measured for the README), and a rate's 95 % interval is at most +-4.4 points.
+# 500 roads per pair: the 10 x 10 matrix of the zoo's non-privileged members took 204 s of CPU time
+# (measured with --jobs 2: about 100 s per core), and a rate's 95 % interval is at most +-4.4 points.
 DEFAULT_SCENARIOS = 500
 # (key, label) of the counts kept for each pair; the matrices show the first two.
 MEASURES = [("all_succeed", "joint success (both AVs succeed)"), ("av_crash", "AV-AV crash"),
@@ -150,8 +150,9 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
            f"{name}.json (measured by `overtakezoo crossplay --suite {name}`); do not edit -->", "",
            f"Every zoo decider against every other on the first {n} of the {doc['suite']['count']} `{name}` "
            f"scenarios (suite v{doc['suite']['version']}, sha256 `{doc['suite']['hash'][:12]}`), {len(names)} x "
-           f"{len(names)} ordered pairs; the whole matrix runs in a few minutes on 2 cores (`overtakezoo crossplay "
-           f"--suite {name} --jobs 2`). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
+           f"{len(names)} ordered pairs (`overtakezoo crossplay --suite {name} --jobs 2`; at the default "
+           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 10 x 10 matrix took 204 s of CPU time, about 100 s "
+           "on each of 2 cores). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
            "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
            "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
            "the other decider's).", ""]
