@@ -148,17 +148,23 @@ def test_verify_reruns_a_multi_av_row_and_names_the_av_that_differs(tmp_path):
 
 
 def test_multi_agent_rows_leave_the_single_ego_files_and_the_score_alone(tmp_path):
-    root = tmp_path / "lb"
-    shutil.copytree(REPO_LEADERBOARDS, root)
+    root = tmp_path / "lb"  # a slice of the shipped board: two single-ego suites, two multi-agent ones
+    for part in ("reference", "seeds", "crossplay", "submissions/table1", "submissions/oncoming-2", "submissions/duel", "submissions/platoon"):
+        if (REPO_LEADERBOARDS / part).is_dir():
+            shutil.copytree(REPO_LEADERBOARDS / part, root / part)
+    for rel in [p.relative_to(root) for p in (root / "submissions").glob("*/*.json")]:
+        if rel.stem not in ("rule-fsm", "fuzzy", "oracle", "dqn"):
+            (root / rel).unlink()
     with_multi = generate(root)
-    assert {"duel.md", "platoon.md", "mixed-traffic.md", "crossplay-duel.md"} <= set(with_multi)
+    assert {"duel.md", "platoon.md", "crossplay-duel.md", "crossplay-duel.png"} <= set(with_multi)
     index = json.loads(with_multi["index.json"])
-    assert set(index["multi_agent"]) == {"duel", "platoon", "mixed-traffic"}
+    assert set(index["multi_agent"]) == {"duel", "platoon"}
     assert not set(index["multi_agent"]) & set(index["suites"])
-    for name in ("duel", "platoon", "mixed-traffic"):
+    for name in ("duel", "platoon"):
         shutil.rmtree(root / "submissions" / name)
     shutil.rmtree(root / "crossplay")
     alone = generate(root)
+    assert "multi_agent" not in json.loads(alone["index.json"])
     assert json.loads(alone["index.json"])["headline"] == index["headline"]
     assert {k: v for k, v in alone.items() if k not in ("index.json", "README.md")} == \
         {k: v for k, v in with_multi.items() if k in alone and k not in ("index.json", "README.md")}
