@@ -28,8 +28,9 @@ from .results import config_sha256
 from .suites import Suite, load_suite
 
 DATA = Path("crossplay")
-# 500 roads per pair: the 10 x 10 matrix of the zoo's non-privileged members took 204 s of CPU time
-# (measured with --jobs 2: about 100 s per core), and a rate's 95 % interval is at most +-4.4 points.
+# 500 roads per pair: the 10 x 10 matrix of the zoo's non-privileged members takes about 3 minutes with
+# --jobs 2 on 2 cores (measured: 177 s wall, 184 s of CPU time), and a rate's 95 % interval is at most
+# +-4.4 points.
 DEFAULT_SCENARIOS = 500
 # (key, label) of the counts kept for each pair; the matrices show the first two.
 MEASURES = [("all_succeed", "joint success (both AVs succeed)"), ("av_crash", "AV-AV crash"),
@@ -69,7 +70,7 @@ def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAU
     ``scenarios`` roads; returns the data document (deterministic: no timing in it)."""
     from overtakezoo import zoo
 
-    num_avs = suite.distribution.sample(1, suite.seed).num_avs
+    num_avs = suite.num_avs
     if num_avs != 2:
         raise UserError(f"suite {suite.name!r} has {num_avs} automated vehicle(s) per scenario; cross-play pairs "
                         "two deciders on two-AV suites (duel)")
@@ -151,8 +152,8 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
            f"Every zoo decider against every other on the first {n} of the {doc['suite']['count']} `{name}` "
            f"scenarios (suite v{doc['suite']['version']}, sha256 `{doc['suite']['hash'][:12]}`), {len(names)} x "
            f"{len(names)} ordered pairs (`overtakezoo crossplay --suite {name} --jobs 2`; at the default "
-           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 10 x 10 matrix took 204 s of CPU time, about 100 s "
-           "on each of 2 cores). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
+           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 10 x 10 matrix takes about 3 minutes on 2 cores: "
+           "177 s wall, 184 s of CPU time, measured). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
            "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
            "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
            "the other decider's).", ""]

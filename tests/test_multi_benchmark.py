@@ -119,6 +119,14 @@ def test_a_pairing_of_one_decider_twice_is_self_play_and_results_round_trip(tmp_
         Results.from_json(json.dumps(doc))
 
 
+def test_eval_refuses_an_archive_of_a_multi_av_suite_before_writing_anything(tmp_path, capsys):
+    args = ["eval", "--suite", "duel", "--decider", "rule-fsm", "--out", str(tmp_path / "r.json"),
+            "--archive", str(tmp_path / "run.mcap"), "--no-progress"]
+    assert main(args) == 2
+    assert "archives record single-ego suites only" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def test_shards_of_a_multi_av_suite_merge_into_the_full_run(tmp_path):
     small = tmp_path / "duel-small.toml"
     small.write_text('name = "duel-small"\nversion = 1\ncount = 10\nseed = 5\nbase = "duel"\n')

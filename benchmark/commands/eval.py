@@ -70,6 +70,9 @@ def run(args: Any) -> int:
 
     if args.scene_every < 0:
         raise UserError(f"--scene-every {args.scene_every}: must be >= 0")
+    if suite.num_avs > 1:  # refused before the archive file is created
+        raise UserError(f"suite {suite.name!r} has {suite.num_avs} automated vehicles per scenario: archives "
+                        "record single-ego suites only")
     recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every)
     try:
         with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
