@@ -2,8 +2,8 @@
 
 Suites differ in their simulator settings (planner margins, prediction, the number of NPC slots),
 which one :class:`OvertakeCore` holds for all its rows, so a mixture keeps one core per suite and
-concatenates their rows: rows ``[0, n_0)`` belong to the first core, the next ``n_1`` to the second,
-and so on. Each core refills its own finished rows from its own source, so every row keeps drawing
+concatenates their rows (one per AV of each road): rows ``[0, n_0)`` belong to the first core, the
+next ``n_1`` to the second, and so on. Each core refills its own finished rows from its own source, so every row keeps drawing
 from its suite and the mixture's proportions stay fixed. The observation layouts must agree (the
 same planner rollouts and observation slots), which every built-in suite's does.
 
@@ -33,7 +33,8 @@ def split_rows(total: int, parts: int) -> list[int]:
 
 
 class MixedCore:
-    """``cores[i]`` steps ``sizes[i]`` rows drawn from ``sources[i]``; rows are concatenated in order."""
+    """``cores[i]`` steps ``sizes[i]`` roads drawn from ``sources[i]`` (one row per AV of each road);
+    rows are concatenated in order."""
 
     auto_reset = True
 
@@ -53,7 +54,8 @@ class MixedCore:
 
     @property
     def num(self) -> int:
-        return sum(self.sizes)
+        """Rows: one per automated vehicle (``sizes`` count roads; a multi-AV road has several)."""
+        return sum(core.num for core in self.cores)
 
     @property
     def cfg(self) -> EnvConfig:
@@ -71,9 +73,9 @@ class MixedCore:
             raise ValueError("a mixture has no NPC agents")
         modes = np.asarray(modes)
         parts, start = [], 0
-        for core, n in zip(self.cores, self.sizes):
-            parts.append(core.step(modes[start:start + n]))
-            start += n
+        for core in self.cores:
+            parts.append(core.step(modes[start:start + core.num]))
+            start += core.num
         res = _concat(parts)
         self._obs = res.obs
         return res
