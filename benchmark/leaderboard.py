@@ -4,7 +4,10 @@ Layout under the root (``leaderboards/``): ``submissions/<suite>/<name>.json`` (
 with the policy that re-runs them, and ``submissions/artifacts/``: see submission.py; the input),
 ``reference/paper.json`` (the paper's reported numbers, input), and the generated files
 ``README.md``, ``index.json``, ``<suite>.md`` and ``<suite>.png``. Generated files are never edited by
-hand; ``leaderboard --check`` fails when they differ from what the submissions give.
+hand; ``leaderboard --check`` fails when they differ from what the submissions give. The multi-agent
+suites (``suites.MULTI``) get their own tables (multi_leaderboard.py) and index section
+(``multi_agent``); a cross-play matrix measured by ``overtakezoo crossplay`` (``crossplay/<suite>.json``,
+an input like the submissions) becomes ``crossplay-<suite>.md`` and ``.png`` (crossplay.py).
 """
 
 from __future__ import annotations
@@ -16,10 +19,10 @@ from typing import Any
 
 from .errors import UserError
 from .io import atomic_write_bytes
-from . import headline, paper_table
+from . import crossplay, headline, multi_leaderboard, paper_table
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from .submission import Row, describe, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
-from .suites import load_suite, suite_names
+from .suites import MULTI, load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"
 REFERENCE_NOTE = "reported in the paper, different simulator"
@@ -52,12 +55,18 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     subs, ref = load_submissions(root), load_reference(root)
     files: dict[str, bytes] = {}
     index: dict[str, Any] = {"generated_by": "overtakezoo leaderboard", "suites": {}}
+    cross_files, cross_index = crossplay.generated(root)
+    files.update(cross_files)
+    multi: dict[str, Any] = {}
     live_rows: dict[str, list[Row]] = {}
     seeds = headline.load_seeds(root)
     for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
         suite = load_suite(name) if name in suite_names() else None
         rows = subs.get(name, [])
         reasons = {row.rel: stale_reasons(row.results, suite) for row in rows}
+        if name in MULTI:
+            multi[name] = _multi_suite(name, suite, rows, reasons, files, cross_index.get(name))
+            continue
         live = sorted((row for row in rows if not reasons[row.rel]), key=_rank_key)
         ranked = [row for row in live if not row.privileged]
         bounds = [row for row in live if row.privileged]  # they see the future: shown apart, never ranked
@@ -83,9 +92,28 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
     head_md, index["headline"] = _headline(live_rows, seeds)
+    if multi or cross_index:  # (absent until a multi-agent row or matrix exists)
+        index["multi_agent"] = multi
+        index["crossplay"] = cross_index
     files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
     files["README.md"] = _readme(index, head_md).encode()
     return files
+
+
+def _multi_suite(name: str, suite: Any, rows: list[Row], reasons: dict[str, Any], files: dict[str, bytes],
+                 cross: dict[str, Any] | None) -> dict[str, Any]:
+    """A multi-agent suite's table and plot (into ``files``); returns its index entry."""
+    ml = multi_leaderboard
+    ranked = sorted((row for row in rows if not reasons[row.rel]), key=ml.rank_key)
+    stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
+    files[f"{name}.md"] = ml.markdown(name, suite, ranked, stale, _policy_cell, cross and cross["table"]).encode()
+    if ranked:
+        files[f"{name}.png"] = ml.plot(name, ranked)
+    return {"version": suite.version if suite else None, "hash": suite.hash if suite else None,
+            "count": suite.count if suite else None, "table": f"{name}.md", "plot": f"{name}.png" if ranked else None,
+            "entries": [ml.entry(row, _entry(row)) for row in ranked],
+            "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
+                      for row, why in stale]}
 
 
 def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[str, dict[str, Any]]:
@@ -266,7 +294,8 @@ def _readme(index: dict[str, Any], head: str = "") -> str:
         best_txt = f"{best['success_rate'] * 100:.1f} % ({best['name']})" if best else "-"
         out.append(f"| [{name}]({s['table']}) | {s['version'] or '-'} | {s['count'] or '-'} | "
                    f"{len(s['entries'])} | {best_txt} |")
-    return "\n".join(out) + "\n\n" + GUIDE
+    multi = multi_leaderboard.readme_section(index.get("multi_agent", {}), index.get("crossplay", {}))
+    return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE
 
 
 GUIDE = """## Submit your policy
@@ -339,8 +368,12 @@ config or the simulator version changes; re-run step 2 and submit again with `--
 """
 
 
-def _plot(name: str, ranked: list[Row], bounds: list[Row]) -> bytes:
-    """Success vs crash rate with Wilson CIs; Agg canvas, no pyplot state, no timestamps in the PNG."""
+def _plot(name: str, ranked: list[Row], bounds: list[Row], x_of: Any = None, y_of: Any = None,
+          labels: tuple[str, str, str] = ("success rate (%)", "crash rate (%)", "success vs crash rate")) -> bytes:
+    """Success vs crash rate with Wilson CIs; Agg canvas, no pyplot state, no timestamps in the PNG.
+    ``x_of`` / ``y_of`` pick other rates from a summary (multi-AV suites plot joint outcomes)."""
+    x_of = x_of or (lambda s: s["success_rate"])
+    y_of = y_of or (lambda s: s["crash_rate"])
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -351,7 +384,7 @@ def _plot(name: str, ranked: list[Row], bounds: list[Row]) -> bytes:
         ax = fig.add_subplot(1, 1, 1)
         for i, row in enumerate(ranked + bounds):
             r, label = row.results, row.name + (" (upper bound)" if row.privileged else "")
-            s, c = r.summary["success_rate"], r.summary["crash_rate"]
+            s, c = x_of(r.summary), y_of(r.summary)
             x, y = 100 * s["value"], 100 * c["value"]
             # max(0, .): a Wilson bound can sit a rounding error beyond the rate it brackets.
             xerr = [[max(0.0, x - 100 * s["lo"])], [max(0.0, 100 * s["hi"] - x)]]
@@ -361,9 +394,9 @@ def _plot(name: str, ranked: list[Row], bounds: list[Row]) -> bytes:
             ax.annotate(row.name, (x, y), textcoords="offset points", xytext=(5, 5))
         ax.set_xlim(-5, 105)
         ax.set_ylim(-5, 105)
-        ax.set_xlabel("success rate (%)")
-        ax.set_ylabel("crash rate (%)")
-        ax.set_title(f"{name}: success vs crash rate (95 % CI), measured")
+        ax.set_xlabel(labels[0])
+        ax.set_ylabel(labels[1])
+        ax.set_title(f"{name}: {labels[2]} (95 % CI), measured")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
         fig.tight_layout()

@@ -91,6 +91,9 @@ def summarize(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]
     failed = ~success
     # NPC1 is slot 0 (the lead); NPC2 is slot 1 when it is the first oncoming car (in the opposite lane).
     npc1, npc2 = npc == 0, (npc == 1) & (lane == 1)
+    if "lead_npc" in per:  # multi-AV results: NPC1 is each AV's own lead, NPC2 any NPC in its opposite lane
+        npc1 = (npc >= 0) & (npc == per["lead_npc"])
+        npc2 = (npc >= 0) & ~npc1 & (lane == 1)
     return {
         "success_rate": _rate(success),
         "completion_time": _mean(per["completion_time"][success], seed, "completion_time"),
@@ -132,12 +135,13 @@ def format_metric(m: dict[str, Any] | None, kind: str, unit: str) -> str:
 
 
 def render_table(columns: list[tuple[str, dict[str, Any]]], paired: dict[str, Any] | None = None,
-                 markdown: bool = False) -> str:
+                 markdown: bool = False, table: list[tuple[str, str, str, str]] | None = None) -> str:
     """Table I: one row per metric, one column per (header, summary). ``paired`` fills the
-    "crash in the same scenarios" row (it exists only for two results)."""
+    "crash in the same scenarios" row (it exists only for two results). ``table``: other rows
+    (multi_metrics.MULTI_TABLE) than :data:`TABLE`."""
     headers = ["metric", *[h for h, _ in columns]]
     rows = []
-    for key, label, kind, unit in TABLE:
+    for key, label, kind, unit in table or TABLE:
         if key in PAIRED:
             if paired is None:
                 continue

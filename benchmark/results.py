@@ -1,7 +1,10 @@
 """Results files: provenance, per-scenario arrays and a summary with CIs, as one JSON document.
 
 Everything but the ``timing`` field is a function of (suite file, decider, code), so running the
-same command twice gives byte-identical files apart from ``timing``. Loading validates against
+same command twice gives byte-identical files apart from ``timing``. A multi-AV suite's file has
+``num_avs`` (E >= 2) and stores each per-scenario array once per AV, AV-major (AV e's value for
+scenario i at ``e * n + i``), with two more arrays (MULTI_PER_SCENARIO); its summary adds the
+per-AV and joint outcomes (multi_metrics.py). Single-ego files have neither. Loading validates against
 ``schemas/results.schema.json`` and recomputes the summary from the arrays; any mismatch is a
 UserError naming the field.
 """
@@ -29,7 +32,7 @@ from .metrics import summarize
 
 SCHEMA_ID = "overtakezoo-results/1"
 SCHEMA_PATH = Path(__file__).with_name("schemas") / "results.schema.json"
-_OPTIONAL = ("sim_version", "submission")  # absent from older files / until submitted
+_OPTIONAL = ("sim_version", "submission", "num_avs")  # absent from older files / until submitted / single-ego
 DECIMALS = 4  # per-scenario floats: 0.1 mm / 0.1 ms resolution, and compact files
 
 # Per-scenario arrays: name -> (dtype, value a JSON null stands for).
@@ -41,12 +44,27 @@ PER_SCENARIO: dict[str, tuple[type, float | None]] = {
     "peak_lat_accel": (np.float64, math.nan), "peak_jerk": (np.float64, math.nan),
     "npc1_speed": (np.float64, math.nan), "npc2_speed": (np.float64, math.nan),
 }
+# ... and in multi-AV files: the other AV a crash was with (its index, -1 none), the AV's own lead's NPC slot.
+MULTI_PER_SCENARIO: dict[str, tuple[type, float | None]] = {"crash_av": (np.int64, None), "lead_npc": (np.int64, None)}
+
+
+def per_scenario_keys(num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
+    """The per-scenario arrays of a results file with ``num_avs`` AVs per scenario."""
+    return PER_SCENARIO if num_avs == 1 else {**PER_SCENARIO, **MULTI_PER_SCENARIO}
+
+
+def summary_of(per: dict[str, np.ndarray], seed: int, num_avs: int = 1) -> dict[str, Any]:
+    if num_avs == 1:
+        return summarize(per, seed)
+    from .multi_metrics import summarize_multi
+
+    return summarize_multi(per, seed, num_avs)
 
 
 def round_per_scenario(per: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Cast and round once, so summaries are computed from exactly what the file stores."""
     out = {}
-    for key, (dtype, _) in PER_SCENARIO.items():
+    for key, (dtype, _) in per_scenario_keys(2 if "crash_av" in per else 1).items():
         a = np.asarray(per[key])
         out[key] = np.round(a.astype(np.float64), DECIMALS) if dtype is np.float64 else a.astype(dtype)
     return out
@@ -98,7 +116,7 @@ class Results:
     # ------------------------------------------------------------ building
     @classmethod
     def create(cls, suite: Any, decider: Any, per: dict[str, np.ndarray], *, start: int, stop: int,
-               shard: tuple[int, int] | None, timing: dict[str, Any]) -> "Results":
+               shard: tuple[int, int] | None, timing: dict[str, Any], num_avs: int = 1) -> "Results":
         meta = {
             "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
             "config_sha256": config_sha256(suite.config),
@@ -114,9 +132,10 @@ class Results:
             "shard": list(shard) if shard is not None else None,
             "range": [start, stop],
             "submission": None,
+            "num_avs": num_avs if num_avs > 1 else None,
         }
         per = round_per_scenario(per)
-        return cls(meta, per, summarize(per, suite.seed), timing)
+        return cls(meta, per, summary_of(per, suite.seed, num_avs), timing)
 
     @property
     def suite(self) -> dict[str, Any]:
@@ -125,6 +144,10 @@ class Results:
     @property
     def decider(self) -> dict[str, Any]:
         return self.meta["decider"]
+
+    @property
+    def num_avs(self) -> int:
+        return int(self.meta.get("num_avs") or 1)
 
     @property
     def complete(self) -> bool:
@@ -137,7 +160,7 @@ class Results:
     def __getattr__(self, key: str) -> np.ndarray:
         # ``results.outcome`` etc. as shorthands for the per-scenario arrays.
         per = self.__dict__.get("per")
-        if per is not None and key in PER_SCENARIO:
+        if per is not None and key in per:
             return per[key]
         raise AttributeError(key)
 
@@ -194,16 +217,23 @@ class Results:
                     list(shard_bounds(meta["suite"]["count"], tuple(shard))) != [start, stop]:
                 raise UserError(f"{where}: shard: {shard} does not match range {meta['range']}")
         per = {}
-        for key, (dtype, null) in PER_SCENARIO.items():
-            values = doc["scenarios"][key]
-            if len(values) != stop - start:
-                raise UserError(f"{where}: scenarios.{key}: expected {stop - start} values, got {len(values)}")
+        num_avs = int(meta.get("num_avs") or 1)
+        for key, (dtype, null) in per_scenario_keys(num_avs).items():
+            values = doc["scenarios"].get(key)
+            if values is None:
+                raise UserError(f"{where}: scenarios.{key}: missing (a file with num_avs {num_avs} needs it)")
+            if len(values) != (stop - start) * num_avs:
+                raise UserError(f"{where}: scenarios.{key}: expected {(stop - start) * num_avs} values "
+                                f"({num_avs} per scenario), got {len(values)}")
             if dtype is np.float64:
                 per[key] = np.array([null if v is None else v for v in values], dtype=np.float64)
             else:
                 per[key] = np.array(values, dtype=dtype)
+        if num_avs == 1 and set(doc["scenarios"]) - set(PER_SCENARIO):
+            raise UserError(f"{where}: scenarios: {sorted(set(doc['scenarios']) - set(PER_SCENARIO))[0]}: only "
+                            "in multi-AV files (num_avs >= 2)")
         per = round_per_scenario(per)
-        summary = summarize(per, meta["seed"])
+        summary = summary_of(per, meta["seed"], num_avs)
         if _canonical(summary) != _canonical(doc["summary"]):
             raise UserError(f"{where}: summary: does not match the per-scenario arrays (edited by hand?)")
         return cls(meta, per, summary, doc["timing"])
@@ -215,7 +245,7 @@ def merge(parts: list[Results]) -> Results:
         raise UserError("merge: no results given")
     first = parts[0]
     for p in parts[1:]:
-        for key in ("suite", "config_sha256", "decider", "package", "git_commit", "seed", "sim_version"):
+        for key in ("suite", "config_sha256", "decider", "package", "git_commit", "seed", "sim_version", "num_avs"):
             if p.meta[key] != first.meta[key]:
                 raise UserError(f"merge: {key}: shards differ ({first.meta[key]!r} vs {p.meta[key]!r})")
     parts = sorted(parts, key=lambda p: p.meta["range"][0])
@@ -228,12 +258,14 @@ def merge(parts: list[Results]) -> Results:
         edge = stop
     if edge != first.suite["count"]:
         raise UserError(f"merge: range: shards cover {edge} of {first.suite['count']} scenarios")
-    per = {k: np.concatenate([p.per[k] for p in parts]) for k in PER_SCENARIO}
+    e = first.num_avs  # AV-major: join each AV's part of every shard
+    per = {k: np.concatenate([p.per[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
+           for k in per_scenario_keys(e)}
     meta = {**first.meta, "shard": None, "range": [0, edge], "submission": None}
     timing = {"wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
               "started": min(str(p.timing.get("started", "")) for p in parts),
               "steps": sum(int(p.timing.get("steps", 0)) for p in parts), "shards": len(parts)}
-    return Results(meta, per, summarize(per, meta["seed"]), timing)
+    return Results(meta, per, summary_of(per, meta["seed"], e), timing)
 
 
 @functools.cache
@@ -254,7 +286,7 @@ def validate(doc: Any, where: str = "results") -> None:
     scen = doc.get("scenarios") if isinstance(doc, dict) else None
     arrays = {}
     if isinstance(scen, dict):
-        arrays = {k: v for k, v in scen.items() if isinstance(v, list) and k in PER_SCENARIO}
+        arrays = {k: v for k, v in scen.items() if isinstance(v, list) and k in per_scenario_keys(2)}
         doc = {**doc, "scenarios": {**scen, **{k: [] for k in arrays}}}
     error = next(iter(_validator().iter_errors(doc)), None)  # the first error: its path is the field to fix
     if error is not None:

@@ -3,6 +3,10 @@
 The runner applies the action hold (``overtakezoo.envs.hold``): the decider acts on the batch's
 observations, and each decision is held for ``hold_steps(decision_interval, decider.action_repeat)``
 core steps; finished rows are frozen by the core, so the loop simply steps until every row is done.
+
+On a multi-AV suite the decider drives every AV (self-play), or a :class:`~.pairing.Pairing` drives
+AV e with its e-th decider (cross-play); the per-scenario arrays then hold one value per AV,
+AV-major (results.py).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from tqdm import tqdm
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
 
-from .results import PER_SCENARIO, Results, round_per_scenario
+from .results import Results, per_scenario_keys, round_per_scenario
 from .errors import UserError
 from .suites import Suite, shard_bounds
 
@@ -34,7 +38,7 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     """
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
-    _single_av(suite, scenarios)
+    _check_multi_av(suite, scenarios, decider, recorder)
     if limit is not None:
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
@@ -42,7 +46,8 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder)
     timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
               "started": started.isoformat(timespec="seconds"), "steps": total_steps}
-    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing)
+    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing,
+                          num_avs=scenarios.num_avs)
 
 
 def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = 4096) -> dict[str, np.ndarray]:
@@ -54,16 +59,22 @@ def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int
     if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
         raise ValueError(f"scenario indices must lie in [0, {suite.count})")
     scenarios = suite.scenarios().take(indices)
-    _single_av(suite, scenarios)
+    _check_multi_av(suite, scenarios, decider, None)
     return _run(suite, decider, scenarios, indices, chunk_size, False, None)[0]
 
 
-def _single_av(suite: Suite, scenarios: Any) -> None:
-    """Results files hold one row per scenario, one AV's outcome: refuse multi-AV suites clearly."""
-    if scenarios.num_avs > 1:
-        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario; results "
-                        "files hold one (per-AV results are not written yet: scripts/multi_rates.py prints "
-                        "their outcome rates)")
+def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -> None:
+    """What a multi-AV suite cannot run: clear errors instead of wrong rows."""
+    if scenarios.num_avs == 1:
+        return
+    if getattr(decider, "privileged", False):
+        # The oracle simulates clones of its rows assuming nobody else decides; beside another AV it
+        # would have to predict that AV's decider, so it is no upper bound there (README: Multi-agent suites).
+        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: privileged "
+                        f"deciders ({decider.name}) run on single-ego suites only")
+    if recorder is not None:
+        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: archives "
+                        "record single-ego suites only")
 
 
 def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,
@@ -77,7 +88,7 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10
     parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
-    bar = tqdm(total=scenarios.num, unit="scen", desc=f"{suite.name}/{decider.name}", leave=False,
+    bar = tqdm(total=scenarios.num * scenarios.num_avs, unit="AV", desc=f"{suite.name}/{decider.name}", leave=False,
                disable=not progress or not sys.stderr.isatty())
     try:
         for lo in range(0, scenarios.num, chunk_size):
@@ -104,16 +115,20 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             parts.append(_per_scenario(core))
     finally:
         bar.close()
-    per = round_per_scenario({k: np.concatenate([p[k] for p in parts]) for k in PER_SCENARIO})
+    e = scenarios.num_avs  # AV-major: join each AV's part of every chunk
+    per = round_per_scenario({k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
+                              for k in per_scenario_keys(e)})
     return per, total_steps
 
 
 def _per_scenario_empty() -> dict[str, np.ndarray]:
-    return {k: np.zeros(0, dtype) for k, (dtype, _) in PER_SCENARIO.items()}
+    return {k: np.zeros(0, dtype) for k, (dtype, _) in per_scenario_keys(2).items()}
 
 
 def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
     info, sc = core.info(), core.scen
+    if core.num_avs > 1:
+        return _per_av(core, info, sc)
     has_npc2 = sc.num_npcs > 1
     return {
         "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
@@ -124,4 +139,22 @@ def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
         "npc1_speed": np.where(sc.npc_present[:, 0], sc.npc_v[:, 0], np.nan),
         "npc2_speed": (np.where(sc.npc_present[:, 1] & (sc.npc_lane[:, 1] == 1), sc.npc_v[:, 1], np.nan) if has_npc2
                        else np.full(sc.num, np.nan)),
+    }
+
+
+def _per_av(core: OvertakeCore, info: dict[str, np.ndarray], sc: Any) -> dict[str, np.ndarray]:
+    """The per-scenario arrays of a multi-AV chunk, one value per AV row (AV-major, as the core)."""
+    e, n = core.num_avs, sc.num
+    # Each AV's own lead (its NPC1): the ego's is slot 0, the others' are av_lead.
+    lead = np.concatenate([np.where(sc.npc_present[:, 0] & (sc.npc_lane[:, 0] == 0), 0, -1)[None],
+                           sc.av_lead.T.astype(np.int64)]).reshape(-1)
+    lead_v = np.take_along_axis(np.tile(sc.npc_v, (e, 1)), np.maximum(lead, 0)[:, None], 1)[:, 0]
+    return {
+        "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
+        "crash_av": info["crash_av"], "lead_npc": lead,
+        "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
+        "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
+        "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
+        "npc1_speed": np.where(lead >= 0, lead_v, np.nan),
+        "npc2_speed": np.full(e * n, np.nan),  # no single "first oncoming car" beside other AVs
     }

@@ -34,7 +34,7 @@ from overtakezoo.envs import SIM_VERSION
 
 from .errors import UserError
 from .io import atomic_write_bytes
-from .results import PER_SCENARIO, Results, config_sha256
+from .results import Results, config_sha256, per_scenario_keys
 from .suites import Suite, load_suite, suite_names
 
 ARTIFACTS = "artifacts"
@@ -386,27 +386,34 @@ def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
     from .runner import run_indices
 
     indices = np.concatenate([idx for _, idx, _ in batch])
-    decider = batch[0][2] if len(batch) == 1 else _Stacked([(d, idx.size) for _, idx, d in batch])
+    e = batch[0][0].results.num_avs  # rows of one suite: the same number of AVs
+    decider = batch[0][2] if len(batch) == 1 else _Stacked([(d, idx.size) for _, idx, d in batch], e)
     # A stacked batch fits one chunk by construction (the runner resets deciders per chunk).
     got = run_indices(suite, decider, indices, chunk_size=chunk_size if len(batch) == 1 else indices.size)
     lo = 0
-    for row, idx, _ in batch:
-        compare(row, idx, {k: v[lo:lo + idx.size] for k, v in got.items()})
+    for row, idx, _ in batch:  # (multi-AV arrays are AV-major: each AV's block holds every row's scenarios)
+        compare(row, idx, {k: v.reshape(e, -1)[:, lo:lo + idx.size].reshape(-1) for k, v in got.items()})
         lo += idx.size
 
 
 def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
-    """Raise naming the first scenario (then the first field) where a re-run differs from the row."""
-    first: tuple[int, str, Any, Any] | None = None
-    for key in PER_SCENARIO:
-        want, have = row.results.per[key][indices], got[key]
+    """Raise naming the first scenario (then the first field) where a re-run differs from the row.
+    Multi-AV rows compare every AV's value (AV-major arrays, results.py)."""
+    first: tuple[int, str, Any, Any, int] | None = None
+    e = row.results.num_avs
+    for key in per_scenario_keys(e):
+        want, have = row.results.per[key].reshape(e, -1)[:, indices].reshape(-1), got[key]
+        indices_av = np.tile(indices, e)
         same = (want == have) | (np.isnan(want) & np.isnan(have)) if want.dtype.kind == "f" else want == have
         bad = np.flatnonzero(~same)
-        if bad.size and (first is None or indices[bad[0]] < first[0]):
-            first = (int(indices[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item())
+        if bad.size:
+            bad = bad[np.argsort(indices_av[bad], kind="stable")]  # the first scenario, then the lowest AV
+        if bad.size and (first is None or indices_av[bad[0]] < first[0]):
+            first = (int(indices_av[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item(), int(bad[0]) // indices.size)
     if first is not None:
-        i, key, want, have = first
-        raise UserError(f"{row.rel}: scenario {i}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
+        i, key, want, have, av = first
+        where = f"scenario {i}" + (f", AV {av}" if e > 1 else "")
+        raise UserError(f"{row.rel}: {where}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
                         "(results edited by hand, or not produced by this policy)")
 
 
@@ -431,22 +438,28 @@ def _torch_single_threaded() -> Iterator[None]:
 
 
 class _Stacked:
-    """Several deciders on one batch: decider i acts on the next ``n_i`` rows. Rows never interact,
-    so each decider's rows evolve exactly as in a run of its own."""
+    """Several deciders on one batch: decider i acts on the next ``n_i`` roads. Roads never interact,
+    so each decider's roads evolve exactly as in a run of its own. On a multi-AV batch (``num_avs``
+    AV-major blocks of rows) decider i gets its roads' rows of every block, AV-major as in its own run."""
 
     name, version, privileged, weights_sha256 = "verify", "1", False, None
 
-    def __init__(self, parts: list[tuple[Any, int]]) -> None:
+    def __init__(self, parts: list[tuple[Any, int]], num_avs: int = 1) -> None:
         bounds = np.cumsum([0] + [n for _, n in parts])
         self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:])]
         self.action_repeat = int(getattr(parts[0][0], "action_repeat", 1))  # equal in a batch (_batches)
+        self.num_avs = num_avs
+
+    def _mine(self, a: np.ndarray, rows: slice) -> np.ndarray:
+        e = self.num_avs
+        return a.reshape(e, -1, *a.shape[1:])[:, rows].reshape(-1, *a.shape[1:])
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         for d, rows in self.parts:
-            d.reset(None if mask is None else mask[rows])
+            d.reset(None if mask is None else self._mine(np.asarray(mask), rows))
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        out = np.empty(obs.shape[0], np.int64)
+        out = np.empty((self.num_avs, obs.shape[0] // self.num_avs), np.int64)
         for d, rows in self.parts:
-            out[rows] = d.act(obs[rows])
-        return out
+            out[:, rows] = np.asarray(d.act(self._mine(obs, rows))).reshape(self.num_avs, -1)
+        return out.reshape(-1)

@@ -49,6 +49,11 @@ class Suite:
     distribution: ScenarioDistribution
 
     @property
+    def num_avs(self) -> int:
+        """Automated vehicles per scenario (1: a single-ego suite)."""
+        return self.distribution.sample(1, self.seed).num_avs
+
+    @property
     def builtin(self) -> bool:
         return self.path.parent == SUITES_DIR.resolve()
 

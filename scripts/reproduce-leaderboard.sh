@@ -5,16 +5,22 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 suites=("$@")
-[ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded)
+[ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded
+                                    duel platoon mixed-traffic)
 deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql oracle)
+# Multi-agent suites: self-play of every non-privileged zoo member (the oracle cannot share a road).
+multi_deciders=(always-abort always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql)
 for suite in "${suites[@]}"; do
-  for decider in "${deciders[@]}"; do
+  case "$suite" in duel|platoon|mixed-traffic) run=("${multi_deciders[@]}") ;; *) run=("${deciders[@]}") ;; esac
+  for decider in "${run[@]}"; do
     out="results/$suite/$decider.json"
     overtakezoo eval --suite "$suite" --decider "$decider" --out "$out" --no-progress | tail -n 1
     overtakezoo submit --replace "$out"
   done
 done
 overtakezoo leaderboard
+# The cross-play matrix (every non-privileged member against every other on duel; a few minutes).
+overtakezoo crossplay --suite duel --jobs 2
 mkdir -p leaderboards/decision-maps
 for decider in rule-fsm dqn; do
   overtakezoo decision-map --decider "$decider" --out "leaderboards/decision-maps/$decider.png"

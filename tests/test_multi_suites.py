@@ -251,11 +251,12 @@ def test_multi_suites_step_on_the_core(name):
     assert rush["any_crash"] > 0 and rush["all_succeed"] < 1
 
 
-def test_eval_refuses_a_multi_av_suite_with_one_error_line(tmp_path, capsys):
+def test_eval_refuses_a_privileged_decider_on_a_multi_av_suite_with_one_error_line(tmp_path, capsys):
     out = tmp_path / "duel.json"
-    assert main(["eval", "--suite", "duel", "--decider", "always-follow", "--out", str(out), "--no-progress"]) == 2
+    assert main(["eval", "--suite", "duel", "--decider", "oracle", "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: suite 'duel' has 2 automated vehicles") and "\n" not in err
+    assert "privileged" in err
     assert not out.exists() and not list(tmp_path.iterdir())
 
 

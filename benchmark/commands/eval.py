@@ -70,6 +70,9 @@ def run(args: Any) -> int:
 
     if args.scene_every < 0:
         raise UserError(f"--scene-every {args.scene_every}: must be >= 0")
+    if suite.num_avs > 1:  # refused before the archive file is created
+        raise UserError(f"suite {suite.name!r} has {suite.num_avs} automated vehicles per scenario: archives "
+                        "record single-ego suites only")
     recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every)
     try:
         with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
@@ -88,6 +91,14 @@ def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:
     lo, hi = results.meta["range"]
     print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
           f"decider {decider.name} v{decider.version}")
-    print(render_table([(decider.name, results.summary)]), end="")
+    if results.num_avs > 1:  # a multi-AV suite: per-agent Table I (pooled over AVs) and the joint outcomes
+        from ..metrics import format_metric
+        from ..multi_metrics import JOINT, MULTI_TABLE
+
+        print(render_table([(f"{decider.name} (per AV)", results.summary)], table=MULTI_TABLE), end="")
+        print("joint (per road): " + "; ".join(f"{label} {format_metric(results.summary['joint'][k], kind, unit)}"
+                                               for k, label, kind, unit in JOINT))
+    else:
+        print(render_table([(decider.name, results.summary)]), end="")
     print(f"wall time {results.timing['wall_time_s']:.2f} s; wrote {out}")
     return 0
