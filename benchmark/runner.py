@@ -20,6 +20,7 @@ from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
 
 from .results import PER_SCENARIO, Results, round_per_scenario
+from .errors import UserError
 from .suites import Suite, shard_bounds
 
 
@@ -33,6 +34,7 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     """
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
+    _single_av(suite, scenarios)
     if limit is not None:
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
@@ -51,7 +53,17 @@ def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int
     indices = np.asarray(indices, dtype=np.int64)
     if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
         raise ValueError(f"scenario indices must lie in [0, {suite.count})")
-    return _run(suite, decider, suite.scenarios().take(indices), indices, chunk_size, False, None)[0]
+    scenarios = suite.scenarios().take(indices)
+    _single_av(suite, scenarios)
+    return _run(suite, decider, scenarios, indices, chunk_size, False, None)[0]
+
+
+def _single_av(suite: Suite, scenarios: Any) -> None:
+    """Results files hold one row per scenario, one AV's outcome: refuse multi-AV suites clearly."""
+    if scenarios.num_avs > 1:
+        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario; results "
+                        "files hold one (per-AV results are not written yet: scripts/multi_rates.py prints "
+                        "their outcome rates)")
 
 
 def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,

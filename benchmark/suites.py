@@ -29,7 +29,10 @@ MAX_COUNT = 1_000_000
 # The public single-ego suites (the OvertakeZoo score's), and the training mixture of their splits.
 CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
         "adversarial", "occluded")
-MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE)}
+# The multi-agent suites: several automated vehicles on one road (not part of the single-ego score).
+MULTI = ("duel", "platoon", "mixed-traffic")
+MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE),
+            "multi-train": tuple(f"{name}-train" for name in MULTI)}
 _KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base"}
 
 

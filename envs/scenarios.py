@@ -3,12 +3,15 @@
 Coordinates are Frenet on a straight road (s along the road, d lateral, metres): the ego lane's
 centre is d = 0 and the opposite lane's centre is d = +lane_width (right-hand traffic, the ego drives
 towards +s). NPC slots are padded: ``npc_present`` says which slots hold a vehicle. Slot order from a
-distribution is: the lead (NPC1), the oncoming vehicles (NPC2, ...), then the followers.
+distribution is: the lead (NPC1), the oncoming vehicles (NPC2, ...), the followers, then the
+oncoming AV's lead when there is one.
 
 A scenario may hold more than one automated vehicle (AV). The ego (``ego_*``) is AV 0; ``av_*``
 arrays (N, K) describe the K others: where they start, their direction of travel (+1 towards +s in
 lane 0 like the ego, -1 towards -s in lane 1), their goal line and the NPC slot each must pass to
 succeed (its own slow lead). Every AV shares the row's size, speed limit, sensor range and time limit.
+A distribution's AV order is: the ego's platoon behind it (AV 1, 2, ...; ``av_lead`` 0, the shared
+lead), then the oncoming AV (``av_lead`` its own lead's slot, the last).
 """
 
 from __future__ import annotations
@@ -166,6 +169,14 @@ class ScenarioDistribution:
     follower_speed: Range = (3.0, 4.0)
     follower_gap: Range = (5.0, 20.0)  # bumper gaps behind the ego, then between followers
     reaction_time: Range = (0.5, 1.0)  # s before an NPC reacts to the ego in its lane
+    # Further automated vehicles (AVs); the defaults are the single-ego road. Everything below is
+    # drawn after all the above, and only when used, so single-ego batches stay bit-identical.
+    platoon_size: int = 1  # AVs in lane 0 behind NPC1: the ego, then AV 1, 2, ... each behind the last
+    platoon_gap: Range = (5.0, 20.0)  # bumper gaps between successive platoon AVs
+    oncoming_av: int = 0  # 1: one AV driving towards -s in lane 1, behind its own slow lead
+    oncoming_av_distance: Range = (60.0, 200.0)  # from the ego's front to that AV's front
+    oncoming_av_lead_gap: Range = (8.0, 25.0)  # bumper gap from that AV to its lead (between the AVs)
+    oncoming_av_lead_speed: Range = (1.0, 3.0)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> "ScenarioDistribution":
@@ -222,6 +233,34 @@ class ScenarioDistribution:
             raise ConfigError(f"scenario.oncoming_reveal: must be > 0, got {self.oncoming_reveal!r}")
         if self.road_extra < 0:
             raise ConfigError(f"scenario.road_extra: must be >= 0, got {self.road_extra!r}")
+        self._validate_avs()
+
+    def _validate_avs(self) -> None:
+        """The AV layout: counts in range, and no two vehicles overlapping (or touching) at the start."""
+        if not 1 <= self.platoon_size <= 16:
+            raise ConfigError(f"scenario.platoon_size: expected 1 (the ego alone) to 16, got {self.platoon_size!r}")
+        if self.oncoming_av not in (0, 1):
+            raise ConfigError(f"scenario.oncoming_av: expected 0 or 1, got {self.oncoming_av!r}")
+        for key in ("platoon_gap", "oncoming_av_distance", "oncoming_av_lead_gap"):
+            if not getattr(self, key)[0] > 0:
+                raise ConfigError(f"scenario.{key}: must be > 0 (vehicles may not start in contact), "
+                                  f"got {getattr(self, key)!r}")
+        if self.oncoming_av_lead_speed[0] < 0:
+            raise ConfigError(f"scenario.oncoming_av_lead_speed: must be >= 0, got {self.oncoming_av_lead_speed!r}")
+        if not self.oncoming_av:
+            return
+        # The oncoming AV's lead starts between the two AVs: its front ahead of the ego's front.
+        room = self.oncoming_av_lead_gap[1] + self.vehicle_length
+        if not self.oncoming_av_distance[0] > room:
+            raise ConfigError(f"scenario.oncoming_av_distance: the low end must exceed oncoming_av_lead_gap's "
+                              f"high end + vehicle_length ({room:g} m) so the AV's lead starts ahead of the "
+                              f"ego, got {self.oncoming_av_distance!r}")
+        # Oncoming NPCs share lane 1 with the oncoming AV: they start behind it (they follow it).
+        behind = self.oncoming_av_distance[1] + self.ego_length
+        if self.oncoming_count and not self.oncoming_gap[0] > behind:
+            raise ConfigError(f"scenario.oncoming_gap: with an oncoming AV the oncoming vehicles start behind "
+                              f"it, so the low end must exceed oncoming_av_distance's high end + ego_length "
+                              f"({behind:g} m), got {self.oncoming_gap!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
@@ -242,6 +281,11 @@ class ScenarioDistribution:
         onc_reveal = u(self.oncoming_reveal, K) if np.isfinite(self.oncoming_reveal[1]) else np.full((n, K), np.inf)
         fol_v, fol_gap = u(self.follower_speed, F), u(self.follower_gap, F)
         reaction = u(self.reaction_time, M)
+        # The AVs' quantities last, and only when there are AVs, so single-ego draws are unchanged.
+        P, O = self.platoon_size, self.oncoming_av
+        plat_v, plat_gap = (u(self.ego_speed, P - 1), u(self.platoon_gap, P - 1)) if P > 1 else (None, None)
+        oav = ((u(self.ego_speed), u(self.oncoming_av_distance), u(self.oncoming_av_lead_gap),
+                u(self.oncoming_av_lead_speed), u(self.reaction_time)) if O else None)
 
         Le, L = self.ego_length, self.vehicle_length
         lane = np.zeros((n, M), np.int8)
@@ -273,7 +317,7 @@ class ScenarioDistribution:
             v[:, 1 + K:] = fol_v
 
         full = lambda x: np.full(n, float(x))  # noqa: E731
-        return Scenarios(
+        single = Scenarios(
             lane_width=full(self.lane_width), speed_limit=full(self.speed_limit), goal_s=full(self.goal),
             road_length=full(self.goal + self.road_extra), sensor_range=full(self.sensor_range),
             time_limit=full(self.time_limit), ego_s=np.zeros(n), ego_d=np.zeros(n),
@@ -283,6 +327,62 @@ class ScenarioDistribution:
             npc_width=np.full((n, M), self.vehicle_width), npc_reaction=reaction, npc_reveal=reveal,
             npc_must_pass=must_pass,
         )
+        if P == 1 and not O:
+            return single
+        return _with_avs(single, slice(1 + K, M), plat_gap, plat_v, oav, (L, self.vehicle_width),
+                         BEHAVIOURS[self.oncoming_behaviour])
+
+
+def _with_avs(sc: Scenarios, followers: slice, plat_gap: np.ndarray | None, plat_v: np.ndarray | None,
+              oav: tuple[np.ndarray, ...] | None, vehicle: tuple[float, float], oav_lead_behaviour: int) -> Scenarios:
+    """``sc`` (single-ego rows) with further AVs: a platoon behind the ego and/or an oncoming AV.
+
+    ``plat_gap``/``plat_v`` (N, P-1): bumper gaps and speeds of the platoon AVs behind the ego, each
+    behind the last (the followers ``followers`` move back behind the platoon's tail); their goal is the
+    ego's and they must pass the ego's lead (slot 0). ``oav`` = (speed, distance from the ego's front to
+    its front, bumper gap to its lead, lead speed, lead reaction time), each (N,): one AV towards -s in
+    lane 1 whose slow lead (a new NPC slot of size ``vehicle``, appended last, driving
+    ``oav_lead_behaviour``) is between the two AVs; its goal lies the ego's goal distance ahead of its
+    start, in its own direction.
+    AV order: the platoon (AV 1, 2, ...), then the oncoming AV.
+    """
+    n = sc.num
+    Le = sc.ego_length
+    lim = sc.speed_limit
+    goal = sc.goal_s - sc.ego_s  # the ego's goal distance, from its centre
+    av: dict[str, list[np.ndarray]] = {k: [] for k in _AV_DTYPES}
+    npc = {f.name: getattr(sc, f.name).copy() for f in dataclasses.fields(sc) if f.name.startswith("npc_")}
+    if plat_gap is not None and plat_gap.shape[1]:
+        behind = np.cumsum(plat_gap + Le[:, None], axis=1)  # centre offsets behind the ego
+        av["av_s"].append(sc.ego_s[:, None] - behind)
+        av["av_d"].append(np.zeros_like(behind))
+        av["av_v"].append(np.minimum(plat_v, lim[:, None]))
+        av["av_direction"].append(np.ones_like(behind, np.int8))
+        av["av_goal_s"].append(np.repeat(sc.goal_s[:, None], behind.shape[1], axis=1))
+        has_lead = sc.npc_present[:, :1] & sc.npc_must_pass[:, :1] if sc.num_npcs else np.zeros((n, 1), bool)
+        av["av_lead"].append(np.where(has_lead, 0, -1).astype(np.int16).repeat(behind.shape[1], axis=1))
+        npc["npc_s"][:, followers] -= behind[:, -1:]  # followers queue behind the platoon's tail
+    if oav is not None:
+        speed, distance, lead_gap, lead_speed, reaction = (np.asarray(a, float).reshape(n) for a in oav)
+        front = sc.ego_s + Le / 2 + distance  # the oncoming AV's front faces -s
+        slot = sc.num_npcs
+        L, W = vehicle
+        lead = {"npc_present": True, "npc_lane": OPPOSITE_LANE, "npc_s": front - lead_gap - L / 2,
+                "npc_v": lead_speed, "npc_v_des": lead_speed, "npc_behaviour": oav_lead_behaviour,
+                "npc_boost": 0.0, "npc_length": L, "npc_width": W, "npc_reaction": reaction,
+                "npc_reveal": np.inf, "npc_must_pass": False}
+        for k, value in lead.items():
+            npc[k] = np.concatenate([npc[k], np.broadcast_to(np.asarray(value, npc[k].dtype), (n,))[:, None]], axis=1)
+        s = front + Le / 2
+        av["av_s"].append(s[:, None])
+        av["av_d"].append(sc.lane_width[:, None].copy())
+        av["av_v"].append(np.minimum(speed, lim)[:, None])
+        av["av_direction"].append(np.full((n, 1), -1, np.int8))
+        av["av_goal_s"].append((s - goal)[:, None])
+        av["av_lead"].append(np.full((n, 1), slot, np.int16))
+    arrays = {**sc.to_arrays(), **npc}
+    arrays.update({k: np.concatenate(v, axis=1).astype(_AV_DTYPES[k]) for k, v in av.items() if v})
+    return Scenarios(**arrays)
 
 
 # Speeding up when passed only makes sense for the lead being passed.
@@ -306,10 +406,17 @@ def make_scenario(
     oncoming_behaviour: str = "idm",
     reaction_time: float = 0.7,
     reveal: float = math.inf,
+    platoon: list[tuple[float, float]] = (),
+    oncoming_av: tuple[float, float, float, float] | None = None,
     **road: Any,
 ) -> Scenarios:
     """One hand-built scenario: ``lead=(gap, speed)``, ``oncoming=[(gap, speed), ...]`` with gaps from
-    the ego's front to each oncoming front, ``followers=[(gap, speed), ...]`` bumper gaps behind the ego.
+    the ego's front to each oncoming front, ``followers=[(gap, speed), ...]`` bumper gaps behind the ego
+    (behind the platoon's tail when there is one).
+    Further AVs: ``platoon=[(gap, speed), ...]`` AVs behind the ego (bumper gaps, each behind the last),
+    ``oncoming_av=(distance, speed, lead_gap, lead_speed)``: an AV driving towards -s in lane 1, its
+    front ``distance`` ahead of the ego's, behind its own lead (``lead_gap`` bumper to bumper, driving
+    ``oncoming_behaviour``). A duel: ``make_scenario(lead=(10, 1), oncoming_av=(120, 15 / 3.6, 10, 1))``.
     Road keys are those of :class:`ScenarioDistribution` (``goal``, ``sensor_range``, ...)."""
     dist = ScenarioDistribution.from_dict(road)
     Le, L = dist.ego_length, dist.vehicle_length
@@ -332,7 +439,7 @@ def make_scenario(
         return a
 
     v = col(2, float, 0.0)
-    return Scenarios(
+    single = Scenarios(
         lane_width=np.array([dist.lane_width]), speed_limit=np.array([dist.speed_limit]),
         goal_s=np.array([dist.goal]), road_length=np.array([dist.goal + dist.road_extra]),
         sensor_range=np.array([dist.sensor_range]), time_limit=np.array([dist.time_limit]),
@@ -344,3 +451,12 @@ def make_scenario(
         npc_reaction=np.full((1, M), reaction_time), npc_reveal=col(6, float, math.inf),
         npc_must_pass=col(5, bool, False),
     )
+    if not platoon and oncoming_av is None:
+        return single
+    plat = np.array(platoon, float).reshape(1, -1, 2)
+    oav = None
+    if oncoming_av is not None:
+        distance, speed, lead_gap, lead_speed = (np.array([float(x)]) for x in oncoming_av)
+        oav = (speed, distance, lead_gap, lead_speed, np.array([reaction_time]))
+    return _with_avs(single, slice(len(rows) - len(followers), len(rows)), plat[..., 0], plat[..., 1], oav,
+                     (L, dist.vehicle_width), BEHAVIOURS[oncoming_behaviour])

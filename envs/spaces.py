@@ -107,10 +107,13 @@ def npc_observation_space(cfg: EnvConfig, npc_s_max: float) -> spaces.Box:
 
 
 def npc_start_extent(dist: ScenarioDistribution) -> float:
-    """|NPC start position| bound of ``dist`` (lead ahead, oncoming vehicles ahead, followers behind)."""
+    """|start position| bound of every vehicle but the ego in ``dist`` (lead ahead, oncoming vehicles
+    ahead, the ego's platoon then its followers behind, an oncoming AV and its lead ahead)."""
     le, length = dist.ego_length, dist.vehicle_length
     lead = dist.lead_gap[1] + (le + length) / 2
     k, f = dist.oncoming_count, dist.follower_count
     onc = le / 2 + dist.oncoming_gap[1] + max(k - 1, 0) * (dist.oncoming_headway[1] + length) + length
-    fol = le / 2 + f * (dist.follower_gap[1] + length)
-    return max(lead, onc if k else 0.0, fol if f else 0.0)
+    platoon = (dist.platoon_size - 1) * (dist.platoon_gap[1] + le)
+    fol = platoon + le / 2 + f * (dist.follower_gap[1] + length)
+    oncoming_av = le + dist.oncoming_av_distance[1]
+    return max(lead, onc if k else 0.0, fol if f else 0.0, platoon, oncoming_av if dist.oncoming_av else 0.0)

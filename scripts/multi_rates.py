@@ -1,0 +1,75 @@
+"""Outcome rates on the multi-AV suites: every AV of a road driven by the same decider.
+
+Usage: python scripts/multi_rates.py SUITE[,SUITE...] DECIDER[,DECIDER...] [--limit N]
+
+Runs the first N scenarios of each suite (a name or a .toml path) with each zoo decider, stepping
+the core as the benchmark runner does (the decision hold included), and prints per-AV rates
+(success / crash / timeout) and joint ones: every AV succeeds, any AV crashes, any crash between
+two AVs. The numbers quoted in benchmark/suites/{duel,platoon,mixed-traffic}.toml come from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from overtakezoo.benchmark.suites import Suite, load_suite
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, OvertakeCore
+from overtakezoo.envs.hold import hold, hold_steps
+from overtakezoo.zoo.base import load
+
+
+def rates(suite: Suite, decider_name: str, limit: int) -> dict[str, object]:
+    """Joint and per-AV outcome rates of ``decider_name`` on the first ``limit`` scenarios."""
+    sc = suite.scenarios().take(slice(0, limit))
+    decider = load(decider_name, suite.config)
+    core = OvertakeCore(suite.config)
+    obs = core.reset(sc)
+    decider.reset()
+    if getattr(decider, "privileged", False):
+        decider.bind(core)
+    held = hold_steps(suite.config.decision_interval, getattr(decider, "action_repeat", 1))
+    max_steps = int(math.ceil(float(sc.time_limit.max()) / suite.config.dt)) + 10
+    steps = 0
+    while not np.asarray(core.done).all():
+        if steps >= max_steps:
+            raise RuntimeError(f"rows still running after {max_steps} steps")
+        res = hold(core, decider.act(obs), held)
+        obs, steps = res.obs, steps + res.steps
+    e, n = sc.num_avs, sc.num
+    outcome = np.asarray(core.outcome).reshape(e, n)  # AV e of road n is row e * n + road
+    crash_av = np.asarray(core.crash_av).reshape(e, n)
+
+    def mean(mask: np.ndarray) -> float:
+        return round(float(mask.mean()), 3)
+
+    return {
+        "scenarios": n,
+        "all_succeed": mean((outcome == SUCCESS).all(0)),
+        "any_crash": mean((outcome == CRASH).any(0)),
+        "av_av_crash": mean((crash_av >= 0).any(0)),
+        "per_av": [{"success": mean(o == SUCCESS), "crash": mean(o == CRASH), "timeout": mean(o == TIMEOUT)}
+                   for o in outcome],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("suites")
+    ap.add_argument("deciders")
+    ap.add_argument("--limit", type=int, default=200)
+    args = ap.parse_args()
+    for name in args.suites.split(","):
+        suite = load_suite(name)
+        for decider in args.deciders.split(","):
+            r = rates(suite, decider, args.limit)
+            per_av = "  ".join(f"av{i} " + " ".join(f"{k} {v:.2f}" for k, v in av.items())
+                               for i, av in enumerate(r["per_av"]))
+            print(f"{suite.name} {decider} n={r['scenarios']}: all succeed {r['all_succeed']:.2f}, any crash "
+                  f"{r['any_crash']:.2f}, AV-AV crash {r['av_av_crash']:.2f} | {per_av}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
