@@ -9,6 +9,10 @@ same planner rollouts and observation slots), which every built-in suite's does.
 
 It offers what :func:`overtakezoo.envs.hold.hold` and the trainers use (``step``, ``done``,
 ``auto_reset``, ``num``, ``observe``), so a trainer steps a mixture as it steps one core.
+
+``sizes`` count scenarios (roads). A multi-AV suite's core has one row per AV (``E * n`` rows for
+``n`` roads of E AVs, see :mod:`.core`), so its share of the rows is E times its roads; for
+single-AV suites roads and rows are the same.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ def split_rows(total: int, parts: int) -> list[int]:
 
 
 class MixedCore:
-    """``cores[i]`` steps ``sizes[i]`` rows drawn from ``sources[i]``; rows are concatenated in order."""
+    """``cores[i]`` steps ``sizes[i]`` roads drawn from ``sources[i]``; their AV rows are concatenated in order."""
 
     auto_reset = True
 
@@ -50,10 +54,11 @@ class MixedCore:
         self.sizes = [int(n) for n in sizes]
         self._obs = np.concatenate([core.reset(src(n, core.rng)) for core, src, n in zip(self.cores, sources,
                                                                                           self.sizes)])
+        self.rows = [core.num for core in self.cores]  # AV rows of each core (its roads times its AVs)
 
     @property
     def num(self) -> int:
-        return sum(self.sizes)
+        return sum(self.rows)
 
     @property
     def cfg(self) -> EnvConfig:
@@ -71,7 +76,7 @@ class MixedCore:
             raise ValueError("a mixture has no NPC agents")
         modes = np.asarray(modes)
         parts, start = [], 0
-        for core, n in zip(self.cores, self.sizes):
+        for core, n in zip(self.cores, self.rows):
             parts.append(core.step(modes[start:start + n]))
             start += n
         res = _concat(parts)
