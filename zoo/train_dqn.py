@@ -399,6 +399,14 @@ class Trainer:
         self.buffer.load(state["buffer"])
 
 
+MULTI_AV_NOTE = ("Several automated vehicles (AVs) per road on the multi-AV training suites: every AV row acts "
+                 "with the one Q-network and its transitions go into the one replay buffer (parameter sharing, "
+                 "Gupta et al. 2017; the AVs of a road meet copies of the same policy: self-play). An AV that "
+                 "is done waits frozen until its road ends; its decisions then belong to no episode and are "
+                 "not stored. multi_av_share of the rows run the multi-AV suites, the rest the single-ego "
+                 "ones. Everything else is the single-agent DQN trainer's.")
+
+
 def row_split(total: int, num_avs: list[int], multi_share: float | None) -> list[int]:
     """Rows per training suite: ``total`` split evenly over the suites, or with ``multi_share`` that
     share split over the multi-AV suites (``num_avs`` > 1) and the rest over the single-AV ones."""
@@ -450,7 +458,7 @@ def model_card(trainer: Trainer, weights: bytes, hp_file: str, results: dict[str
         "train_suite": suite_name, "train_suites": {s.name: s.hash for s in trainer.suites},
         "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
         "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
-        **({"train_rows": trainer.row_counts()} if trainer.multi_av else {}),
+        **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {}),
         "results": {eval_suite.name: results} if results and eval_suite else {},
         "eval_suite": eval_suite.name if eval_suite else None,
         "eval_suite_hash": eval_suite.hash if eval_suite else None,
