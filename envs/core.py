@@ -111,6 +111,7 @@ class OvertakeCore:
         self._npc_boosted, self._npc_crashed = xp.zeros((m, n), xp.bool), xp.zeros((m, n), xp.bool)
         self._npc_crashed_any = False
         self._npc_leader = xp.full((m, n), -1, xp.int)
+        self._all_present = xp.full((1, n), True, xp.bool)
         if self.auto_reset:  # auto-reset rewrites rows of the batch in place: keep a private copy
             scenarios = Scenarios.from_arrays({k: v.copy() for k, v in scenarios.to_arrays().items()})
         self.scen = scenarios
@@ -132,6 +133,7 @@ class OvertakeCore:
                 self._ego[key][cols] = value
             for key, value in npc.items():
                 self._npc[key][..., rows] = value
+        self._lane_mates = bool(self._npc["lane_mates"].any())
         if self.num_avs == 1:  # the single-AV road: its view of the NPCs is the NPCs
             self._sc = self._npc
         else:
@@ -219,9 +221,15 @@ class OvertakeCore:
         self._npc_a[:, rows] = 0.0
         # NPCs that start with the ego ahead in their lane (followers) already know it is there.
         behind_ego = (fresh.npc_lane == 0) & (fresh.npc_s < fresh.ego_s[:, None])
-        self._npc_aware[:, :, rows] = 0.0
-        first_av = self._npc_aware[0]  # (a view: the other AVs start unnoticed)
-        first_av[:, rows] = xp.batch_last(np.where(behind_ego, np.inf, 0.0), xp.float)
+        aware = [behind_ego]
+        if self.num_avs > 1:  # ... and so do NPCs that start behind any other AV in its lane
+            lane = np.where(fresh.av_direction < 0, OPPOSITE_LANE, 0)[:, :, None]  # (N, K, 1)
+            ahead = np.where(fresh.npc_lane == OPPOSITE_LANE, -1.0, 1.0)[:, None, :] * (
+                fresh.av_s[:, :, None] - fresh.npc_s[:, None, :])
+            aware += list(np.moveaxis((fresh.npc_lane[:, None, :] == lane) & (ahead > 0), 1, 0))
+        for e, knows in enumerate(aware):
+            per_av = self._npc_aware[e]  # a view
+            per_av[:, rows] = xp.batch_last(np.where(knows, np.inf, 0.0), xp.float)
         self._npc_boosted[:, rows] = False
         self._npc_crashed[:, rows] = False
         self._npc_leader[:, rows] = -1
@@ -271,6 +279,7 @@ class OvertakeCore:
         other._npc_aware = xp.copy(self._npc_aware[:, :, idx])
         other._npc_leader = xp.copy(self._npc_leader[:, idx])
         other._npc_crashed_any = bool(other._npc_crashed.any())
+        other._all_present = xp.full((1, other.scen.num), True, xp.bool)
         other.stats = {k: xp.copy(v[cols]) for k, v in self.stats.items()}
         return other
 
@@ -278,9 +287,8 @@ class OvertakeCore:
     def _avs_world(self) -> dict[str, Any]:
         """The AVs in world coordinates, (E, N) arrays (for the NPCs' controllers and the views)."""
         xp, e, n, E = self.xp, self.num_avs, self.scen.num, self._ego
-        if e == 1:  # the ego's frame is the world's
-            return {"s": self.x[None], "d": self.y[None], "psi": self.psi[None], "v_along": self._av_velocity(),
-                    "present": xp.full((1, n), True, xp.bool)}
+        if e == 1:  # the ego's frame is the world's (velocity: _av_velocity, once the AVs have moved)
+            return {"s": self.x[None], "d": self.y[None], "psi": self.psi[None], "present": self._all_present}
         direction = E["direction"]
         present = ~(self.done & (self.outcome != CRASH))  # a crashed AV stays where it stopped
         return {"s": (direction * self.x).reshape(e, n),
@@ -450,10 +458,14 @@ class OvertakeCore:
     def _npc_collisions(self, hit: Any) -> None:
         """NPC-NPC contacts, and NPCs hit by an AV: a crashed NPC stops where it is."""
         xp = self.xp
+        if not self._lane_mates:  # (at most one NPC per lane in every road: no NPC-NPC contact)
+            if hit.any() and self.num_npcs:
+                self._mark_struck(hit)
+            return
         follower, lead = lane_contacts(xp, self._npc_s, self._npc["direction"], self._npc["half_length"],
                                        self._npc_leader, self._npc["present"])
         m = self.num_npcs
-        struck = hit.any() and xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1).any()
+        struck = bool(hit.any()) and bool(xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1).any())
         if not (struck or follower.any()):  # (the usual step: nobody touched anybody)
             return
         crashed = self._npc_crashed | follower
@@ -463,6 +475,13 @@ class OvertakeCore:
         crashed[lead[rows_j, rows_n], rows_n] = True  # both parties of a rear-end contact
         self._npc_crashed = crashed
         self._npc_crashed_any = True
+
+    def _mark_struck(self, hit: Any) -> None:
+        m = self.num_npcs
+        struck = self.xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
+        if struck.any():
+            self._npc_crashed = self._npc_crashed | struck
+            self._npc_crashed_any = True
 
     def _update_stats(self, geo: dict[str, Any], active: Any, jerk: Any) -> None:
         xp, st, E = self.xp, self.stats, self._ego

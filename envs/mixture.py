@@ -2,17 +2,13 @@
 
 Suites differ in their simulator settings (planner margins, prediction, the number of NPC slots),
 which one :class:`OvertakeCore` holds for all its rows, so a mixture keeps one core per suite and
-concatenates their rows: rows ``[0, n_0)`` belong to the first core, the next ``n_1`` to the second,
-and so on. Each core refills its own finished rows from its own source, so every row keeps drawing
+concatenates their rows (one per AV of each road): rows ``[0, n_0)`` belong to the first core, the
+next ``n_1`` to the second, and so on. Each core refills its own finished rows from its own source, so every row keeps drawing
 from its suite and the mixture's proportions stay fixed. The observation layouts must agree (the
 same planner rollouts and observation slots), which every built-in suite's does.
 
 It offers what :func:`overtakezoo.envs.hold.hold` and the trainers use (``step``, ``done``,
 ``auto_reset``, ``num``, ``observe``), so a trainer steps a mixture as it steps one core.
-
-``sizes`` count scenarios (roads). A multi-AV suite's core has one row per AV (``E * n`` rows for
-``n`` roads of E AVs, see :mod:`.core`), so its share of the rows is E times its roads; for
-single-AV suites roads and rows are the same.
 """
 
 from __future__ import annotations
@@ -37,7 +33,8 @@ def split_rows(total: int, parts: int) -> list[int]:
 
 
 class MixedCore:
-    """``cores[i]`` steps ``sizes[i]`` roads drawn from ``sources[i]``; their AV rows are concatenated in order."""
+    """``cores[i]`` steps ``sizes[i]`` roads drawn from ``sources[i]`` (one row per AV of each road);
+    rows are concatenated in order."""
 
     auto_reset = True
 
@@ -54,11 +51,11 @@ class MixedCore:
         self.sizes = [int(n) for n in sizes]
         self._obs = np.concatenate([core.reset(src(n, core.rng)) for core, src, n in zip(self.cores, sources,
                                                                                           self.sizes)])
-        self.rows = [core.num for core in self.cores]  # AV rows of each core (its roads times its AVs)
 
     @property
     def num(self) -> int:
-        return sum(self.rows)
+        """Rows: one per automated vehicle (``sizes`` count roads; a multi-AV road has several)."""
+        return sum(core.num for core in self.cores)
 
     @property
     def cfg(self) -> EnvConfig:
@@ -76,9 +73,9 @@ class MixedCore:
             raise ValueError("a mixture has no NPC agents")
         modes = np.asarray(modes)
         parts, start = [], 0
-        for core, n in zip(self.cores, self.rows):
-            parts.append(core.step(modes[start:start + n]))
-            start += n
+        for core in self.cores:
+            parts.append(core.step(modes[start:start + core.num]))
+            start += core.num
         res = _concat(parts)
         self._obs = res.obs
         return res

@@ -54,6 +54,10 @@ class _Limits:
             speeds.append(d.oncoming_speed[1])
         if d.follower_count:
             speeds.append(d.follower_speed[1])
+        if d.oncoming_av:
+            speeds.append(d.oncoming_av_lead_speed[1])
+        if d.platoon_size > 1 or d.oncoming_av:  # the other AVs are vehicles in view, capped as the ego is
+            speeds.append(self.v)
         top = max(speeds)
         accel = cfg.npc.max_acceleration
         self.npc_v = top + accel * (d.time_limit + cfg.dt if npc_agents else cfg.dt)

@@ -257,3 +257,32 @@ def test_eval_refuses_a_multi_av_suite_with_one_error_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: suite 'duel' has 2 automated vehicles") and "\n" not in err
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_the_multi_train_mixture_steps_one_row_per_av():
+    from overtakezoo.envs.mixture import MixedCore
+
+    suites = load_training("multi-train")
+    sources = [(lambda d: (lambda n, rng: d.sample(n, rng)))(s.distribution) for s in suites]
+    mix = MixedCore([s.config for s in suites], sources, [3, 2, 2], seed=0)
+    rows = 3 * 2 + 2 * 3 + 2 * 2  # duel, platoon, mixed-traffic: 2, 3, 2 AVs per road
+    assert mix.num == rows and mix.observe().shape[0] == rows
+    for _ in range(5):
+        res = mix.step(np.ones(rows, np.int64))
+    assert res.obs.shape[0] == rows and res.reward.shape == (rows,) and mix.done.shape == (rows,)
+
+
+@pytest.mark.parametrize("name", MULTI)
+def test_every_av_observation_lies_in_the_observation_space(name):
+    from overtakezoo.envs import OvertakeCore
+    from overtakezoo.envs.hold import hold
+    from overtakezoo.envs.spaces import ego_observation_space
+
+    suite = load_suite(name)
+    box = ego_observation_space(suite.config)
+    core = OvertakeCore(suite.config)
+    obs = core.reset(suite.scenarios().take(slice(0, 64)))
+    modes = np.random.default_rng(0).integers(0, 3, size=(40, obs.shape[0]))
+    for step_modes in modes:  # 40 decisions of 10 steps: most of an episode
+        assert ((obs >= box.low) & (obs <= box.high)).all()
+        obs = hold(core, step_modes, 10).obs

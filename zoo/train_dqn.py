@@ -257,7 +257,7 @@ class Trainer:
 
     def row_counts(self) -> dict[str, dict[str, int]]:
         """Roads and AV rows each training suite holds in the parallel batch."""
-        return {s.name: {"roads": n, "rows": r} for s, n, r in zip(self.suites, self.core.sizes, self.core.rows)}
+        return {s.name: {"roads": n, "rows": c.num} for s, n, c in zip(self.suites, self.core.sizes, self.core.cores)}
 
     def _features(self, obs: np.ndarray) -> np.ndarray:
         return speed_relative(obs, self.config).astype(np.float32)
