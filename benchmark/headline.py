@@ -235,5 +235,11 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
             out.append(f"| **{name}** | mean of {len(cs)} | {_pct(s['value'])} % [{_pct(s['lo'])}, {_pct(s['hi'])}] | "
                        f"{_pct(c['value'])} % [{_pct(c['lo'])}, {_pct(c['hi'])}] | |")
         rules.append(f"{name}: {doc['selection_rule']}")
-    out += ["", "Shipped seed: " + ("; ".join(sorted(set(r.split(': ', 1)[1] for r in rules))) if rules else "-"), ""]
+    by_rule: dict[str, list[str]] = {}  # one rule for all members, or each rule with its members
+    for r in rules:
+        name, text = r.split(': ', 1)
+        by_rule.setdefault(text, []).append(name)
+    said = (next(iter(by_rule)) if len(by_rule) == 1 else
+            "; ".join(f"{', '.join(names)}: {text}" for text, names in sorted(by_rule.items(), key=lambda kv: kv[1])))
+    out += ["", "Shipped seed: " + (said if rules else "-"), ""]
     return "\n".join(out)

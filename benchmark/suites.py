@@ -99,8 +99,9 @@ def list_suites() -> list[Suite]:
 
 def load_training(spec: str) -> list[Suite]:
     """The suites a trainer draws from: a mixture's name (``core-train``: every core suite's
-    training split), suites joined by ``+`` (``table1-train+urban-50-train``), or one suite."""
-    names = MIXTURES.get(spec) or tuple(part for part in str(spec).split("+") if part)
+    training split), suites or mixtures joined by ``+`` (``table1-train+urban-50-train``,
+    ``core-train+multi-train``), or one suite."""
+    names = tuple(name for part in str(spec).split("+") if part for name in MIXTURES.get(part, (part,)))
     if not names:
         raise UserError(f"no training suite in {spec!r}")
     return [load_suite(n) for n in names]

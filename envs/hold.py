@@ -10,6 +10,12 @@ A row whose episode ends during the hold stops counting: its reward, termination
 auto-reset core) its final observation and info are those of its own episode. On a core without
 auto-reset the finished row is frozen by the core; on an auto-reset core the refilled row follows
 (the reset mode) until the hold ends, and those steps belong to no decision.
+
+Several AVs on one road (multi-AV cores): an AV that is done waits frozen until every AV of its
+road is done, and only then is the road refilled. A row already done when the decision is taken is
+*waiting* (``HeldStep.waiting``): its decision belongs to no episode, so the hold treats it as a
+finished row (no reward, no steps, the reset mode if its road is refilled during the hold) and a
+trainer stores no transition for it. On a single-AV auto-reset core no row is ever waiting.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ class HeldStep:
     final_info: dict[str, np.ndarray] | None  # per-row info at each finished row's end (auto-reset only)
     info: dict[str, np.ndarray]  # the last step's info
     steps: int  # core steps taken (fewer than asked when every row was done)
+    waiting: np.ndarray | None = None  # (N,) bool: rows already done at the decision (no episode running)
 
 
 def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | None = None,
@@ -59,14 +66,17 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
     terminated, truncated, ended = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
     live_steps = np.zeros(n, np.int64)
     final_obs, final_info = None, None
+    waiting = np.array(core.done, dtype=bool).reshape(n)  # done before the decision: no episode of theirs runs
     res, taken = None, 0
     for _ in range(int(steps)):
         if taken and core.done.all():
             break
         # Rows running at this step: a held core freezes its finished rows (zero reward); an
-        # auto-reset row that ended is refilled, and its new episode is not this decision's.
-        active = ~ended if core.auto_reset else ~ended & ~np.asarray(core.done)
-        step_modes = np.where(ended, FOLLOW, modes) if core.auto_reset and ended.any() else modes
+        # auto-reset row that ended (or was waiting) may be refilled, and its new episode is not
+        # this decision's.
+        idle = ended | waiting
+        active = ~idle if core.auto_reset else ~ended & ~np.asarray(core.done)
+        step_modes = np.where(idle, FOLLOW, modes) if core.auto_reset and idle.any() else modes
         res = core.step(step_modes, npc_accel)
         taken += 1
         if on_step is not None:
@@ -80,11 +90,12 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
             if final_obs is None:
                 final_obs = np.array(res.obs)
                 final_info = {k: np.array(v) for k, v in res.info.items() if k[0] != "_"}
-            final_obs[now] = res.final_obs[now]
+            # A multi-AV row that finished while its road runs on is not refilled: its obs is its last.
+            final_obs[now] = (res.obs if res.final_obs is None else res.final_obs)[now]
             for k in final_info:
                 final_info[k][now] = res.info[k][now]
         ended |= now
     if res is None:
         raise ValueError("hold: steps must be >= 1 (and the core reset)")
     return HeldStep(res.obs, reward, terminated, truncated, ended, live_steps, final_obs, final_info, res.info,
-                    taken)
+                    taken, waiting)

@@ -5,7 +5,8 @@ Usage: python scripts/multi_rates.py SUITE[,SUITE...] DECIDER[,DECIDER...] [--li
 Runs the first N scenarios of each suite (a name or a .toml path) with each zoo decider, stepping
 the core as the benchmark runner does (the decision hold included), and prints per-AV rates
 (success / crash / timeout) and joint ones: every AV succeeds, any AV crashes, any crash between
-two AVs. The numbers quoted in benchmark/suites/{duel,platoon,mixed-traffic}.toml come from it.
+two AVs. The numbers quoted in benchmark/suites/{duel,platoon,mixed-traffic}.toml come from it;
+scripts/seed_results.py calls :func:`rates` for the multi-AV suites (every seed of a member).
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ import numpy as np
 from overtakezoo.benchmark.suites import Suite, load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
-from overtakezoo.zoo.base import load
+from overtakezoo.zoo.base import Decider, load
 
 
-def rates(suite: Suite, decider_name: str, limit: int) -> dict[str, object]:
-    """Joint and per-AV outcome rates of ``decider_name`` on the first ``limit`` scenarios."""
+def rates(suite: Suite, decider_name: str | Decider, limit: int | None) -> dict[str, object]:
+    """Joint and per-AV outcome rates of a zoo decider (by name, or a loaded one) driving every AV
+    on the first ``limit`` scenarios (None: all); ``counts`` holds the outcome counts behind them."""
     sc = suite.scenarios().take(slice(0, limit))
-    decider = load(decider_name, suite.config)
+    decider = load(decider_name, suite.config) if isinstance(decider_name, str) else decider_name
     core = OvertakeCore(suite.config)
     obs = core.reset(sc)
     decider.reset()
@@ -52,6 +54,11 @@ def rates(suite: Suite, decider_name: str, limit: int) -> dict[str, object]:
         "av_av_crash": mean((crash_av >= 0).any(0)),
         "per_av": [{"success": mean(o == SUCCESS), "crash": mean(o == CRASH), "timeout": mean(o == TIMEOUT)}
                    for o in outcome],
+        "counts": {"roads": n, "av_rows": e * n, "success": int((outcome == SUCCESS).sum()),
+                   "crash": int((outcome == CRASH).sum()), "timeout": int((outcome == TIMEOUT).sum()),
+                   "all_succeed": int((outcome == SUCCESS).all(0).sum()),
+                   "any_crash": int((outcome == CRASH).any(0).sum()),
+                   "av_av_crash": int((crash_av >= 0).any(0).sum())},
     }
 
 

@@ -4,7 +4,8 @@
 # re-measures the rows. Usage: scripts/reproduce-zoo.sh [RUNS_DIR]   (default: runs/zoo)
 #
 # 1. dqn, double-dqn, ppo: 3 seeds each on core-train (every core suite's training split);
-#    scripts/seed_results.py evaluates every seed and ships the median by training-split success.
+#    scripts/seed_results.py evaluates every seed and ships the median by training-split success;
+#    then ps-dqn (several automated vehicles per road) on core-train+multi-train, the same way.
 # 2. The official datasets are rebuilt (the expert dataset is the shipped ppo's, the best learned member) and the registry
 #    rewritten with their content hashes.
 # 3. bc and cql: 3 seeds each on the official medium dataset (rule-fsm, epsilon 0.1, table1-train),
@@ -21,6 +22,15 @@ done
 for algo in dqn double-dqn ppo; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
 done
+# ps-dqn: dqn with one Q-network for every automated vehicle, on the core and the multi-AV training
+# splits; every seed also in self-play on duel / platoon / mixed-traffic, beside the shipped dqn,
+# ppo and rule-fsm there. Shipped by the same median rule, over its own training splits.
+for seed in 0 1 2; do
+  overtakezoo train ps-dqn --suite core-train+multi-train --seed "$seed" --out "$runs/ps-dqn-s$seed" --eval-suite none --no-progress
+done
+python scripts/seed_results.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --ship \
+  --train-suite core-train+multi-train --compare dqn,ppo,rule-fsm \
+  --suites table1,table1-reactive,oncoming-2,oncoming-4,oncoming-8,dense,urban-50,adversarial,occluded,duel,platoon,mixed-traffic
 overtakezoo dataset regenerate
 dataset=overtakezoo/table1/rule-fsm-v0
 for seed in 0 1 2; do

@@ -1,13 +1,20 @@
 """Evaluate every training seed of the learned members and pick the seed to ship.
 
 Usage: python scripts/seed_results.py MEMBER RUN_DIR [RUN_DIR ...] [--ship] [--suites a,b,...]
+       [--train-suite SPEC] [--compare NAME,NAME,...]
 
 Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``, and from newer
-trainers ``<algo>.npz``). Every seed is run on the training splits of the core suites
-(``core-train``, what the members train on) and on the core suites; the outcome counts and CIs go to
-``leaderboards/seeds/<MEMBER>.json``, which the leaderboard reads to report the member as the mean
-and spread over seeds. With ``--ship`` the selected seed is exported
-(:func:`overtakezoo.zoo.export.export`) into ``zoo/pretrained/<MEMBER>.npz`` + ``.json``.
+trainers ``<algo>.npz``). Every seed is run on the training splits of the suites it trained on
+(``--train-suite``, default ``core-train``, what the single-agent members train on) and on the core
+suites (or ``--suites``); the outcome counts and CIs go to ``leaderboards/seeds/<MEMBER>.json``,
+which the leaderboard reads to report the member as the mean and spread over seeds. With
+``--ship`` the selected seed is exported (:func:`overtakezoo.zoo.export.export`) into
+``zoo/pretrained/<MEMBER>.npz`` + ``.json``.
+
+A multi-AV suite (``duel``, ``platoon``, ``mixed-traffic`` and their training splits) is run with
+every AV driven by the seed (self-play, ``scripts/multi_rates.py``); its rates are per AV, with the
+joint ones beside them (every AV of a road succeeds, a crash between two AVs). ``--compare`` runs
+the named zoo members (their shipped weights) on the same multi-AV suites, for the member's card.
 
 Selection rule (fixed before any seed was evaluated): the median seed by mean success rate over the
 *training* splits (ties: lower mean crash rate there, then the lower seed). The test suites never
@@ -25,8 +32,10 @@ from overtakezoo.benchmark.headline import CORE
 from overtakezoo.benchmark.io import atomic_write_bytes
 from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import MIXTURES, load_suite
+from overtakezoo.benchmark.suites import MIXTURES, load_suite, load_training
 from overtakezoo.zoo.export import export, trained_sha256
+
+from multi_rates import rates as multi_rates  # this script's folder is on sys.path
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_SUITE = "core-train"
@@ -34,6 +43,15 @@ TRAIN_SPLITS = MIXTURES[TRAIN_SUITE]
 RULE = ("the median seed by mean success rate over the training splits of the core suites (core-train; ties: "
         "lower mean crash rate there, then the lower seed), fixed before any seed was evaluated; test suites "
         "never enter the choice")
+
+
+def rule(train_suite: str) -> str:
+    """The selection rule's text for a member trained on ``train_suite`` (RULE for core-train)."""
+    if train_suite == TRAIN_SUITE:
+        return RULE
+    return (f"the median seed by mean success rate over the training splits it trained on ({train_suite}, per "
+            "AV on the multi-AV splits; ties: lower mean crash rate there, then the lower seed), fixed before any "
+            "seed was evaluated; test suites never enter the choice")
 
 
 def counts(summary: dict) -> dict:
@@ -44,6 +62,23 @@ def counts(summary: dict) -> dict:
             "crash_share_npc2": summary["crash_share_npc2"]["value"]}
 
 
+def multi_counts(suite, decider) -> dict:
+    """Per-AV and joint outcomes of ``decider`` driving every AV of the whole multi-AV ``suite``."""
+    c = multi_rates(suite, decider, None)["counts"]
+    n, roads = c["av_rows"], c["roads"]
+    return {"n": n, "roads": roads, "success": c["success"], "crash": c["crash"], "success_rate": c["success"] / n,
+            "crash_rate": c["crash"] / n, "timeout_rate": c["timeout"] / n, "all_succeed": c["all_succeed"],
+            "all_succeed_rate": c["all_succeed"] / roads, "av_av_crash": c["av_av_crash"],
+            "av_av_crash_rate": c["av_av_crash"] / roads, "any_crash_rate": c["any_crash"] / roads}
+
+
+def evaluate(suite, decider) -> dict:
+    """The counts of one suite: the runner's summary, or per-AV rates on a multi-AV suite."""
+    if suite.scenarios().num_avs > 1:
+        return multi_counts(suite, decider)
+    return counts(run_suite(suite, decider, progress=False).summary)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("member")
@@ -51,8 +86,11 @@ def main() -> None:
     ap.add_argument("--ship", action="store_true")
     ap.add_argument("--suites", default=",".join(CORE))
     ap.add_argument("--no-write", action="store_true", help="only evaluate (fill each run's cache)")
+    ap.add_argument("--train-suite", default=TRAIN_SUITE, help="what the member trained on (its splits choose the seed)")
+    ap.add_argument("--compare", default="", help="zoo members to run on the multi-AV suites beside it")
     args = ap.parse_args()
     algo = args.member
+    train_splits = [s.name for s in load_training(args.train_suite)]
     seeds = []
     for run in args.runs:
         card = json.loads((run / f"{algo}.json").read_text())
@@ -61,30 +99,43 @@ def main() -> None:
                  "steps": card.get("steps", card.get("training", {}).get("gradient_steps")), "suites": {}}
         cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights and suites match
         cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-        for name in [*TRAIN_SPLITS, *args.suites.split(",")]:
+        for name in dict.fromkeys([*train_splits, *args.suites.split(",")]):
             suite = load_suite(name)
             hit = cache.get(name)
             if hit and hit["suite_sha256"] == suite.hash and cache.get("weights_sha256") == weights_sha:
                 entry["suites"][name] = hit
                 continue
             weights = run / f"{algo}.npz" if (run / f"{algo}.npz").is_file() else run / f"{algo}.pt"
-            results = run_suite(suite, load_policy(str(weights), suite.config), progress=False)
-            entry["suites"][name] = {"suite_version": suite.version, "suite_sha256": suite.hash,
-                                     **counts(results.summary)}
-            print(f"{algo} seed {card['seed']} {name}: success {results.summary['success_rate']['value']:.4f} "
-                  f"crash {results.summary['crash_rate']['value']:.4f}", flush=True)
+            got = evaluate(suite, load_policy(str(weights), suite.config))
+            entry["suites"][name] = {"suite_version": suite.version, "suite_sha256": suite.hash, **got}
+            joint = f" AV-AV crash {got['av_av_crash_rate']:.4f}" if "av_av_crash" in got else ""
+            print(f"{algo} seed {card['seed']} {name}: success {got['success_rate']:.4f} "
+                  f"crash {got['crash_rate']:.4f}{joint}", flush=True)
         atomic_write_bytes(cache_path, json.dumps({"weights_sha256": weights_sha,
                                                    **entry["suites"]}, indent=1).encode())
         seeds.append(entry)
     if args.no_write:
         return
     def train_mean(e: dict, rate: str) -> float:
-        return sum(e["suites"][n][rate] for n in TRAIN_SPLITS) / len(TRAIN_SPLITS)
+        return sum(e["suites"][n][rate] for n in train_splits) / len(train_splits)
 
     order = sorted(seeds, key=lambda e: (train_mean(e, "success_rate"), -train_mean(e, "crash_rate"), -e["seed"]))
     chosen = order[(len(order) - 1) // 2]
-    doc = {"member": algo, "selection_rule": RULE, "shipped_seed": chosen["seed"], "train_suite": TRAIN_SUITE,
-           "seeds": sorted(seeds, key=lambda e: e["seed"])}
+    doc = {"member": algo, "selection_rule": rule(args.train_suite), "shipped_seed": chosen["seed"],
+           "train_suite": args.train_suite, "seeds": sorted(seeds, key=lambda e: e["seed"])}
+    multi = [n for n in args.suites.split(",") if load_suite(n).scenarios().num_avs > 1]
+    if args.compare and multi:
+        doc["compare"] = {}
+        for other in args.compare.split(","):
+            for name in multi:
+                suite = load_suite(name)
+                got = multi_counts(suite, load_policy(other, suite.config))
+                doc["compare"].setdefault(other, {})[name] = {"suite_version": suite.version,
+                                                              "suite_sha256": suite.hash, **got}
+                print(f"{other} {name}: success {got['success_rate']:.4f} crash {got['crash_rate']:.4f} "
+                      f"AV-AV crash {got['av_av_crash_rate']:.4f}", flush=True)
+    if multi:
+        print(comparison_table(doc, multi))
     atomic_write_bytes(ROOT / "leaderboards" / "seeds" / f"{algo}.json",
                        (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
     print(f"{algo}: shipped seed {chosen['seed']} ({chosen['run']})")
@@ -95,7 +146,10 @@ def main() -> None:
         seed_results = {str(e["seed"]): {k: e["suites"][k] for k in e["suites"]} for e in doc["seeds"]}
         # The shipped seed's results on every suite it was run on, in the card's summary form.
         results = {k: {**v, "count": v["n"]} for k, v in chosen["suites"].items()}
-        updates = {"selection_rule": RULE, "selection_note": note, "seed_results": seed_results, "results": results}
+        updates = {"selection_rule": doc["selection_rule"], "selection_note": note, "seed_results": seed_results,
+                   "results": results}
+        if "compare" in doc:  # the single-agent members in self-play on the same multi-AV suites
+            updates["multi_av_comparison"] = {"table": comparison_table(doc, multi).splitlines(), **doc["compare"]}
         dest = ROOT / "zoo" / "pretrained"
         if (run / f"{algo}.pt").is_file():  # a torch trainer's output: export it to numpy
             card = export(run, dest, algo, updates)
@@ -105,6 +159,23 @@ def main() -> None:
             atomic_write_bytes(card, (json.dumps({**json.loads((run / f"{algo}.json").read_text()), **updates},
                                                  indent=1, sort_keys=True) + "\n").encode())
         print(f"{algo}: published {run.name} as {card.with_suffix('.npz')} + {card.name}")
+
+
+def comparison_table(doc: dict, multi: list[str]) -> str:
+    """Markdown: per multi-AV suite, the member's per-AV success / crash and per-road AV-AV crash
+    rates as mean (min-max) over seeds, and each compared member's (one shipped seed)."""
+    import numpy as np
+
+    rows = ["| decider | suite | seeds | success / AV | crash / AV | AV-AV crash / road | all succeed / road |",
+            "|---|---|---|---|---|---|---|"]
+    keys = ("success_rate", "crash_rate", "av_av_crash_rate", "all_succeed_rate")
+    for name in multi:
+        vals = {k: np.array([e["suites"][name][k] for e in doc["seeds"]]) for k in keys}
+        cells = " | ".join(f"{v.mean():.3f} ({v.min():.3f}-{v.max():.3f})" for v in vals.values())
+        rows.append(f"| {doc['member']} | {name} | {len(doc['seeds'])} | {cells} |")
+        for other, got in doc.get("compare", {}).items():
+            rows.append(f"| {other} | {name} | shipped | " + " | ".join(f"{got[name][k]:.3f}" for k in keys) + " |")
+    return "\n".join(rows)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-LEARNED = ("dqn", "double-dqn", "ppo", "bc", "cql")
+LEARNED = ("dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
 PRETRAINED = Path(__file__).resolve().parents[1] / "zoo" / "pretrained"
 
 

@@ -131,7 +131,7 @@ register("always-abort", lambda config=None: ConstantDecider(ABORT, "always-abor
 
 # Registry name -> the member module that registers it, so `load` imports one module, not all.
 _MEMBER_OF = {"rule-fsm": "rule_fsm", "fuzzy": "fuzzy", "oracle": "oracle", "dqn": "dqn", "double-dqn": "dqn",
-              "ppo": "ppo", "bc": "offline", "cql": "offline"}
+              "ps-dqn": "dqn", "ppo": "ppo", "bc": "offline", "cql": "offline"}
 _MEMBERS = tuple(dict.fromkeys(_MEMBER_OF.values()))
 _UNAVAILABLE: dict[str, str] = {}  # member module -> the missing dependency (e.g. torch without [train])
 _loaded = False

@@ -39,3 +39,5 @@ def load_pretrained(name: str, config: EnvConfig | None = None, directory: str |
 
 register("dqn", lambda config=None, **kw: load_pretrained("dqn", config, **kw))
 register("double-dqn", lambda config=None, **kw: load_pretrained("double-dqn", config, **kw))
+# ps-dqn: DQN whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
+register("ps-dqn", lambda config=None, **kw: load_pretrained("ps-dqn", config, **kw))

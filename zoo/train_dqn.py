@@ -12,6 +12,14 @@ obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next o
 episode ended during the hold is its final observation (the refilled row follows until the next
 decision, and those steps belong to no transition).
 
+Several automated vehicles per road (the multi-AV suites ``duel``, ``platoon``, ``mixed-traffic``):
+every AV row is a learner and all share the one Q-network -- parameter sharing (Gupta et al. 2017,
+"Cooperative Multi-agent Control Using Deep Reinforcement Learning"), so the policy meets copies of
+itself on the road (self-play). Each AV row's transitions go into the one buffer, except those of
+rows *waiting* at the decision: an AV that is done stands frozen until its road ends, and its
+decisions then belong to no episode (``HeldStep.waiting``). ``multi_av_share`` sets the share of
+the rows given to multi-AV suites in a mixture (``ps-dqn.toml``: ``core-train+multi-train``).
+
 Learning: epsilon-greedy over the modes the action mask allows (linear decay over the first
 ``eps_fraction`` of the steps), Huber loss, Adam, gradient-norm clipping, a target network copied
 every ``target_update`` gradient steps; the Double DQN target lets the online net pick and the target
@@ -57,7 +65,7 @@ from .mlp import NumpyMLP
 from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, merged, param, read_toml
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
-ALGORITHMS = ("dqn", "double-dqn")
+ALGORITHMS = ("dqn", "double-dqn", "ps-dqn")
 
 
 class TrainError(ValueError):
@@ -95,6 +103,8 @@ class DQNHyperparams:
     log_every: int = param(20000, 1)  # transitions between log.csv rows
     checkpoint_every: int = param(200000, 1)  # transitions between checkpoints
     stats_window: int = param(1000, 1)  # episodes in the logged success / crash rates
+    # Share of `num_envs` on the multi-AV suites of a mixture (None: rows split evenly over suites).
+    multi_av_share: float | None = param(None, 0.0, 1.0)
 
 
 def load_hyperparams(algo: str, path: str | Path | None = None, overrides: dict[str, Any] | None = None
@@ -232,14 +242,22 @@ class Trainer:
         self.recent: deque[int] = deque(maxlen=hp.stats_window)  # outcomes of the last episodes
         self.last_loss = float("nan")
         self._core_seed = self.seed + 1
+        self.multi_av = False  # any training suite with several AVs per road (set by _start_core)
 
     def _start_core(self) -> None:
         """The parallel rows: ``num_envs`` split over the training suites, each refilled from its own."""
         pools = [s.scenarios() for s in self.suites]
         sources = [lambda n, rng, pool=pool: pool.take(rng.integers(0, pool.num, n)) for pool in pools]
-        sizes = split_rows(self.hp.num_envs, len(pools))
-        self.core = MixedCore([s.config for s in self.suites], sources, sizes, seed=self._core_seed)
+        rows = row_split(self.hp.num_envs, [p.num_avs for p in pools], self.hp.multi_av_share)
+        # A road of E AVs is E rows: each suite gets the roads that fill its rows (at least one).
+        roads = [max(1, r // p.num_avs) for r, p in zip(rows, pools)]
+        self.core = MixedCore([s.config for s in self.suites], sources, roads, seed=self._core_seed)
+        self.multi_av = any(p.num_avs > 1 for p in pools)
         self.obs = self._features(self.core.observe())
+
+    def row_counts(self) -> dict[str, dict[str, int]]:
+        """Roads and AV rows each training suite holds in the parallel batch."""
+        return {s.name: {"roads": n, "rows": c.num} for s, n, c in zip(self.suites, self.core.sizes, self.core.cores)}
 
     def _features(self, obs: np.ndarray) -> np.ndarray:
         return speed_relative(obs, self.config).astype(np.float32)
@@ -267,8 +285,14 @@ class Trainer:
         finished = res.finished
         next_obs = obs if res.final_obs is None else np.where(finished[:, None], self._features(res.final_obs), obs)
         done = res.terminated | (res.truncated & self.hp.timeout_terminal)
-        self.buffer.add(self.obs, act, res.reward.astype(np.float32), next_obs, done.astype(np.float32))
-        self.transitions += len(act)
+        reward = res.reward.astype(np.float32)
+        if res.waiting is not None and res.waiting.any():  # done AVs waiting for their road: no episode
+            keep = ~res.waiting
+            self.buffer.add(self.obs[keep], act[keep], reward[keep], next_obs[keep], done[keep].astype(np.float32))
+            self.transitions += int(keep.sum())
+        else:
+            self.buffer.add(self.obs, act, reward, next_obs, done.astype(np.float32))
+            self.transitions += len(act)
         if finished.any():
             self.recent.extend(res.final_info["outcome"][finished].tolist())
             self.episodes += int(finished.sum())
@@ -375,6 +399,29 @@ class Trainer:
         self.buffer.load(state["buffer"])
 
 
+MULTI_AV_NOTE = ("Several automated vehicles (AVs) per road on the multi-AV training suites: every AV row acts "
+                 "with the one Q-network and its transitions go into the one replay buffer (parameter sharing, "
+                 "Gupta et al. 2017; the AVs of a road meet copies of the same policy: self-play). An AV that "
+                 "is done waits frozen until its road ends; its decisions then belong to no episode and are "
+                 "not stored. multi_av_share of the rows run the multi-AV suites, the rest the single-ego "
+                 "ones. Everything else is the single-agent DQN trainer's.")
+
+
+def row_split(total: int, num_avs: list[int], multi_share: float | None) -> list[int]:
+    """Rows per training suite: ``total`` split evenly over the suites, or with ``multi_share`` that
+    share split over the multi-AV suites (``num_avs`` > 1) and the rest over the single-AV ones."""
+    multi = [i for i, e in enumerate(num_avs) if e > 1]
+    single = [i for i, e in enumerate(num_avs) if e == 1]
+    if multi_share is None or not multi or not single:
+        return split_rows(total, len(num_avs))
+    to_multi = int(round(total * multi_share))
+    out = [0] * len(num_avs)
+    for group, rows in ((multi, to_multi), (single, total - to_multi)):
+        for i, n in zip(group, split_rows(rows, len(group))):
+            out[i] = n
+    return out
+
+
 class _CsvLog:
     FIELDS = ["steps", "episodes", "success_rate", "crash_rate", "loss", "epsilon", "updates", "wall_time_s"]
 
@@ -399,7 +446,8 @@ def model_card(trainer: Trainer, weights: bytes, hp_file: str, results: dict[str
     suite_name = trainer.train_name
     return {
         "name": trainer.algo, "version": "1",
-        "algorithm": "Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)",
+        "algorithm": ("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)") + (
+            ", parameters shared by every automated vehicle (Gupta et al. 2017)" if trainer.multi_av else ""),
         "architecture": {"obs_dim": trainer.obs_dim, "hidden": list(hp.hidden), "dueling": hp.dueling,
                          "num_actions": NUM_MODES},
         "action_repeat": hp.action_repeat, "action_mask": hp.action_mask,
@@ -410,6 +458,7 @@ def model_card(trainer: Trainer, weights: bytes, hp_file: str, results: dict[str
         "train_suite": suite_name, "train_suites": {s.name: s.hash for s in trainer.suites},
         "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
         "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
+        **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {}),
         "results": {eval_suite.name: results} if results and eval_suite else {},
         "eval_suite": eval_suite.name if eval_suite else None,
         "eval_suite_hash": eval_suite.hash if eval_suite else None,

@@ -11,7 +11,7 @@ from typing import Any
 from ..errors import UserError
 from ..io import check_writable_dir
 
-ALGORITHMS = ("dqn", "double-dqn", "ppo", "bc", "cql")
+ALGORITHMS = ("dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
 OFFLINE = ("bc", "cql")  # trained from a dataset (--dataset), not by interaction
 
 EPILOG = """examples:

@@ -1,0 +1,94 @@
+"""Training with several automated vehicles per road (ps-dqn): every AV row shares the Q-network,
+waiting AVs store no transition, the hold treats them as finished, the single-ego trainer is
+unchanged, and the shipped ps-dqn drives multi-AV roads."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from overtakezoo import zoo
+from overtakezoo.benchmark.suites import load_suite, load_training
+from overtakezoo.envs import OvertakeCore
+from overtakezoo.envs.hold import hold
+from overtakezoo.envs.mixture import MixedCore
+from overtakezoo.zoo.train_dqn import Trainer, load_hyperparams, row_split, train
+
+from conftest import needs_shipped_weights
+
+
+def _digest(net) -> str:
+    h = hashlib.sha256()
+    for key, value in net.state_dict().items():
+        h.update(key.encode())
+        h.update(value.detach().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def test_single_ego_training_is_unchanged_by_multi_av_training():
+    # ~3 s of CPU. The digest was computed on the trainer before multi-AV training existed (main
+    # 54d0108, the same run), so the waiting-row filter and the row split leave single-ego training
+    # bit-identical. Torch is pinned (pyproject), and float32 CPU kernels are deterministic here.
+    card = train("dqn", suite="core-train", steps=1500, seed=3, eval_suite=None, progress=False,
+                 overrides={"num_envs": 64, "learning_starts": 300})
+    assert (card["steps"], card["episodes"], card["gradient_updates"]) == (1536, 16, 200)
+    assert _digest(card["_net"]) == "afbf73efce94bb6a6ddb55ec3666130796ce5be8d476c606ed2aa1fc1d499847"
+    assert "train_rows" not in card and card["algorithm"] == "DQN (Mnih et al. 2015)"
+
+
+def test_waiting_avs_never_enter_the_buffer():
+    hp, _ = load_hyperparams("ps-dqn", overrides={"num_envs": 24, "learning_starts": 10**9, "steps": 2500})
+    trainer = Trainer("ps-dqn", hp, load_training("duel-train+platoon-train"), seed=0)
+    trainer._start_core()
+    assert trainer.row_counts() == {"duel-train": {"roads": 6, "rows": 12}, "platoon-train": {"roads": 4, "rows": 12}}
+    waited = 0
+    while trainer.transitions < hp.steps:
+        before, obs = trainer.buffer.size, trainer.obs.copy()
+        waiting = np.asarray(trainer.core.done).copy()  # done AVs whose road still runs
+        trainer._env_step()
+        stored = slice(before, trainer.buffer.size)
+        # Exactly the rows that were not waiting, in order, and nothing else.
+        np.testing.assert_array_equal(trainer.buffer.obs[stored], obs[~waiting])
+        waited += int(waiting.sum())
+    assert waited > 50  # AVs of a road finish at different times: the filter was exercised
+    assert trainer.transitions == trainer.buffer.size  # one transition per stored row, no more
+
+
+def test_the_hold_gives_a_waiting_av_no_reward_and_no_steps():
+    suite = load_suite("platoon")
+    core = OvertakeCore(suite.config, auto_reset=True, seed=0,
+                        source=lambda n, rng: suite.scenarios().take(rng.integers(0, 50, n)))
+    core.reset(suite.scenarios().take(slice(0, 8)))
+    rng = np.random.default_rng(1)
+    seen = 0
+    for _ in range(60):
+        res = hold(core, rng.integers(0, 2, core.num), 10)
+        assert not (res.waiting & res.finished).any()  # a waiting AV cannot finish again
+        assert (res.reward[res.waiting] == 0).all() and (res.live_steps[res.waiting] == 0).all()
+        seen += int(res.waiting.sum())
+    assert seen > 0
+
+
+def test_a_mixture_holds_multi_av_suites_as_roads_of_several_rows():
+    assert row_split(128, [1] * 9 + [2, 3, 2], 0.5) == [8, 7, 7, 7, 7, 7, 7, 7, 7, 22, 21, 21]
+    assert row_split(128, [1] * 9, 0.5) == row_split(128, [1] * 9, None)  # no multi-AV suite: even split
+    suites = load_training("table1-train+duel-train")
+    pools = [s.scenarios() for s in suites]
+    mix = MixedCore([s.config for s in suites], [lambda n, rng, p=p: p.take(rng.integers(0, 100, n)) for p in pools],
+                    [3, 2], seed=0)
+    assert mix.num == 3 + 2 * 2 and mix.observe().shape[0] == mix.num
+    assert mix.step(np.zeros(mix.num, np.int64)).obs.shape[0] == mix.num
+
+
+@needs_shipped_weights
+@pytest.mark.parametrize("suite_name", ["duel", "platoon"])
+def test_shipped_ps_dqn_loads_by_name_and_drives_every_av(suite_name):
+    suite = load_suite(suite_name)
+    dec = zoo.load("ps-dqn", suite.config)
+    assert dec.name == "ps-dqn" and "core-train+multi-train" in str(dec.card())
+    core = OvertakeCore(suite.config)
+    obs = core.reset(suite.scenarios().take(slice(0, 20)))
+    modes = dec.act(obs)
+    assert modes.shape == (core.num,) and set(modes.tolist()) <= {0, 1, 2}
