@@ -28,8 +28,8 @@ from .results import config_sha256
 from .suites import Suite, load_suite
 
 DATA = Path("crossplay")
-# 500 roads per pair: the 10 x 10 matrix of the zoo's non-privileged members takes about 3 minutes with
-# --jobs 2 on 2 cores (measured: 177 s wall, 184 s of CPU time), and a rate's 95 % interval is at most
+# 500 roads per pair: the 11 x 11 matrix of the zoo's non-privileged members takes about 2-3 minutes with
+# --jobs 2 on 2 cores (measured: 128 s wall, 223 s of CPU time), and a rate's 95 % interval is at most
 # +-4.4 points.
 DEFAULT_SCENARIOS = 500
 # (key, label) of the counts kept for each pair; the matrices show the first two.
@@ -152,8 +152,8 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
            f"Every zoo decider against every other on the first {n} of the {doc['suite']['count']} `{name}` "
            f"scenarios (suite v{doc['suite']['version']}, sha256 `{doc['suite']['hash'][:12]}`), {len(names)} x "
            f"{len(names)} ordered pairs (`overtakezoo crossplay --suite {name} --jobs 2`; at the default "
-           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 10 x 10 matrix takes about 3 minutes on 2 cores: "
-           "177 s wall, 184 s of CPU time, measured). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
+           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 11 x 11 matrix takes about 2-3 minutes on 2 cores: "
+           "128 s wall, 223 s of CPU time, measured). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
            "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
            "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
            "the other decider's).", ""]

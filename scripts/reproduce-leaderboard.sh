@@ -7,9 +7,9 @@ cd "$(dirname "$0")/.."
 suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded
                                     duel platoon mixed-traffic)
-deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql oracle)
+deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn oracle)
 # Multi-agent suites: self-play of every non-privileged zoo member (the oracle cannot share a road).
-multi_deciders=(always-abort always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql)
+multi_deciders=(always-abort always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn)
 for suite in "${suites[@]}"; do
   case "$suite" in duel|platoon|mixed-traffic) run=("${multi_deciders[@]}") ;; *) run=("${deciders[@]}") ;; esac
   for decider in "${run[@]}"; do

@@ -72,10 +72,10 @@ def test_sample_indices_are_seeded_sorted_and_per_row():
 
 # ------------------------------------------------------------------ the shipped leaderboard
 def test_every_shipped_row_reproduces_on_a_sample():
-    # CI: one seeded scenario of each row (9 suites x 10 zoo members, 3 multi-agent suites x 10 non-privileged
+    # CI: one seeded scenario of each row (9 suites x 11 zoo members, 3 multi-agent suites x 11 non-privileged
     # members) re-runs exactly (two worker processes).
     rows = len(list(REPO.glob("submissions/*/*.json")))
-    assert rows == 120
+    assert rows == 132
     t0 = time.perf_counter()
     lines = []
     assert verify(REPO, sample=1, seed=0, jobs=2, log=lines.append) == rows
