@@ -41,9 +41,9 @@ def npc_accelerations(core: Any, avs: dict[str, Any], dt: Any, npc_accel: Any) -
     """(M, N) accelerations of every NPC: IDM behind the nearest vehicle ahead in its lane, an NPC or
     an AV it has noticed (scripted NPCs never notice AVs); agents' accelerations where given.
 
-    ``avs`` holds the AVs in world coordinates as (E, N) arrays: ``s``, ``d``, ``v_along`` (velocity
-    along +s), ``half_len`` / ``half_wid`` (sums with each NPC's, (E, M, N) or broadcastable) and
-    ``present``. Updates the noticing timers (E, M, N) and the speed-up flags on ``core``."""
+    ``avs`` holds the AVs in world coordinates: ``dx`` / ``dy`` (each NPC's position minus each AV's,
+    (E, M, N)), ``v_along`` (velocity along +s, (E, N)), ``half_len`` / ``half_wid`` (sums with each
+    NPC's, (E, M, N) or broadcastable) and ``present`` (E, N). Updates the noticing timers (E, M, N) and the speed-up flags on ``core``."""
     xp, T, nc = core.xp, core._npc, core.cfg.npc
     direction, s, v = T["direction"], core._npc_s, core._npc_v
     # Other NPCs ahead in the same lane, along each NPC's own direction: pairs (j, k, N).
@@ -53,12 +53,15 @@ def npc_accelerations(core: Any, avs: dict[str, Any], dt: Any, npc_accel: Any) -
     gap = xp.amin(pair_gap, axis=1)
     leader = first_argmin(pair_gap, 1, xp)
     lead_v = v[leader, xp.arange(core.num_roads)]
-    core._npc_leader = xp.where(xp.isfinite(gap), leader, -1)
+    if core._lane_mates:  # (the collision pass checks each NPC against this leader)
+        core._npc_leader = xp.where(xp.isfinite(gap), leader, -1)
     # An AV counts once it occupies this lane ahead and the reaction delay has passed.
-    dx = s - avs["s"][:, None]  # (E, M, N)
+    dx, dy = avs["dx"], avs["dy"]  # (E, M, N): NPC minus AV, along and across the road
     half_len, half_wid = avs["half_len"], avs["half_wid"]
     av_gap = -direction * dx - half_len
-    in_lane = (xp.abs(T["d"] - avs["d"][:, None]) < half_wid) & (av_gap > -2 * half_len) & avs["present"][:, None]
+    in_lane = (xp.abs(dy) < half_wid) & (av_gap > -2 * half_len)
+    if dx.shape[0] > 1:  # (the single AV is always on its road while it drives)
+        in_lane &= avs["present"][:, None]
     core._npc_aware = xp.where(in_lane, core._npc_aware + dt, 0.0)
     if in_lane.any():  # (no AV in any NPC's lane: every NPC keeps its lead)
         sees = in_lane & T["notices_ego"] & (core._npc_aware >= T["reaction"]) & (av_gap < gap)
@@ -75,7 +78,7 @@ def npc_accelerations(core: Any, avs: dict[str, Any], dt: Any, npc_accel: Any) -
     # A speed-up lead raises its desired speed once an AV draws level in the other lane.
     v_des = T["v_des"]
     if T["speedup"].any():  # (no speed-up lead in the batch: nothing to boost)
-        beside = direction * (T["d"] - avs["d"][:, None]) < -half_wid  # the AV in the lane it passes through
+        beside = direction * dy < -half_wid  # the AV in the lane it passes through
         passing = T["speedup"] & beside & (direction * dx - half_len < nc.speedup_trigger)
         core._npc_boosted |= xp.any(passing & avs["present"][:, None], axis=0) & (dt > 0)
         v_des = v_des + xp.where(core._npc_boosted, T["boost"], 0.0)

@@ -406,6 +406,11 @@ class OvertakeCore:
             xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
         avs = self._avs_world()  # where the NPCs see the AVs: before they move, as the planner did
         avs["half_len"], avs["half_wid"] = self._npc_sizes_with_avs(geo)
+        if self.num_avs == 1:  # the ego's frame is the world's: the planner's geometry is the NPCs' view
+            avs["dx"], avs["dy"] = geo["dx"][None], geo["dy"][None]
+        else:
+            avs["dx"] = self._npc_s - avs["s"][:, None]
+            avs["dy"] = self._npc["d"] - avs["d"][:, None]
         jerk = track(self, p, dt)
         avs["v_along"] = self._av_velocity()  # ... and how fast they now go
         advance_npcs(self, npc_accelerations(self, avs, road_dt, npc_accel), road_dt)
