@@ -21,7 +21,7 @@ from .errors import UserError
 from .io import atomic_write_bytes
 from . import crossplay, headline, multi_leaderboard, paper_table
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
-from .submission import Row, describe, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
+from .submission import Row, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
 from .suites import MULTI, load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"
@@ -257,13 +257,7 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
         out.append("")
     if paper:
         out.append(paper)
-    if stale:
-        out += ["## Stale submissions", "",
-                "Measured on another suite file, environment config or simulator version than the current "
-                "ones; re-run the evaluation and re-submit (`--replace`) to list them above.", ""]
-        out += [f"- [{row.name}]({row.rel}): measured on {describe(why)}" for row, why in stale]
-        out.append("")
-    return "\n".join(out)
+    return "\n".join(out + multi_leaderboard.stale_section(stale))
 
 
 def _reported(value: Any, kind: str, unit: str) -> str:

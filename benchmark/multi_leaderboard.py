@@ -102,13 +102,17 @@ def markdown(name: str, suite: Any, ranked: list[Row], stale: list, policy_cell:
         out.append(render_table([(row.name, row.results.summary) for row in ranked], markdown=True,
                                 table=MULTI_TABLE).rstrip())
         out.append("")
-    if stale:
-        out += ["## Stale submissions", "",
-                "Measured on another suite file, environment config or simulator version than the current "
-                "ones; re-run the evaluation and re-submit (`--replace`) to list them above.", ""]
-        out += [f"- [{row.name}]({row.rel}): measured on {describe(why)}" for row, why in stale]
-        out.append("")
-    return "\n".join(out)
+    return "\n".join(out + stale_section(stale))
+
+
+def stale_section(stale: list) -> list[str]:
+    """The closing list of a suite page's stale rows (single-ego and multi-agent alike)."""
+    if not stale:
+        return []
+    return (["## Stale submissions", "",
+             "Measured on another suite file, environment config or simulator version than the current "
+             "ones; re-run the evaluation and re-submit (`--replace`) to list them above.", ""]
+            + [f"- [{row.name}]({row.rel}): measured on {describe(why)}" for row, why in stale] + [""])
 
 
 def plot(name: str, ranked: list[Row]) -> bytes:

@@ -38,7 +38,7 @@ import numpy as np
 
 from .config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
 from .controllers import idm
-from .ops import INF, NP, SMALL_BATCH, clip, first_argmin, first_true  # noqa: F401  (re-exported)
+from .ops import INF, NP, clip, first_argmin
 
 
 @dataclass
