@@ -34,7 +34,7 @@ import numpy as np
 from .backend import make_backend
 from .collisions import av_contacts, lane_contacts
 from .config import ABORT, OVERTAKE, EnvConfig
-from .controllers import AGENT, IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
+from .controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
 from .dynamics import advance_npcs, track
 from .observation import observe, observation_size
 from .outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
@@ -109,7 +109,7 @@ class OvertakeCore:
         self._npc_s, self._npc_v, self._npc_a = (xp.zeros((m, n)) for _ in range(3))
         self._npc_aware = xp.zeros((e, m, n))
         self._npc_boosted, self._npc_crashed = xp.zeros((m, n), xp.bool), xp.zeros((m, n), xp.bool)
-        self._npc_crashed_any = False
+        self._npc_crashed_any = False  # (cheaper than asking _npc_crashed every step; stays set until reset)
         self._npc_leader = xp.full((m, n), -1, xp.int)
         self._all_present = xp.full((1, n), True, xp.bool)
         if self.auto_reset:  # auto-reset rewrites rows of the batch in place: keep a private copy
@@ -404,13 +404,7 @@ class OvertakeCore:
 
         road_dt = dt if self.num_avs == 1 else cfg.dt * xp.astype(
             xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
-        avs = self._avs_world()  # where the NPCs see the AVs: before they move, as the planner did
-        avs["half_len"], avs["half_wid"] = self._npc_sizes_with_avs(geo)
-        if self.num_avs == 1:  # the ego's frame is the world's: the planner's geometry is the NPCs' view
-            avs["dx"], avs["dy"] = geo["dx"][None], geo["dy"][None]
-        else:
-            avs["dx"] = self._npc_s - avs["s"][:, None]
-            avs["dy"] = self._npc["d"] - avs["d"][:, None]
+        avs = self._avs_for_npcs(geo)  # where the NPCs see the AVs: before they move, as the planner did
         jerk = track(self, p, dt)
         avs["v_along"] = self._av_velocity()  # ... and how fast they now go
         advance_npcs(self, npc_accelerations(self, avs, road_dt, npc_accel), road_dt)
@@ -430,9 +424,9 @@ class OvertakeCore:
         obs = observe(self, geo)
         final_obs = None
         if self.auto_reset and finished.any():
+            final_obs = obs  # (an AV that finished while its road runs on keeps this observation)
             ended = self._ended_roads()
             if ended.any():
-                final_obs = obs
                 roads = xp.nonzero(ended)
                 obs = xp.copy(obs)
                 cols = roads if self.num_avs == 1 else self._av_rows(roads)
@@ -452,41 +446,37 @@ class OvertakeCore:
         """(N,) bool: roads whose every AV is done."""
         return self.done if self.num_avs == 1 else self.xp.all(self.done.reshape(self.num_avs, -1), axis=0)
 
-    def _npc_sizes_with_avs(self, geo: dict[str, Any]) -> tuple[Any, Any]:
-        """Half-length and half-width sums of each AV with each NPC, (E, M, N)."""
-        if self.num_avs == 1:
-            return geo["half_len"][None], geo["half_wid"][None]
+    def _avs_for_npcs(self, geo: dict[str, Any]) -> dict[str, Any]:
+        """The AVs as the NPCs' controllers see them: world positions, each NPC's offset from each AV
+        (``dx``, ``dy``) and the half-size sums (E, M, N)."""
+        avs = self._avs_world()
+        if self.num_avs == 1:  # the ego's frame is the world's: the planner's geometry is the NPCs' view
+            avs.update(dx=geo["dx"][None], dy=geo["dy"][None], half_len=geo["half_len"][None],
+                       half_wid=geo["half_wid"][None])
+            return avs
         E, T, e = self._ego, self._npc, self.num_avs
         length, width = E["ego_length"].reshape(e, 1, -1), E["ego_width"].reshape(e, 1, -1)
-        return (length + T["length"][None]) / 2, (width + T["width"][None]) / 2
+        avs.update(dx=self._npc_s - avs["s"][:, None], dy=T["d"] - avs["d"][:, None],
+                   half_len=(length + T["length"][None]) / 2, half_wid=(width + T["width"][None]) / 2)
+        return avs
 
     def _npc_collisions(self, hit: Any) -> None:
-        """NPC-NPC contacts, and NPCs hit by an AV: a crashed NPC stops where it is."""
-        xp = self.xp
-        if not self._lane_mates:  # (at most one NPC per lane in every road: no NPC-NPC contact)
-            if hit.any() and self.num_npcs:
-                self._mark_struck(hit)
-            return
-        follower, lead = lane_contacts(xp, self._npc_s, self._npc["direction"], self._npc["half_length"],
-                                       self._npc_leader, self._npc["present"])
-        m = self.num_npcs
-        struck = bool(hit.any()) and bool(xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1).any())
-        if not (struck or follower.any()):  # (the usual step: nobody touched anybody)
-            return
-        crashed = self._npc_crashed | follower
-        if struck:
-            crashed = crashed | xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
-        rows_j, rows_n = xp.nonzero2(follower)
-        crashed[lead[rows_j, rows_n], rows_n] = True  # both parties of a rear-end contact
-        self._npc_crashed = crashed
-        self._npc_crashed_any = True
-
-    def _mark_struck(self, hit: Any) -> None:
-        m = self.num_npcs
-        struck = self.xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
-        if struck.any():
-            self._npc_crashed = self._npc_crashed | struck
-            self._npc_crashed_any = True
+        """NPCs hit by an AV, and NPC-NPC contacts (both parties): a crashed NPC stops where it is."""
+        xp, m = self.xp, self.num_npcs
+        crashed = None
+        if m and hit.any():  # (the usual step: no AV touches anything)
+            struck = xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
+            if struck.any():
+                crashed = self._npc_crashed | struck
+        if self._lane_mates:  # (at most one NPC per lane in every road: no NPC-NPC contact)
+            follower, lead = lane_contacts(xp, self._npc_s, self._npc["direction"], self._npc["half_length"],
+                                           self._npc_leader, self._npc["present"])
+            if follower.any():
+                crashed = (self._npc_crashed if crashed is None else crashed) | follower
+                rows_j, rows_n = xp.nonzero2(follower)
+                crashed[lead[rows_j, rows_n], rows_n] = True  # the NPC it ran into
+        if crashed is not None:
+            self._npc_crashed, self._npc_crashed_any = crashed, True
 
     def _update_stats(self, geo: dict[str, Any], active: Any, jerk: Any) -> None:
         xp, st, E = self.xp, self.stats, self._ego
@@ -545,4 +535,3 @@ _NPC_FIELDS = ("npc_present", "npc_lane", "npc_v_des", "npc_behaviour", "npc_boo
                "npc_reaction", "npc_reveal", "npc_must_pass")
 _STAT_INIT = {"completion_time": np.nan, "aborts": 0, "switches": 0, "opposite_time": 0.0, "min_ttc": np.inf,
               "peak_lat_accel": 0.0, "peak_jerk": 0.0}
-AGENT_KIND = AGENT

@@ -90,8 +90,7 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
             if final_obs is None:
                 final_obs = np.array(res.obs)
                 final_info = {k: np.array(v) for k, v in res.info.items() if k[0] != "_"}
-            # A multi-AV row that finished while its road runs on is not refilled: its obs is its last.
-            final_obs[now] = (res.obs if res.final_obs is None else res.final_obs)[now]
+            final_obs[now] = res.final_obs[now]
             for k in final_info:
                 final_info[k][now] = res.info[k][now]
         ended |= now

@@ -2,8 +2,8 @@
 
 Usage: python scripts/multi_rates.py SUITE[,SUITE...] DECIDER[,DECIDER...] [--limit N]
 
-Runs the first N scenarios of each suite (a name or a .toml path) with each zoo decider, stepping
-the core as the benchmark runner does (the decision hold included), and prints per-AV rates
+Runs the first N scenarios of each suite (a name or a .toml path) with each zoo decider through the
+benchmark runner, and prints per-AV rates
 (success / crash / timeout) and joint ones: every AV succeeds, any AV crashes, any crash between
 two AVs. The numbers quoted in benchmark/suites/{duel,platoon,mixed-traffic}.toml come from it;
 scripts/seed_results.py calls :func:`rates` for the multi-AV suites (every seed of a member).
@@ -12,37 +12,24 @@ scripts/seed_results.py calls :func:`rates` for the multi-AV suites (every seed 
 from __future__ import annotations
 
 import argparse
-import math
 
 import numpy as np
 
+from overtakezoo.benchmark.multi_metrics import by_av
+from overtakezoo.benchmark.runner import run_suite
 from overtakezoo.benchmark.suites import Suite, load_suite
-from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, OvertakeCore
-from overtakezoo.envs.hold import hold, hold_steps
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 from overtakezoo.zoo.base import Decider, load
 
 
 def rates(suite: Suite, decider_name: str | Decider, limit: int | None) -> dict[str, object]:
     """Joint and per-AV outcome rates of a zoo decider (by name, or a loaded one) driving every AV
-    on the first ``limit`` scenarios (None: all); ``counts`` holds the outcome counts behind them."""
-    sc = suite.scenarios().take(slice(0, limit))
+    on the first ``limit`` scenarios (None: all), as the benchmark runner measures them; ``counts``
+    holds the outcome counts behind them."""
     decider = load(decider_name, suite.config) if isinstance(decider_name, str) else decider_name
-    core = OvertakeCore(suite.config)
-    obs = core.reset(sc)
-    decider.reset()
-    if getattr(decider, "privileged", False):
-        decider.bind(core)
-    held = hold_steps(suite.config.decision_interval, getattr(decider, "action_repeat", 1))
-    max_steps = int(math.ceil(float(sc.time_limit.max()) / suite.config.dt)) + 10
-    steps = 0
-    while not np.asarray(core.done).all():
-        if steps >= max_steps:
-            raise RuntimeError(f"rows still running after {max_steps} steps")
-        res = hold(core, decider.act(obs), held)
-        obs, steps = res.obs, steps + res.steps
-    e, n = sc.num_avs, sc.num
-    outcome = np.asarray(core.outcome).reshape(e, n)  # AV e of road n is row e * n + road
-    crash_av = np.asarray(core.crash_av).reshape(e, n)
+    per = run_suite(suite, decider, progress=False, limit=limit).per
+    outcome, crash_av = by_av(per["outcome"], suite.num_avs), by_av(per["crash_av"], suite.num_avs)
+    e, n = outcome.shape
 
     def mean(mask: np.ndarray) -> float:
         return round(float(mask.mean()), 3)
