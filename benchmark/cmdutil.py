@@ -27,9 +27,12 @@ def add_decider_options(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--decider", help="a decider name from the zoo registry (see `overtakezoo zoo`)")
     g.add_argument("--policy", metavar="SPEC",
-                   help="any policy: a zoo name, package.module:factory, weights written by `overtakezoo train` "
-                        "(<algo>.pt beside <algo>.json), a TorchScript or ONNX file ([onnx] extra), or a "
-                        "Stable-Baselines3 .zip ([sb3] extra)")
+                   help="any policy: a zoo name, package.module:factory (your code, run in this process), or a "
+                        "file, read as data and run in a sandboxed child process: weights written by `overtakezoo "
+                        "train` (<algo>.npz or .pt beside <algo>.json), an ONNX file ([onnx] extra; external data "
+                        "inlined from beside it), a Stable-Baselines3 .zip (DQN/PPO/A2C MlpPolicy; its state dict "
+                        "is read with weights_only and its pickled entries are never unpickled) or a TorchScript "
+                        "file (deprecated by torch)")
 
 
 def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:

@@ -21,7 +21,7 @@ from .errors import UserError
 from .io import atomic_write_bytes
 from . import crossplay, headline, multi_leaderboard, paper_table
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
-from .submission import Row, load_submissions, stale_reasons, submit  # noqa: F401 (submit: re-exported)
+from .rows import Row, load_submissions, stale_reasons
 from .suites import MULTI, load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"

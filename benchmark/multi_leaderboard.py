@@ -12,7 +12,7 @@ from typing import Any
 
 from .metrics import format_metric, render_table
 from .multi_metrics import JOINT, MULTI_TABLE
-from .submission import Row, describe
+from .rows import Row, describe
 
 _LABELS = {k: label for k, label, _, _ in MULTI_TABLE}
 _JOINT = {k: (label, kind, unit) for k, label, kind, unit in JOINT}

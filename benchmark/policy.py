@@ -5,34 +5,34 @@ A SPEC is one of:
 - a zoo registry name (``rule-fsm``, ``dqn``, ...);
 - ``package.module:factory``: ``factory(config)`` returns a :class:`~overtakezoo.zoo.Decider`, or any
   object with ``act(obs)`` on a batch (N, D) (and optionally ``reset(mask)``, ``name``,
-  ``action_repeat``);
-- a file:
+  ``action_repeat``). This is code you chose to run, in this process; files below are not;
+- a file, read as data (:mod:`.artifacts`) and acted in a sandboxed child process (:mod:`.sandbox`):
   - ``<name>.npz`` or ``<name>.pt`` with its model card ``<name>.json`` beside it (or the card
     itself, or the directory holding one such pair): what ``overtakezoo train dqn | double-dqn |
-    ppo`` writes (sha256 checked against the card, as for the zoo's own weights; the leaderboard
-    stores the pair as ``artifacts/<sha256>.npz`` + ``artifacts/<sha256>.json``). The ``.npz`` acts
-    through numpy only; a ``.pt`` is read with torch and acts the same way;
-  - a TorchScript file (``torch.jit.save``): a module mapping float32 observations (N, D) to
-    Q-values or logits (N, 3), argmax taken (or to modes (N,));
-  - an ONNX file (extra ``[onnx]``: onnxruntime), the same contract;
-  - a Stable-Baselines3 ``.zip`` (extra ``[sb3]``), e.g. trained on ``overtakezoo/Overtake-v0``;
-    ``model.predict(obs, deterministic=True)``.
+    ppo`` writes (sha256 checked against the card, as for the zoo's own weights; a ``.pt`` is read
+    with ``torch.load(weights_only=True)``);
+  - an ONNX file (extra ``[onnx]``), external data inlined from beside the model: a network mapping
+    float32 observations (N, D) to Q-values or logits (N, 3), argmax taken (or to modes (N,) / (N, 1));
+  - a Stable-Baselines3 ``.zip`` (DQN, PPO, A2C ``MlpPolicy``; needs torch): its ``policy.pth``
+    state dict is read with ``weights_only=True`` and the network acts in numpy; the pickled
+    entries of its ``data`` file are never unpickled;
+  - a TorchScript file (``torch.jit.save``, the same contract as ONNX; deprecated by torch): it runs
+    in the sandbox only.
 
 Each decision is held for the policy's ``action_repeat`` (a model card's, a TorchScript module's
 ``action_repeat`` attribute, an ONNX metadata entry ``action_repeat``; else 1: one env step of the
 Gymnasium face) combined with the suite's ``decision_interval`` by the runner. A file policy is named
 ``<file stem>-<first 8 hex of its sha256>`` (never a zoo name), and its results record the kind and
-the file's sha256 (``decider.policy``, ``decider.weights_sha256``). Every expected failure (missing
-file, corrupted weights, wrong shapes, a missing optional dependency) is one :class:`UserError`.
+the sha256 of what acts (``decider.policy``, ``decider.weights_sha256``; for ONNX with external data,
+of the inlined model). Every expected failure (missing file, corrupted weights, wrong shapes, a
+missing optional dependency, a policy that crashes or hangs) is one :class:`UserError`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import json
 import re
-import zipfile
 from pathlib import Path
 from typing import Any, Callable
 
@@ -41,7 +41,9 @@ import numpy as np
 from overtakezoo import zoo
 from overtakezoo.envs import ConfigError, EnvConfig, observation_size
 
+from .artifacts import Artifact, model_card, read_policy_file  # noqa: F401 (model_card: for submission.py)
 from .errors import UserError
+from .sandbox import PolicyFailure, SandboxedPolicy, check_modes
 
 NUM_MODES = 3
 FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
@@ -58,14 +60,16 @@ class PolicyDecider(zoo.Decider):
         self.action_repeat, self.weights_sha256, self.inner = int(action_repeat), weights_sha256, inner
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        return np.asarray(self._act_batch(np.asarray(obs, np.float32)), dtype=np.int64).reshape(-1)
+        obs = np.asarray(obs, np.float32)
+        return check_modes(self._act_batch(obs), obs.shape[0])
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         if hasattr(self.inner, "reset"):
             self.inner.reset(mask)
 
     def card(self) -> str:
-        return f"{self.name}: a {self.policy['kind']} policy loaded from {self.policy['spec']}."
+        return (f"{self.name}: a {self.policy.get('kind', 'file')} policy loaded from "
+                f"{self.policy.get('spec', self.policy.get('file'))}.")
 
 
 def load_policy(spec: str, config: EnvConfig | None = None) -> zoo.Decider:
@@ -131,35 +135,32 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
         data = path.read_bytes()
     except OSError as exc:
         raise UserError(f"policy {path}: cannot read ({exc.strerror or exc})") from None
-    sha = hashlib.sha256(data).hexdigest()
-    card = model_card(path)
-    if card is not None:
-        dec = _load_trained(path, card, config)
-        kind = dec.policy_kind
-    elif path.suffix == ".zip" and _is_sb3(path):
-        dec, kind = _load_sb3(path, config), "sb3"
-    elif path.suffix == ".onnx":
-        dec, kind = _load_onnx(path, data, config), "onnx"
-    elif zipfile.is_zipfile(path) and _is_torchscript(path):
-        dec, kind = _load_torchscript(path, config), "torchscript"
-    else:
-        hint = (f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
-                "`overtakezoo train` writes)"
-                if path.suffix in (".pt", ".pth", ".npz") else "")
-        raise UserError(f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a "
-                        f"model card{hint}")
-    dec.name = f"{_slug(path.stem)}-{sha[:8]}"
-    dec.weights_sha256 = sha
-    dec.policy = {"kind": kind, "file": path.name, "sha256": sha}
-    _probe(dec, config, path)
+    art = read_policy_file(path, data, config)
+    dec = boxed(art, config, str(path))
+    # Named and hashed by the user's file (for ONNX with external data: the inlined model, all that runs).
+    dec.name = f"{_slug(path.stem)}-{art.source_sha256[:8]}"
+    dec.weights_sha256 = art.source_sha256
+    dec.policy = {"kind": art.source_kind, "file": path.name, "sha256": art.source_sha256}
     return dec
 
 
-def model_card(path: Path) -> Path | None:
-    """The model card of weights in the format `overtakezoo train` writes (<name>.npz or <name>.pt
-    beside <name>.json), or None: the file is a policy on its own."""
-    card = path.with_suffix(".json")
-    return card if path.suffix in (".npz", ".pt", ".pth") and card.is_file() else None
+def boxed(art: Artifact, config: EnvConfig, who: str) -> PolicyDecider:
+    """The decider acting ``art`` in a sandboxed child (:mod:`.sandbox`), probed on this config's
+    observations; :class:`UserError` naming ``who`` when it cannot load or act."""
+    try:
+        box = SandboxedPolicy(art.kind, art.data, config, art.card_bytes, who)
+    except PolicyFailure as exc:
+        raise UserError(f"policy {who}: {exc}") from None
+    try:
+        repeat = int(box.info.get("action_repeat", 1))
+        if repeat < 1:
+            raise ValueError
+    except (TypeError, ValueError):
+        box.close()
+        raise UserError(f"policy {who}: action_repeat {box.info.get('action_repeat')!r} is not a positive int") from None
+    dec = PolicyDecider(box.act, who, config, {}, action_repeat=repeat, inner=box)
+    _probe(dec, config, who)
+    return dec
 
 
 def _trained_weights(path: Path) -> Path:
@@ -188,130 +189,11 @@ def _slug(stem: str) -> str:
     return (re.sub(r"[^A-Za-z0-9._+-]", "-", stem).lstrip("._+-") or "policy")[:48]
 
 
-def _probe(dec: zoo.Decider, config: EnvConfig, path: Path) -> None:
+def _probe(dec: zoo.Decider, config: EnvConfig, who: str) -> None:
     """Fail at load time, not mid-run, when the policy does not take this suite's observations."""
     d = observation_size(config)
     try:
-        modes = dec.act(np.zeros((2, d), np.float32))
-    except Exception as exc:
-        raise UserError(f"policy {path}: does not accept observations of shape (N, {d}) "
-                        f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
-    if modes.min() < 0 or modes.max() >= NUM_MODES:
-        raise UserError(f"policy {path}: returned mode {int(modes.max())}, expected 0, 1 or 2")
-
-
-def _argmax(out: Any, path: Path) -> np.ndarray:
-    """Q-values or logits (N, 3) -> argmax; modes (N,) as they are."""
-    out = np.asarray(out)
-    if out.ndim == 2 and out.shape[1] == NUM_MODES:
-        return out.argmax(axis=1)
-    if out.ndim == 1:
-        return out
-    raise ValueError(f"output of shape {out.shape}, expected (N, {NUM_MODES}) scores or (N,) modes")
-
-
-def _load_trained(weights: Path, card_path: Path, config: EnvConfig) -> zoo.Decider:
-    """``overtakezoo train`` output: <algo>.npz (numpy) or <algo>.pt (torch) with the model card <algo>.json."""
-    from overtakezoo.zoo.common import WeightsError, read_card, read_verified
-    from overtakezoo.zoo.learned import MLPDecider, load_weights
-
-    try:
-        card = read_card(card_path, weights.name)
-        if not isinstance(card.get("architecture"), dict):
-            raise UserError(f"policy {weights}: model card {card_path.name} is not one `overtakezoo train` writes")
-        name = str(card.get("name", "dqn"))
-        if weights.suffix == ".npz":
-            net = load_weights(weights, card, weights.name)
-        else:  # the torch file of a training run: converted as `export` does (torch needed)
-            from overtakezoo.zoo.export import torch_to_numpy, trained_sha256
-
-            data = read_verified(weights, {"weights_sha256": trained_sha256(card)}, weights.name)
-            net = torch_to_numpy(data, card, f"weights {weights.name}")
-        dec = MLPDecider(net, name, config, card)
-        dec.policy_kind = "overtakezoo-ppo" if name == "ppo" else "overtakezoo-dqn"
-    except ModuleNotFoundError as exc:
-        raise UserError(f"policy {weights}: needs {exc.name} (pip install 'overtakezoo[train]')") from None
-    except (WeightsError, KeyError, TypeError) as exc:
-        raise UserError(f"policy {weights}: {exc}") from None
-    return dec
-
-
-def _is_torchscript(path: Path) -> bool:
-    with zipfile.ZipFile(path) as z:
-        return any(n.endswith("/constants.pkl") or "/code/" in n for n in z.namelist())
-
-
-def _load_torchscript(path: Path, config: EnvConfig) -> zoo.Decider:
-    torch = _need("torch", "train", path)
-    try:
-        module = torch.jit.load(str(path), map_location="cpu").eval()
-    except Exception as exc:
-        raise UserError(f"policy {path}: cannot load TorchScript ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return _argmax(module(torch.from_numpy(obs)).numpy(), path)
-
-    return PolicyDecider(act, path.stem, config, {}, action_repeat=int(getattr(module, "action_repeat", 1)))
-
-
-def _load_onnx(path: Path, data: bytes, config: EnvConfig) -> zoo.Decider:
-    ort = _need("onnxruntime", "onnx", path)
-    try:
-        session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
-    except Exception as exc:
-        raise UserError(f"policy {path}: cannot load ONNX ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
-    inp = session.get_inputs()[0].name
-    meta = session.get_modelmeta().custom_metadata_map
-    try:
-        repeat = int(meta.get("action_repeat", 1))
-    except ValueError:
-        raise UserError(f"policy {path}: metadata action_repeat {meta['action_repeat']!r} is not an int") from None
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        return _argmax(session.run(None, {inp: obs})[0], path)
-
-    return PolicyDecider(act, path.stem, config, {}, action_repeat=repeat)
-
-
-def _is_sb3(path: Path) -> bool:
-    with zipfile.ZipFile(path) as z:
-        return "data" in z.namelist() and "policy.pth" in z.namelist()
-
-
-def _load_sb3(path: Path, config: EnvConfig) -> zoo.Decider:
-    sb3 = _need("stable_baselines3", "sb3", path)
-    try:
-        with zipfile.ZipFile(path) as z:
-            policy_class = json.loads(z.read("data")).get("policy_class", {})
-    except (OSError, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"policy {path}: unreadable Stable-Baselines3 file ({exc})") from None
-    # The algorithm is named by the pickled policy class's module: stable_baselines3.<algo>.policies.
-    algo = re.search(r"stable_baselines3\.(\w+)\.policies", json.dumps(policy_class))
-    cls = getattr(sb3, algo.group(1).upper(), None) if algo else None
-    if cls is None:
-        raise UserError(f"policy {path}: cannot tell which Stable-Baselines3 algorithm saved it")
-    try:
-        model = cls.load(str(path), device="cpu")
-    except Exception as exc:
-        raise UserError(f"policy {path}: cannot load with {cls.__name__}.load ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
-    d = observation_size(config)
-    space = model.observation_space
-    if getattr(space, "shape", None) != (d,) or getattr(model.action_space, "n", None) != NUM_MODES:
-        raise UserError(f"policy {path}: trained on observations {getattr(space, 'shape', space)} and actions "
-                        f"{model.action_space}; this suite gives ({d},) and Discrete(3)")
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        return model.predict(obs, deterministic=True)[0]
-
-    return PolicyDecider(act, path.stem, config, {})
-
-
-def _need(module: str, extra: str, path: Path) -> Any:
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        raise UserError(f"policy {path}: needs {module} (pip install 'overtakezoo[{extra}]')") from None
+        dec.act(np.zeros((2, d), np.float32))
+    except PolicyFailure as exc:
+        dec.inner.close()
+        raise UserError(f"policy {who}: does not accept observations of shape (N, {d}): {exc}") from None

@@ -25,6 +25,7 @@ from overtakezoo.envs.hold import hold, hold_steps
 
 from .results import Results, per_scenario_keys, round_per_scenario
 from .errors import UserError
+from .sandbox import PolicyFailure, check_modes
 from .suites import Suite, shard_bounds
 
 
@@ -105,7 +106,8 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             while not core.done.all():
                 if step >= max_steps:
                     raise RuntimeError(f"rows still running after {max_steps} steps (time limit not enforced?)")
-                res = hold(core, decider.act(obs), held, on_step=record)
+                res = hold(core, _decide(decider, obs, index[lo:lo + chunk.num], step, cfg.dt), held,
+                           on_step=record)
                 obs = res.obs
                 bar.update(int(np.count_nonzero(res.finished)))
                 step += res.steps
@@ -119,6 +121,28 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     per = round_per_scenario({k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
                               for k in per_scenario_keys(e)})
     return per, total_steps
+
+
+class RunFailure(UserError):
+    """A decider failed mid-run: one line naming it, the scenario and the step. ``part``: which
+    decider of a stacked batch (verify's), when it was one."""
+
+    def __init__(self, message: str, part: int | None = None) -> None:
+        super().__init__(message)
+        self.part = part
+
+
+def _decide(decider: Any, obs: np.ndarray, scenarios: np.ndarray, step: int, dt: float) -> np.ndarray:
+    """The decider's modes for ``obs`` (rows of the suite's ``scenarios``, AV-major when several
+    AVs share a road), checked: (N,) integers in {0, 1, 2}; anything else is a :class:`RunFailure`."""
+    try:
+        return check_modes(decider.act(obs), obs.shape[0])
+    except PolicyFailure as exc:
+        rows = np.tile(scenarios, max(1, obs.shape[0] // max(1, scenarios.size)))
+        where = (f"scenario {int(rows[exc.rows[0]])}" if exc.rows is not None and exc.rows.size
+                 else f"scenarios {int(scenarios.min())}-{int(scenarios.max())}" if scenarios.size else "no scenario")
+        raise RunFailure(f"{decider.name}: {where}, step {step} (t = {step * dt:.1f} s): {exc.reason}",
+                         getattr(exc, "part", None)) from None
 
 
 def _per_scenario_empty() -> dict[str, np.ndarray]:

@@ -1,5 +1,6 @@
 """Leaderboard: byte-identical regeneration, --check catches stale files, submit guards versions."""
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -9,7 +10,8 @@ import pytest
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard import generate, stale_files, submit
+from overtakezoo.benchmark.leaderboard import generate, stale_files
+from overtakezoo.benchmark.submission import submit
 from overtakezoo.benchmark.metrics import summarize
 from overtakezoo.benchmark.results import Results
 
@@ -25,10 +27,20 @@ def root(tmp_path):
     for seed, name in ((1, "alpha"), (2, "beta")):
         r = fake_results(seed=seed)
         r.meta["decider"] = {**r.meta["decider"], "name": name}
-        policy = tmp_path / f"{name}.bin"
-        policy.write_bytes(name.encode())  # filed, hashed and stored; never run by these tests
-        submit(r, root, policy=policy)
+        file_row(r, root, name, name.encode())
     return root
+
+
+def file_row(results, root, name, artifact):
+    """A row as a pull request adds it (no `submit`, whose re-run these fake results would fail):
+    generation reads rows and never runs their policies."""
+    sha = hashlib.sha256(artifact).hexdigest()
+    store = root / "submissions" / "artifacts"
+    store.mkdir(parents=True, exist_ok=True)
+    (store / f"{sha}.onnx").write_bytes(artifact)
+    block = {"name": name, "policy": {"artifact": f"artifacts/{sha}.onnx", "sha256": sha}}
+    Results({**results.meta, "submission": block}, results.per, results.summary, results.timing).save(
+        root / "submissions" / results.suite["name"] / f"{name}.json")
 
 
 def test_repo_leaderboard_is_current():

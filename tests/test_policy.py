@@ -130,11 +130,11 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path, suite, capsys, monkeypa
     monkeypatch.setitem(sys.modules, "onnxruntime", None)  # import fails as if not installed
     err = one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "m.onnx")])
     assert "overtakezoo[onnx]" in err
-    monkeypatch.setitem(sys.modules, "stable_baselines3", None)
+    monkeypatch.setitem(sys.modules, "torch", None)  # an SB3 zip's policy.pth needs torch (not SB3) to be read
     import zipfile
 
     with zipfile.ZipFile(tmp_path / "model.zip", "w") as z:
-        z.writestr("data", "{}")
+        z.writestr("data", json.dumps({"policy_class": {"__module__": "stable_baselines3.dqn.policies"}}))
         z.writestr("policy.pth", b"")
     assert "overtakezoo[sb3]" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy",
                                                          str(tmp_path / "model.zip")])

@@ -374,14 +374,16 @@ class Trainer:
                  "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
                  "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
                  "torch_rng": torch.get_rng_state(), "core_seed": self._core_seed + 1,
-                 "buffer": self.buffer.state()}
+                 "buffer": {k: torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v
+                            for k, v in self.buffer.state().items()}}  # tensors: loadable with weights_only
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write_bytes(path, buf.getvalue())
 
     def restore(self, path: str | Path) -> None:
         try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
+            # weights_only: tensors and plain containers only; a checkpoint never runs code on resume.
+            state = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # truncated / foreign files fail in many ways; one line for all
             why = (str(exc).splitlines() or [type(exc).__name__])[0].split(". ")[0]
             raise TrainError(f"cannot read checkpoint {path}: {why}") from None
@@ -396,7 +398,7 @@ class Trainer:
         self.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
         self._core_seed = state["core_seed"]  # episodes in flight restart with fresh draws
-        self.buffer.load(state["buffer"])
+        self.buffer.load({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["buffer"].items()})
 
 
 MULTI_AV_NOTE = ("Several automated vehicles (AVs) per road on the multi-AV training suites: every AV row acts "

@@ -205,6 +205,23 @@ def _library_version() -> str:
     return version("rsl-rl-lib")
 
 
+def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
+    """Restore ``runner`` from a checkpoint ``runner.save`` wrote and return its ``infos``. Read with
+    ``weights_only=True`` (rsl-rl's own ``load`` unpickles anything): resuming never runs code."""
+    import torch
+
+    try:
+        loaded = torch.load(str(path), map_location="cpu", weights_only=True)
+        if not isinstance(loaded, dict):
+            raise TypeError("not a checkpoint dictionary")
+        if runner.alg.load(loaded, None, True):
+            runner.current_learning_iteration = loaded["iter"]
+    except Exception as exc:  # a foreign, truncated or pickled-object file: one line
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
+        raise ValueError(f"cannot read checkpoint {path}: {why}") from None
+    return loaded.get("infos") or {}
+
+
 def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, out: str | Path | None = None,
           resume: str | Path | None = None, progress: bool = True, hyperparams: str | Path | None = None,
           eval_suite: str | None = "table1", overrides: dict[str, Any] | None = None) -> Path:
@@ -243,7 +260,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     iterations = max(1, math.ceil(steps / per_iter))
     start_it, wall_before = 0, 0.0
     if resume is not None:
-        infos = runner.load(str(resume), map_location="cpu") or {}
+        infos = load_checkpoint(runner, resume)
         start_it, wall_before = int(infos.get("iterations", 0)), float(infos.get("wall_time_s", 0.0))
         best = infos.get("best", best)
 
@@ -280,7 +297,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
                 score = greedy_score(TorchPolicy(policy, config, repeat), select_sets)
                 runner.alg.train_mode()  # the decider switched the shared actor to eval mode
                 if score > best["score"]:
-                    best = {"score": score, "iteration": it + 1,
+                    best = {"score": float(score), "iteration": it + 1,
                             "state": {k: v.detach().clone() for k, v in policy.state_dict().items()}}
                 if bar is not None:
                     bar.write(f"iteration {it + 1}: greedy success - crash on {selected} training "

@@ -14,20 +14,29 @@ def register(subparsers: Any) -> None:
                    "index (index.json, README.md) and a PNG plot of success vs crash rate per suite. The output\n"
                    "is byte-identical on every run. With --check nothing is written and the exit status is 1\n"
                    "when any generated file is missing, different or obsolete (CI runs this).\n"
-                   "With --verify nothing is written: every current row's policy (its built-in zoo member, or\n"
-                   "its stored policy file, checked by sha256) is re-run on its scenarios (a seeded sample of K\n"
-                   "per row with --sample K) and every per-scenario value must equal the recorded one; the first\n"
-                   "row that does not reproduce is named with its first mismatching scenario (exit 2).",
+                   "With --verify nothing is written: every current row's labels are derived again (from its\n"
+                   "built-in zoo member, or from its stored artifact, checked by sha256) and its policy is re-run\n"
+                   "(artifacts in a sandboxed child process) on its scenarios: all of them for rows new or changed\n"
+                   "against the git base (--base), K of each other row with --sample K, drawn from --seed (default:\n"
+                   "the sha256 of the whole submissions tree, unknown until the tree is final). Every\n"
+                   "per-scenario value must equal the recorded one; the first row that does not reproduce is\n"
+                   "named with its first mismatching scenario (exit 2). Stale rows show no numbers and are not\n"
+                   "re-run; a new or changed stale row is refused.",
                    ["overtakezoo leaderboard", "overtakezoo leaderboard --check",
-                    "overtakezoo leaderboard --verify --sample 20 --seed 1   # 20 scenarios of every row",
+                    "overtakezoo leaderboard --verify --sample 1     # CI: changed rows in full, 1 scenario of the rest",
+                    "overtakezoo leaderboard --verify --sample 20 --seed 1 --base HEAD  # 20 of every committed row",
                     "overtakezoo leaderboard --verify --only 'table1/my-*'    # every scenario of some rows",
                     "overtakezoo leaderboard --root /tmp/lb"])
     p.add_argument("--check", action="store_true", help="write nothing; exit 1 if the files are stale")
     p.add_argument("--verify", action="store_true", help="write nothing; re-run every row's policy and require "
                    "its per-scenario results to match exactly")
-    p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios per row, drawn from "
-                   "--seed (default: every scenario)")
-    p.add_argument("--seed", type=int, default=0, help="with --verify --sample: the draw's seed (default 0)")
+    p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios of each row unchanged "
+                   "against --base (default: every scenario); new or changed rows are always verified in full")
+    p.add_argument("--seed", type=int, help="with --verify --sample: the draw's seed (default: from the sha256 of "
+                   "every file under submissions/)")
+    p.add_argument("--base", metavar="REV", help="with --verify: the git revision rows are new or changed against "
+                   "(default: $OVERTAKEZOO_VERIFY_BASE, else the merge base of HEAD with origin/$GITHUB_BASE_REF or "
+                   "origin/HEAD; outside git: none, every row sampled)")
     p.add_argument("--jobs", type=int, default=1, help="with --verify: suites verified in parallel processes")
     p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows matching this glob, "
                    "e.g. 'table1/*' or '*/my-policy'")
@@ -39,16 +48,20 @@ def run(args: Any) -> int:
     from ..errors import UserError
     from ..leaderboard import stale_files, write
 
-    if not args.verify and (args.sample is not None or args.only is not None):
-        raise UserError("--sample and --only go with --verify")
+    if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
+        raise UserError("--sample, --seed, --base and --only go with --verify")
     if args.verify:
-        from ..submission import verify
+        from ..verify import changed_rows, default_base, verify
 
         if args.sample is not None and args.sample < 1:
             raise UserError(f"--sample {args.sample}: must be >= 1")
         if args.jobs < 1:
             raise UserError(f"--jobs {args.jobs}: must be >= 1")
-        n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs)
+        base = args.base or default_base(args.root)
+        changed = changed_rows(args.root, base) if base else set()
+        if base:
+            print(f"rows new or changed against {base[:12]}: {len(changed)} (verified in full)")
+        n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs, changed=changed)
         if n == 0 and args.only is not None:
             raise UserError(f"--only {args.only!r}: no current row matches")
         print(f"verified {n} row(s): every re-run reproduces its recorded per-scenario results")

@@ -1,0 +1,186 @@
+"""Forged rows a pull request could add: every label is derived, CI's sample cannot be predicted,
+new rows are verified in full, and two `submit` runs in one clone cannot lose each other's rows."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.results import Results
+from overtakezoo.benchmark.submission import submissions_lock, submit
+from overtakezoo.benchmark.verify import changed_rows, sample_indices, tree_seed, verify
+
+from test_submissions import REPO, one_line_error, shipped
+
+ROWS = ("always-follow", "always-overtake", "oracle", "rule-fsm")
+
+
+@pytest.fixture
+def root(tmp_path):
+    """Shipped table1 rows copied into a leaderboard of its own."""
+    root = tmp_path / "lb"
+    (root / "submissions" / "table1").mkdir(parents=True)
+    for name in ROWS:
+        shutil.copy(REPO / "submissions" / "table1" / f"{name}.json", root / "submissions" / "table1")
+    return root
+
+
+def edit(path: Path, change) -> None:
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+
+
+def test_relabelled_oracle_is_refused(root, capsys):
+    path = root / "submissions" / "table1" / "oracle.json"
+    edit(path, lambda d: d["decider"].update(privileged=False))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1"])
+    assert "oracle.json: decider.privileged: recorded False, derived True" in err
+
+
+def test_a_row_under_a_reserved_name_is_refused(root, capsys):
+    src = root / "submissions" / "table1" / "always-follow.json"
+    forged = root / "submissions" / "table1" / "ppo.json"
+    shutil.copy(src, forged)
+    edit(forged, lambda d: d["submission"].update(name="ppo"))  # always-follow's row, filed as ppo's
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1"])
+    assert "ppo.json: submission.policy.builtin: 'always-follow' filed as the row 'ppo'" in err
+
+    # Every label swapped to ppo's (its version and weights): the labels pass, the numbers do not.
+    ppo = json.loads((REPO / "submissions" / "table1" / "ppo.json").read_text())
+    edit(forged, lambda d: (d["submission"].update(policy=ppo["submission"]["policy"]),
+                            d.update(decider=ppo["decider"])))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "20", "--only",
+                                  "table1/ppo"])
+    assert "ppo.json: scenario " in err and "not produced by this policy" in err
+
+    # An artifact row may not take a built-in's name in any case.
+    art = dict(ppo, submission={"name": "PPO", "policy": {"artifact": "artifacts/" + "a" * 64 + ".onnx",
+                                                          "sha256": "a" * 64}})
+    forged.unlink()
+    (root / "submissions" / "table1" / "PPO.json").write_text(json.dumps(art))
+    (root / "submissions" / "artifacts").mkdir()
+    (root / "submissions" / "artifacts" / ("a" * 64 + ".onnx")).write_bytes(b"x")
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1"])
+    assert "PPO.json: submission.name 'PPO': reserved for the built-in zoo member 'ppo'" in err
+
+
+@pytest.mark.parametrize("field, value", [
+    (("package", "version"), "1 | ![t](https://x/t.png) | <b>x</b>"),
+    (("git_commit",), "deadbeef; rm -rf"),
+    (("timing", "started"), "<script>"),
+    (("timing", "note"), "anything"),
+    (("decider", "version"), "1 <b>"),
+])
+def test_provenance_fields_are_held_to_patterns(root, capsys, field, value):
+    path = root / "submissions" / "table1" / "rule-fsm.json"
+
+    def change(d):
+        target = d
+        for key in field[:-1]:
+            target = target[key]
+        target[field[-1]] = value
+
+    edit(path, change)
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--check"])
+    assert "rule-fsm.json" in err and field[-1] in err
+
+
+# ------------------------------------------------------------------ what CI verifies
+def git(root: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(root), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                          check=True, capture_output=True, text=True).stdout.strip()
+
+
+def test_new_and_changed_rows_are_verified_in_full(root, capsys):
+    git(root, "init", "-q")
+    git(root, "add", "-A")
+    git(root, "commit", "-qm", "base")
+    base = git(root, "rev-parse", "HEAD")
+    assert changed_rows(root, base) == set()
+
+    # A new row honest only at the scenario the old, predictable draw would have picked
+    # (seed 0 and the row's path): its other scenarios claim success where the policy times out.
+    rel = "submissions/table1/always-follow.json"
+    path = root / rel
+    r = Results.load(path)
+    keep = int(sample_indices(3000, 1, 0, rel)[0])
+    lie = np.arange(3000) != keep
+    per = {k: v.copy() for k, v in r.per.items()}
+    per["outcome"][lie] = 1
+    per["completion_time"][lie] = 30.0
+    from overtakezoo.benchmark.metrics import summarize
+
+    forged = Results(r.meta, per, summarize(per, r.meta["seed"]), r.timing)
+    forged.save(path)
+    assert changed_rows(root, base) == {rel}
+    capsys.readouterr()
+    # The old rule (a fixed seed, no base) let it through; the CI rule verifies it in full.
+    assert verify(root, sample=1, seed=0, log=lambda _: None) == len(ROWS)
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--base", base])
+    assert f"{rel}: scenario " in err
+    # The default draw follows the tree's content: any edit moves it.
+    before = tree_seed(root)
+    edit(root / "submissions" / "table1" / "rule-fsm.json", lambda d: d["timing"].update(wall_time_s=1.0))
+    assert tree_seed(root) != before
+    with pytest.raises(UserError, match="not a git revision"):
+        changed_rows(root, "no-such-rev")
+
+
+def test_a_new_stale_row_is_refused(root, capsys):
+    git(root, "init", "-q")
+    git(root, "add", "-A")
+    git(root, "commit", "-qm", "base")
+    edit(root / "submissions" / "table1" / "rule-fsm.json", lambda d: d.update(sim_version=1))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--base", "HEAD"])
+    assert "rule-fsm.json: stale" in err and "a new or changed row must measure the current benchmark" in err
+    git(root, "commit", "-qam", "stale row")  # once on the base it is listed by name, never re-run
+    lines: list[str] = []
+    verify(root, sample=1, changed=changed_rows(root, "HEAD"), log=lines.append)
+    assert "stale submissions/table1/rule-fsm.json: listed by name only, not re-run (measured on simulator v1" \
+           f" (now v{Results.load(REPO / 'submissions/table1/dqn.json').meta['sim_version']}))" in lines
+
+
+# ------------------------------------------------------------------ concurrent submits
+def test_submits_in_one_clone_wait_for_each_other(tmp_path):
+    root = tmp_path / "lb"
+    rows = {name: shipped(name) for name in ("always-follow", "always-overtake")}
+    done: list[str] = []
+    with submissions_lock(root):  # another submit is filing: these must wait
+        threads = [threading.Thread(target=lambda n=n: done.append(str(submit(rows[n], root)))) for n in rows]
+        for t in threads:
+            t.start()
+        time.sleep(0.5)
+        assert done == [] and not list((root / "submissions").glob("*/*.json"))
+    for t in threads:
+        t.join(60)
+    assert sorted(Path(p).name for p in done) == ["always-follow.json", "always-overtake.json"]
+
+    # Two submits of one name at once: one files it, the other finds its row and refuses.
+    root2 = tmp_path / "lb2"
+    errors: list[str] = []
+    filed: list[str] = []
+
+    def one():
+        try:
+            filed.append(str(submit(rows["always-follow"], root2)))
+        except UserError as exc:
+            errors.append(str(exc))
+
+    with submissions_lock(root2):
+        threads = [threading.Thread(target=one) for _ in range(2)]
+        for t in threads:
+            t.start()
+        time.sleep(0.2)
+    for t in threads:
+        t.join(60)
+    assert len(filed) == 1 and len(errors) == 1 and "already on the table1 leaderboard" in errors[0]
+    assert Results.load(root2 / "submissions" / "table1" / "always-follow.json").decider["name"] == "always-follow"
