@@ -266,7 +266,7 @@ def _in_child(write: Any, what: str, where: Path) -> None:
     import errno
     import multiprocessing
 
-    if "fork" not in multiprocessing.get_all_start_methods():
+    if not sys.platform.startswith("linux"):  # fork is safe with these libraries on Linux; elsewhere in process
         write()
         return
     ctx = multiprocessing.get_context("fork")
