@@ -26,7 +26,9 @@ Cut files: every episode is closed by a chunk of its own (``Writer.flush``) foll
 ``episode`` metadata record, so a file cut anywhere (a killed writer) holds whole episodes up to
 the last metadata record; :mod:`.archive_reader` recovers them. The recorder writes to a temp file
 beside the target and renames it when finished (also on Ctrl-C or SIGTERM, with the whole
-episodes), so the target is always either absent, the previous file, or complete.
+episodes), so the target is always either absent, the previous file, or complete. Writing a chunk's
+episodes and finishing the file are not cut by SIGTERM or Ctrl-C (a second one included): the signal
+waits until they are done. A full disk drops the temp file and raises a ``WriteError``.
 
 Modules: this one records (capture per step, serialize per chunk); :mod:`.archive_reader` reads
 (re-exported here); :mod:`.archive_format` holds topics and schemas; :mod:`.mcap_sink` is the
@@ -43,12 +45,14 @@ import itertools
 import json
 import os
 import signal
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from overtakezoo.envs import CRASH, MODE_NAMES, OUTCOME_NAMES
 
@@ -85,12 +89,15 @@ class ArchiveRecorder:
     The file is written to a temp file beside ``path`` (``tmp_path``, by
     :func:`overtakezoo.envs.io.atomic_output`) and renamed to ``path`` by :meth:`close` (two runs
     writing one archive never mix their bytes: the last to finish wins).
-    Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open, so an
-    interrupted run still finishes the file with its whole episodes.
+    Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open (or whatever the
+    previous SIGTERM handler raises: the CLI's exits 143), so an interrupted run still finishes the
+    file with its whole episodes; a SIGTERM or Ctrl-C that arrives while episodes are written or the
+    file is finished is held until that is done. ``progress``: a bar while a chunk's episodes are
+    written (on a terminal) and a line when an interrupted run is finished.
     """
 
     def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
-                 metadata: dict[str, Any] | None = None) -> None:
+                 metadata: dict[str, Any] | None = None, progress: bool = False) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -119,8 +126,12 @@ class ArchiveRecorder:
         self._dt_ns = 0
         self._clock_ns = 0  # where the next episode starts on the timeline
         self.episodes = 0
+        self.progress = progress
         self._closed = False
-        self._old_sigterm: Any = None
+        self._signals: dict[int, Any] = {}  # signal -> the handler ours replaced (while a context manager)
+        self._busy = 0  # > 0 while writes that must not be cut run
+        self._pending: int | None = None  # a signal held until they are done
+        self._told = False  # the user was told why the exit waits
 
     # -- runner hooks
     def begin_chunk(self, core: Any, scenario_index: np.ndarray) -> None:
@@ -162,38 +173,76 @@ class ArchiveRecorder:
         ch = self._chunk
         if ch is None:
             return
-        self._write_chunk(core, ch)
-        self._chunk = None
+        with self._writing():  # the chunk is marked written in the same uncut step (no episode twice)
+            self._write_chunk(core, ch)
+            self._chunk = None
 
     def close(self) -> None:
         """Finish the file and rename it to ``path``. A chunk still open (an interrupted run)
-        contributes its finished episodes only."""
+        contributes its finished episodes only. Idempotent; a failure drops the temp file."""
         if self._closed:
             return
-        self._closed = True
-        try:
-            if self._chunk is not None and self._core is not None:
-                self._write_chunk(self._core, self._chunk, whole=self._chunk.prev_done)
+        with self._writing():
+            ch = self._chunk
+            if ch is not None and self._core is not None:
+                if self.progress and not self._told:
+                    self._told = True
+                    print(f"finishing {self.path}: writing the {int(ch.prev_done.sum())} finished episodes of "
+                          "the open chunk", file=sys.stderr, flush=True)
+                self._write_chunk(self._core, ch, whole=ch.prev_done)
                 self._chunk = None
             self._sink.flush()
             self._writer.finish()
-        except BaseException as exc:  # the file cannot be finished: its temp file goes
-            self._output.__exit__(type(exc), exc, exc.__traceback__)
+            self._closed = True
+            self._output.close()  # renames the finished file into place
+
+    @contextlib.contextmanager
+    def _writing(self) -> Any:
+        """Writes that must not be cut (half an episode in the file, or a file never finished): a
+        signal arriving meanwhile is held and raised when they are done. A failure here leaves no
+        file to finish: the temp file goes, a full disk or other OSError becomes a WriteError."""
+        self._busy += 1
+        try:
+            yield
+        except BaseException as exc:
+            self._closed = True
+            with contextlib.suppress(OSError):  # closing the temp file may fail again (the disk still full)
+                self._output.__exit__(type(exc), exc, exc.__traceback__)
+            if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+                raise WriteError(self.path, exc.strerror or str(exc)) from None
             raise
-        self._output.close()  # renames the finished file into place
+        finally:
+            self._busy -= 1
+        if not self._busy and self._pending is not None:
+            signum, self._pending = self._pending, None
+            self._forward(signum, None)
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        if self._busy:
+            self._pending = self._pending or signum
+        else:
+            self._forward(signum, frame)
+
+    def _forward(self, signum: int, frame: Any) -> None:
+        previous = self._signals.get(signum)
+        if callable(previous):  # Python's Ctrl-C handler; the CLI's SIGTERM handler (exit 143)
+            previous(signum, frame)
+        elif previous != signal.SIG_IGN:
+            raise KeyboardInterrupt(signal.Signals(signum).name)
 
     def __enter__(self) -> "ArchiveRecorder":
         if threading.current_thread() is threading.main_thread():
-            self._old_sigterm = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+            for signum in (signal.SIGTERM, signal.SIGINT):
+                self._signals[signum] = signal.signal(signum, self._on_signal)
         return self
 
     def __exit__(self, *exc: Any) -> None:
         try:
             self.close()
         finally:
-            if self._old_sigterm is not None:
-                signal.signal(signal.SIGTERM, self._old_sigterm)
-                self._old_sigterm = None
+            for signum, previous in self._signals.items():
+                signal.signal(signum, previous)
+            self._signals.clear()
 
     # -- capture (numpy, no per-row Python)
     @staticmethod
@@ -252,9 +301,16 @@ class ArchiveRecorder:
         lanes = core.scen.npc_lane.tolist()
         scenes, sbounds = self._flatten_scenes(ch, n)
         sink = self._sink
-        for r in np.argsort(ch.index, kind="stable").tolist():
-            if whole is not None and not whole[r]:
-                continue
+        order = np.argsort(ch.index, kind="stable")
+        if whole is not None:
+            order = order[whole[order]]
+        bar = tqdm(order.tolist(), unit="episode", desc=f"writing {self.path.name}", leave=False,
+                   disable=not self.progress or not sys.stderr.isatty())
+        for k, r in enumerate(bar):
+            if self._pending is not None and self.progress and not self._told:  # a held signal: say why we wait
+                self._told = True
+                print(f"finishing {self.path}: writing the {len(order) - k} remaining episodes of this chunk "
+                      "first", file=sys.stderr, flush=True)
             ep = int(ch.index[r])
             base = self._clock_ns
             a, b = int(bounds[r]), int(bounds[r + 1])
@@ -470,10 +526,6 @@ _GREEN, _RED, _GREY_LINE = _rgba(.1, .9, .1, 1), _rgba(.9, .2, .2, .6), _rgba(.8
 _UNSEEN, _HIT = _rgba(.6, .6, .6, .3), _rgba(1, 0, 1, 1)  # beyond the sensor / not yet revealed; the vehicle hit
 
 
-def _sigterm_to_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt("SIGTERM")
-
-
 class _Offsets:
     """The stream mcap's Writer writes to. It asks ``tell()`` for record offsets, which a FIFO
     target cannot answer: the offset is the number of bytes written (the file starts empty)."""
@@ -493,10 +545,11 @@ class _Offsets:
         self._stream.flush()
 
 
-def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1) -> ArchiveRecorder:
+def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1,
+                     progress: bool = False) -> ArchiveRecorder:
     """An :class:`ArchiveRecorder` for ``run_suite(suite, decider, recorder=...)``; the file's
     ``overtakezoo`` metadata names the suite (with its hash) and the decider."""
-    return ArchiveRecorder(path, scene_every=scene_every, metadata={
+    return ArchiveRecorder(path, scene_every=scene_every, progress=progress, metadata={
         "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.hash,
         "decider": decider.name, "decider_version": decider.version})
 

@@ -42,8 +42,8 @@ import http.client
 import json
 import os
 import sys
+import shutil
 import tarfile
-import tempfile
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -54,7 +54,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import UserError
-from .io import atomic_directory, atomic_path, check_writable_dir
+from .io import atomic_directory, atomic_path, check_writable_dir, temp_directory
 
 REGISTRY_FILE = Path(__file__).with_name("registry") / "datasets.json"
 
@@ -232,19 +232,81 @@ def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any,
     spec = _env_spec(config)
     target = datasets_dir() / name
     with _staging(target) as staging:  # Minari writes a scratch root; the finished folder is swapped in
+        _check_space(name, staging, episodes)
         with _minari_path(staging), warnings.catch_warnings():  # Minari nags about optional metadata
             warnings.simplefilter("ignore", UserWarning)
-            minari.create_dataset_from_buffers(
+            _in_child(lambda: minari.create_dataset_from_buffers(
                 dataset_id=name, buffer=buffers, env=spec, eval_env=spec,
                 observation_space=spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
                 action_space=spaces.Discrete(3), algorithm_name=algorithm,
-                author="OvertakeZoo", description=description, data_format="hdf5", requirements=["overtakezoo"])
+                author="OvertakeZoo", description=description, data_format="hdf5", requirements=["overtakezoo"]),
+                f"cannot write dataset {name} in {target.parent}", staging)
             digest = content_sha256(minari.load_dataset(name))
         if expect_content is not None and digest != expect_content:
             raise UserError(f"rebuilt {name} has content sha256 {digest[:16]}..., the registry says "
                             f"{expect_content[:16]}...: this installation does not reproduce it; nothing was installed")
         _install(staging, name, target)
     return digest
+
+
+def _check_space(name: str, where: Path, episodes: list[dict[str, Any]]) -> None:
+    """Refuse before HDF5 starts when the free space is below the arrays' raw size (a lower bound of
+    the file's size, so a dataset that fits is never refused)."""
+    need = sum(a.nbytes for e in episodes for a in (*e.values(), *e["infos"].values()) if isinstance(a, np.ndarray))
+    free = shutil.disk_usage(where).free
+    if free < need:
+        raise UserError(f"cannot write dataset {name}: it needs at least {need / 1e6:.1f} MB, "
+                        f"{where.parent} has {free / 1e6:.1f} MB free; nothing was changed")
+
+
+def _in_child(write: Any, what: str, where: Path) -> None:
+    """Run ``write()`` in a forked child: h5py can crash the process when a write fails (a full disk
+    segfaults in its cleanup), which only a parent can report and clean up after. The child's
+    exception comes back and is raised here; a full disk or a crash becomes a UserError."""
+    import errno
+    import multiprocessing
+
+    if not sys.platform.startswith("linux"):  # fork is safe with these libraries on Linux; elsewhere in process
+        write()
+        return
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def child() -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 2)  # HDF5's error stacks would print hundreds of lines; the exception comes back
+        try:
+            write()
+        except BaseException as exc:  # noqa: BLE001 - every failure goes back to the parent
+            try:
+                send.send(exc)
+            except Exception:  # noqa: BLE001 - an exception that does not pickle
+                send.send(RuntimeError(repr(exc)))
+            os._exit(1)
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    send.close()
+    try:
+        try:
+            exc = recv.recv()  # EOFError: the child ended without sending one
+        except EOFError:
+            exc = None
+        proc.join()
+    finally:
+        if proc.is_alive():  # Ctrl-C / SIGTERM here: the child goes too
+            proc.terminate()
+            proc.join()
+        recv.close()
+    if proc.exitcode == 0:
+        return
+    full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) \
+        or shutil.disk_usage(where).free < (1 << 20)
+    if full:
+        raise UserError(f"{what}: no space left on device; nothing was changed") from None
+    if exc is None:
+        raise UserError(f"{what}: the HDF5 writer crashed (exit status {proc.exitcode}); nothing was changed")
+    raise exc
 
 
 def content_sha256(dataset: Any) -> str:
@@ -281,9 +343,8 @@ def content_sha256(dataset: Any) -> str:
 def _staging(target: Path) -> Iterator[Path]:
     """A scratch datasets root beside ``target``, removed afterwards (also on Ctrl-C or an error)."""
     try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix=f".{target.name}.build-", dir=target.parent) as staging:
-            yield Path(staging)
+        with temp_directory(target, "build") as staging:  # locked: a killed build's folder is swept by the next
+            yield staging
     except OSError as exc:
         raise UserError(f"cannot write dataset {target}: {exc.strerror or exc}") from None
 

@@ -6,7 +6,9 @@ it too), re-exported here for the benchmark. The CLI reports a :class:`WriteErro
 """
 
 from overtakezoo.envs.io import (WriteError, atomic_directory, atomic_output, atomic_path, atomic_write_bytes,
-                                 atomic_write_json, atomic_write_text, check_writable, check_writable_dir)
+                                 atomic_write_json, atomic_write_text, check_writable, check_writable_dir,
+                                 sweep_stale, temp_directory)
 
 __all__ = ["WriteError", "atomic_output", "atomic_path", "atomic_directory", "atomic_write_bytes",
-           "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir"]
+           "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir", "sweep_stale",
+           "temp_directory"]

@@ -10,6 +10,10 @@ A target that exists and is not a regular file (a FIFO, ``/dev/null``, a termina
 written in place: renaming over it would replace the device or pipe by a regular file. A symlink is
 followed, so the file it points to is replaced and the link stays.
 
+Stale temp files: every temp file or folder is locked (``flock``) by its writer for as long as it
+exists, and the kernel drops a dead process's locks. Before a new temp is made beside a target, the
+target's temps that nobody holds (what SIGKILL or a crash left) are deleted: :func:`sweep_stale`.
+
 This module sits in ``envs``, the lowest layer, so the zoo's trainers and the benchmark share it;
 ``overtakezoo.benchmark.io`` re-exports it.
 """
@@ -17,6 +21,7 @@ This module sits in ``envs``, the lowest layer, so the zoo's trainers and the be
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import secrets
@@ -26,8 +31,14 @@ import tempfile
 from pathlib import Path
 from typing import IO, Any, Iterator
 
+try:
+    import fcntl
+except ImportError:  # Windows: temps are not locked, so none is ever swept
+    fcntl = None  # type: ignore[assignment]
+
 __all__ = ["WriteError", "atomic_output", "atomic_path", "atomic_directory", "atomic_write_bytes",
-           "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir"]
+           "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir", "sweep_stale",
+           "temp_directory"]
 
 
 class WriteError(OSError):
@@ -68,12 +79,63 @@ def _in_place(st: os.stat_result | None) -> bool:
     return st is not None and not stat.S_ISREG(st.st_mode)
 
 
+_HELD: set[str] = set()  # temps this process holds (where flock falls back to per-process locks, as on NFS)
+
+
+def _claim(fd: int, path: Path) -> bool:
+    """Lock a temp just made, for as long as ``fd`` (or a dup of it) is open. False: a sweeper got it
+    first and deletes it, so the caller makes another."""
+    if fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return False
+        except OSError:  # a filesystem without locks: nothing is swept there either
+            pass
+    _HELD.add(str(path))
+    return True
+
+
+def _release(fd: int, path: Path) -> None:
+    _HELD.discard(str(path))
+    os.close(fd)
+
+
+def sweep_stale(target: str | os.PathLike, kinds: tuple[str, ...] = ("tmp",)) -> None:
+    """Delete ``target``'s temp files and folders (``.NAME.<kind>-*`` beside it) that no live process
+    holds: the leftovers of a writer killed by SIGKILL or a crash."""
+    target = Path(target)
+    if fcntl is None:
+        return
+    for kind in kinds:
+        for p in target.parent.glob(f".{glob.escape(target.name[:180])}.{kind}-*"):
+            if str(p) in _HELD:
+                continue
+            try:  # no links followed; O_NONBLOCK: a FIFO of that name cannot block us
+                fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
+            except OSError:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # fails while its writer lives
+                if stat.S_ISDIR(os.fstat(fd).st_mode):
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    os.unlink(p)
+            except OSError:
+                pass
+            finally:
+                os.close(fd)
+
+
 def _open_temp(target: Path) -> tuple[int, Path]:
-    """A new, exclusively created file beside ``target`` with the target's name and suffix in it."""
+    """A new, exclusively created and locked file beside ``target`` with the target's name and suffix
+    in it; stale temps of ``target`` are swept first."""
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise _fail(target, exc) from None
+    sweep_stale(target)
     for _ in range(100):
         tmp = target.with_name(f".{target.name[:180]}.tmp-{secrets.token_hex(4)}{target.suffix[:20]}")
         try:  # mode 0o666 minus the umask, as for any new file (mkstemp would give 0600)
@@ -82,7 +144,8 @@ def _open_temp(target: Path) -> tuple[int, Path]:
             continue
         except OSError as exc:
             raise _fail(target, exc) from None
-        return fd, tmp
+        if _claim(fd, tmp):
+            return fd, tmp
     raise WriteError(target, "no free temp file name beside it")
 
 
@@ -119,12 +182,15 @@ def _replacing(target: Path, st: os.stat_result | None) -> Iterator[tuple[int, P
     """A new temp file beside ``target`` (descriptor, path): renamed over it when the block ends
     without an exception, deleted otherwise."""
     fd, tmp = _open_temp(target)
+    lock = os.dup(fd)  # the caller closes ``fd``; the lock stays until the temp is renamed or deleted
     try:
         yield fd, tmp
         _commit(tmp, target, st)
     except BaseException:
         _discard(tmp)
         raise
+    finally:
+        _release(lock, tmp)
 
 
 @contextlib.contextmanager
@@ -205,12 +271,7 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise WriteError(target, "a file is in the way of the folder")
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name[:180]}.tmp-", dir=target.parent))
-    except OSError as exc:
-        raise _fail(target, exc) from None
-    try:
+    with temp_directory(target) as tmp:
         yield tmp
         old = None
         if target.exists():
@@ -224,9 +285,31 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
             raise _fail(target, exc) from None
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
+
+
+@contextlib.contextmanager
+def temp_directory(target: str | os.PathLike, kind: str = "tmp") -> Iterator[Path]:
+    """A new, locked folder ``.NAME.<kind>-XXXXXXXX`` beside ``target``, removed when the block ends
+    (unless renamed away); stale ones of ``target`` are swept first."""
+    target = Path(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        sweep_stale(target, (kind,))
+        for _ in range(100):
+            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name[:180]}.{kind}-", dir=target.parent))
+            fd = os.open(tmp, os.O_RDONLY)
+            if _claim(fd, tmp):
+                break
+    except OSError as exc:
+        raise _fail(target, exc) from None
+    else:
+        if str(tmp) not in _HELD:
+            raise WriteError(target, "no free temp folder name beside it")
+    try:
+        yield tmp
+    finally:
         shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        _release(fd, tmp)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
@@ -255,8 +338,8 @@ def check_writable(path: str | os.PathLike) -> Path:
             raise WriteError(path, "permission denied")
         return Path(path)
     fd, tmp = _open_temp(target)
-    os.close(fd)
     _discard(tmp)
+    _release(fd, tmp)
     return Path(path)
 
 

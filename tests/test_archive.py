@@ -22,6 +22,7 @@ from overtakezoo.benchmark.runner import run_suite
 from overtakezoo.benchmark.suites import load_suite
 from overtakezoo.envs import OUTCOME_NAMES
 from overtakezoo.zoo.base import Decider
+from test_benchmark_cli import one_line_error
 
 SHARD = (3, 150)  # table1 has 3000 scenarios: the 4th of 150 slices is scenarios 60..79
 
@@ -517,3 +518,142 @@ def test_foxglove_layout_ships_and_replay_says_how_to_open_it(capsys):
     assert main(["replay", "run.mcap", "--foxglove"]) == 0
     out = capsys.readouterr().out
     assert str(FOXGLOVE_LAYOUT) in out and "run.mcap" in out
+
+
+# ---------------------------------------------------------------------------- signals and full disks (issue 18)
+# `overtakezoo eval --archive` in a subprocess, 10 scenarios in chunks of 4, 4, 2. ``hook`` patches the
+# recorder to send the process a real SIGTERM at a chosen point (deterministic: no timing involved).
+_EVAL = """
+import os, signal, sys
+import mcap.writer
+from overtakezoo.benchmark import archive
+from overtakezoo.benchmark.cli import main
+Rec, term = archive.ArchiveRecorder, lambda: os.kill(os.getpid(), signal.SIGTERM)
+{hook}
+sys.exit(main(["eval", "--suite", "table1", "--decider", "always-overtake", "--shard", "0/300", "--chunk-size", "4",
+               "--out", {out!r}, "--archive", {path!r}]))
+"""
+
+
+def _eval_subprocess(tmp_path, hook, **kw):
+    target = tmp_path / "run.mcap"
+    code = _EVAL.format(hook=hook, out=str(tmp_path / "res.json"), path=str(target))
+    return target, subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _held_episodes(err):
+    """The N of the CLI's 'interrupted: ... holds the N whole episodes'."""
+    line = next(x for x in err.splitlines() if x.startswith("interrupted:"))
+    return int(line.split("holds the ")[1].split()[0])
+
+
+def test_sigterm_while_a_chunk_is_written_keeps_each_episode_once(tmp_path):
+    """SIGTERM arriving while the second chunk's episodes are written: that chunk is finished first,
+    the archive holds episodes 0-7 once each (it used to write the cut chunk a second time) and the
+    command exits 143 like any SIGTERM."""
+    hook = """
+add, seen = Rec._add, []
+def _add(self, topic, t, text):
+    add(self, topic, t, text)
+    if topic == "/episode/spec":
+        seen.append(1)
+        if len(seen) == 6:  # the second episode of chunk 1
+            term()
+Rec._add = _add
+"""
+    target, proc = _eval_subprocess(tmp_path, hook)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 143 and err.endswith("terminated\n"), err
+    index = read_index(target)
+    assert [e.index for e in index.entries] == list(range(8)) and index.note is None
+    assert _held_episodes(err) == 8 and not list(tmp_path.glob(".run.mcap.tmp-*"))
+
+
+def test_second_sigterm_while_finishing_keeps_the_archive(tmp_path):
+    """A first SIGTERM in the middle of chunk 1, a second one while the file is finished: the archive
+    still holds the whole episodes the message names (the second signal used to delete it), and the
+    finishing is announced."""
+    hook = """
+step, finish = Rec.record_step, mcap.writer.Writer.finish
+def record_step(self, core, modes, res):
+    step(self, core, modes, res)
+    if self.episodes == 4 and self._chunk.step == 150:
+        term()
+def term_and_finish(self):
+    term()
+    finish(self)
+Rec.record_step, mcap.writer.Writer.finish = record_step, term_and_finish
+"""
+    target, proc = _eval_subprocess(tmp_path, hook)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 143 and err.endswith("terminated\n"), err
+    assert "finishing " in err and "finished episodes of the open chunk" in err
+    index = read_index(target)
+    held = [e.index for e in index.entries]
+    assert index.note is None and len(held) == _held_episodes(err) and held[:4] == list(range(4))
+    assert len(set(held)) == len(held) and not list(tmp_path.glob(".run.mcap.tmp-*"))
+
+
+def test_sigterm_from_outside_exits_143_with_the_archive_finished(tmp_path):
+    """The documented exit status of SIGTERM (143) holds with --archive too (it was 130). The run
+    says when its first chunk is written and waits there; this test then sends the SIGTERM."""
+    hook = """
+end = Rec.end_chunk
+def end_chunk(self, core):
+    end(self, core)
+    print("chunk written", file=sys.stderr, flush=True)
+    signal.pause()
+Rec.end_chunk = end_chunk
+"""
+    target, proc = _eval_subprocess(tmp_path, hook)
+    try:
+        assert proc.stderr.readline() == "chunk written\n"
+        proc.send_signal(signal.SIGTERM)
+        err = proc.communicate(timeout=120)[1]
+    finally:
+        proc.kill()
+    assert proc.returncode == 143 and err.endswith("terminated\n"), err
+    assert [e.index for e in list_episodes(target)] == list(range(4)) and _held_episodes(err) == 4
+
+
+def test_full_disk_while_archiving_is_one_error_line_and_keeps_the_old_file(tmp_path, capsys, monkeypatch):
+    """ENOSPC in the middle of an archive: one `error:` line (no OSError traceback), no temp file,
+    the previous archive untouched."""
+    import errno
+
+    from overtakezoo.benchmark import archive
+
+    target = tmp_path / "run.mcap"
+    target.write_bytes(b"the previous archive")
+    write, room = archive._Offsets.write, [200_000]
+
+    def full(self, data):
+        room[0] -= len(data)
+        if room[0] < 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return write(self, data)
+
+    monkeypatch.setattr(archive._Offsets, "write", full)
+    err = one_line_error(capsys, ["eval", "--suite", "table1", "--decider", "always-overtake", "--shard", "0/300",
+                                  "--chunk-size", "4", "--out", str(tmp_path / "res.json"), "--archive", str(target),
+                                  "--no-progress"])
+    assert err == f"error: cannot write {target}: No space left on device"
+    assert target.read_bytes() == b"the previous archive" and sorted(os.listdir(tmp_path)) == ["run.mcap"]
+
+
+def test_a_killed_writers_temp_file_is_swept_by_the_next_write_not_a_live_one(tmp_path):
+    """SIGKILL leaves its temp file (readable, see above); the next write of that archive deletes it,
+    while the temp file of a writer still running stays."""
+    from overtakezoo.benchmark.io import check_writable
+
+    target = tmp_path / "run.mcap"
+    code = _WRITER.format(tests=os.path.dirname(__file__), path=str(target), how="kill")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120).returncode == -9
+    [dead] = tmp_path.glob(".run.mcap.tmp-*")
+    live = ArchiveRecorder(target)
+    other = ArchiveRecorder(target)  # a second live writer of the same archive, in this process
+    check_writable(target)  # what `eval --archive` does first
+    assert sorted(tmp_path.glob(".run.mcap.tmp-*")) == sorted([live.tmp_path, other.tmp_path])
+    assert not dead.exists()
+    live.close(), other.close()
+    assert list(tmp_path.iterdir()) == [target]

@@ -16,6 +16,7 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
+from test_benchmark_cli import one_line_error
 
 NAME = "overtakezoo/table1/test-v0"
 
@@ -238,3 +239,89 @@ def test_bad_names_and_urls(home, server, capsys):
     assert main(["dataset", "build", "--suite", "table1-train", "--decider", "always-follow",
                  "--name", "../escape-v0"]) == 2
     assert "bad dataset name" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- full disk, crashes, leftovers (issue 18)
+BUILD = ["dataset", "build", "--suite", "table1-train", "--decider", "always-overtake", "--count", "2", "--name", NAME]
+
+
+def _content(name):
+    from overtakezoo.benchmark.datasets import content_sha256, load
+
+    return content_sha256(load(name))
+
+
+def _hidden(home):
+    """Temp folders beside the dataset (``.test-v0.build-*`` and the like)."""
+    return sorted(p.name for p in (home / "home" / "datasets" / "overtakezoo" / "table1").glob(".*"))
+
+
+@pytest.mark.parametrize("failure", ["too-little-room", "enospc-in-hdf5"])
+def test_full_disk_is_one_error_line_and_keeps_the_old_dataset(home, capsys, monkeypatch, failure):
+    """A disk too small for the arrays is refused before HDF5 starts; ENOSPC inside the HDF5 write
+    is one `error:` line too. No temp folder stays and the dataset being replaced is untouched."""
+    import errno
+    import shutil
+
+    import minari
+
+    assert main(BUILD) == 0
+    before = _content(NAME)
+    capsys.readouterr()
+    if failure == "too-little-room":
+        usage = shutil.disk_usage(home)
+        monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=1000))
+    else:
+        def full(**kw):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        monkeypatch.setattr(minari, "create_dataset_from_buffers", full)
+    err = one_line_error(capsys, BUILD + ["--overwrite"])
+    assert err.startswith(f"error: cannot write dataset {NAME}") and "nothing was changed" in err
+    assert ("MB free" if failure == "too-little-room" else "no space left on device") in err
+    assert _hidden(home) == [] and _content(NAME) == before
+
+
+_CRASHING_BUILD = """
+import os, signal, sys
+import minari
+from overtakezoo.benchmark.cli import main
+def crash(**kw):  # what h5py does on a full disk: a segfault in the middle of the write
+    root = os.environ["MINARI_DATASETS_PATH"]
+    os.makedirs(os.path.join(root, {name!r}, "data"))
+    open(os.path.join(root, {name!r}, "data", "main_data.hdf5"), "wb").write(b"half a file")
+    os.kill(os.getpid(), signal.SIGSEGV)
+minari.create_dataset_from_buffers = crash
+sys.exit(main({argv!r}))
+"""
+
+
+def test_a_crashing_hdf5_writer_is_one_error_line_not_a_segfault(home):
+    """The HDF5 write runs in a child process: its crash (rc 139 and hundreds of lines before) is one
+    `error:` line and exit 2, with no temp folder left and the old dataset kept."""
+    import os
+    import subprocess
+    import sys
+
+    assert main(BUILD) == 0
+    before = _content(NAME)
+    code = _CRASHING_BUILD.format(name=NAME, argv=BUILD + ["--overwrite"])
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONFAULTHANDLER": ""})
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and err.startswith(f"error: cannot write dataset {NAME}") and "\n" not in err, err
+    assert "crashed" in err and _hidden(home) == [] and _content(NAME) == before
+
+
+def test_a_killed_builds_temp_folder_is_swept_by_the_next_build(home):
+    """SIGKILL during a build leaves its `.NAME.build-*` folder; the next build of that dataset deletes it."""
+    import subprocess
+    import sys
+
+    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets import _staging, datasets_dir\n"
+            f"with _staging(datasets_dir() / {NAME!r}) as staging:\n"
+            "    (staging / 'half.hdf5').write_bytes(b'x')\n    os.kill(os.getpid(), signal.SIGKILL)\n")
+    assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == -9
+    [stale] = _hidden(home)
+    assert stale.startswith(".test-v0.build-")
+    assert main(BUILD) == 0
+    assert _hidden(home) == []

@@ -73,7 +73,8 @@ def run(args: Any) -> int:
     if suite.num_avs > 1:  # refused before the archive file is created
         raise UserError(f"suite {suite.name!r} has {suite.num_avs} automated vehicles per scenario: archives "
                         "record single-ego suites only")
-    recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every)
+    recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every,
+                                progress=not args.no_progress)
     try:
         with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
             results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size,
