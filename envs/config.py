@@ -247,8 +247,10 @@ class EnvConfig:
         if self.render_mode not in (None, "rgb_array", "human"):
             raise ConfigError(f"render_mode: {self.render_mode!r} is not one of None, 'rgb_array', 'human'")
         for key, cls in _NESTED.items():  # a value that is no table (npc = [1, 2]) never reaches .validate
-            if not isinstance(getattr(self, key), cls):
-                raise ConfigError(f"{key}: expected a table, got {getattr(self, key)!r}")
+            value = getattr(self, key)
+            if not isinstance(value, cls):
+                raise ConfigError(f"{key}: expected a table, got {value!r}" if not isinstance(value, dict) else
+                                  f"{key}: expected a {cls.__name__} (EnvConfig.from_dict builds one from a table)")
         self.planner.validate()
         self.npc.validate()
         self.reward.validate()

@@ -153,7 +153,7 @@ class ScenarioDistribution:
     goal: float = bounded(100.0, 1.0, 5000.0, "m")  # from the ego's start to the goal line
     road_extra: float = bounded(150.0, 0.0, 5000.0, "m")  # road beyond the goal (ends a follower's episode by truncation)
     sensor_range: float = bounded(60.0, 1.0, 1000.0, "m")
-    time_limit: float = bounded(60.0, 1.0, 3600.0, "s")
+    time_limit: float = bounded(60.0, 0.1, 3600.0, "s")  # (tests end episodes within a few steps)
     ego_speed: Range = bounded((15.0 * KMH, 15.0 * KMH), 0.0, 40.0, "m/s")
     ego_length: float = bounded(4.54, 1.0, 20.0, "m")
     ego_width: float = bounded(1.82, 0.5, 3.0, "m")
