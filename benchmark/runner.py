@@ -26,10 +26,10 @@ from overtakezoo.envs.hold import hold, hold_steps
 from .results import Results, per_scenario_keys, round_per_scenario
 from .errors import UserError
 from .sandbox import PolicyFailure, check_modes
-from .suites import Suite, shard_bounds
+from .suites import CHUNK_SIZE, Suite, shard_bounds
 
 
-def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = 4096,
+def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = CHUNK_SIZE,
               progress: bool = True, recorder: Any = None, limit: int | None = None) -> Results:
     """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
 
@@ -51,7 +51,7 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
                           num_avs=scenarios.num_avs)
 
 
-def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = 4096) -> dict[str, np.ndarray]:
+def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE) -> dict[str, np.ndarray]:
     """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
 
     The whole suite is drawn and the rows taken, and rows never interact, so each value equals the

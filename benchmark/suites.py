@@ -13,6 +13,7 @@ Its hash covers its own bytes and the base file's, so an edit to either changes 
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 import tomllib
 from dataclasses import dataclass
@@ -20,12 +21,14 @@ from pathlib import Path
 from typing import Any
 
 from overtakezoo.envs import ConfigError, EnvConfig, ScenarioDistribution, Scenarios
+from overtakezoo.envs.config import unknown_key
 
 from .errors import UserError
 
 SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
 MAX_COUNT = 1_000_000
+CHUNK_SIZE = 4096  # roads the runner steps at once (runner.run_suite's chunk_size)
 # The public single-ego suites (the OvertakeZoo score's), and the training mixture of their splits.
 CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
         "adversarial", "occluded")
@@ -60,8 +63,59 @@ class Suite:
     def scenarios(self, shard: tuple[int, int] | None = None) -> Scenarios:
         """All ``count`` scenarios, or the contiguous slice ``shard = (i, k)`` (0 <= i < k)."""
         start, stop = shard_bounds(self.count, shard)
+        check_memory(self)  # before drawing: a suite too big for memory is one error, not a MemoryError
         # Draw the whole suite then slice: a shard's rows are bit-identical to the same rows of a full run.
         return self.distribution.sample(self.count, self.seed).take(slice(start, stop))
+
+
+def memory_needed(suite: Suite) -> tuple[int, int]:
+    """Bytes a run of ``suite`` allocates, estimated: (the drawn scenarios, one chunk's core state).
+
+    The whole suite is drawn at once (shards slice it), so its arrays take ``count`` times one
+    scenario's bytes, and drawing them peaks at ~1.4 times that (measured). The core steps
+    ``CHUNK_SIZE`` roads at a time; per AV row it holds (vehicles, rollouts) arrays and the
+    observation's pairwise (vehicles, vehicles) ranks: measured ~36 bytes x vehicles^2 at 129
+    vehicles, bounded here by 40 V^2 + 600 V + 2000."""
+    one = suite.distribution.sample(1, suite.seed)
+    row = sum(a.nbytes for a in one.to_arrays().values())
+    vehicles = one.num_npcs + one.num_avs - 1  # what each AV row sees
+    rows = min(suite.count, CHUNK_SIZE) * one.num_avs
+    return int(1.5 * suite.count * row), rows * (40 * vehicles**2 + 600 * vehicles + 2000)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (None when the platform does not say)."""
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().available)
+    except ImportError:
+        pass
+    try:  # Linux: MemAvailable counts reclaimable caches, unlike sysconf's free pages
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(suite: Suite) -> None:
+    """UserError naming the sizes when a run of ``suite`` cannot fit in the available memory."""
+    scenarios, core = memory_needed(suite)
+    available = available_memory()
+    if available is not None and scenarios + core > available:
+        one = suite.distribution
+        gib = 2.0**30
+        raise UserError(
+            f"{suite.path}: count: {suite.count} scenarios of {1 + one.oncoming_count + one.follower_count} NPCs "
+            f"need about {(scenarios + core) / gib:.1f} GiB ({scenarios / gib:.1f} GiB of scenarios, "
+            f"{core / gib:.1f} GiB per chunk of {CHUNK_SIZE}), only {available / gib:.1f} GiB is available: "
+            f"lower count, oncoming_count or follower_count")
 
 
 def shard_bounds(count: int, shard: tuple[int, int] | None) -> tuple[int, int]:
@@ -133,7 +187,7 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         raise UserError(f"{where}: malformed TOML: {exc}") from None
     unknown = sorted(set(doc) - _KEYS)
     if unknown:
-        raise UserError(f"{where}: {unknown[0]}: unknown key (known: {', '.join(sorted(_KEYS))})")
+        raise UserError(f"{where}: {unknown[0]}: {unknown_key(unknown[0], _KEYS)}")
     digest = hashlib.sha256(data)
     if "base" in doc:
         doc, digest = _with_base(doc, where, digest)

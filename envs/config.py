@@ -8,10 +8,13 @@ or out-of-range values.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 FOLLOW, OVERTAKE, ABORT = 0, 1, 2
 MODE_NAMES = ("follow", "overtake", "abort")
@@ -19,6 +22,32 @@ MODE_NAMES = ("follow", "overtake", "abort")
 
 class ConfigError(ValueError):
     """A configuration key is unknown or its value is out of range."""
+
+
+def bounded(default: Any, lo: float, hi: float, unit: str = "") -> Any:
+    """A setting with its physical range [lo, hi] (for a [low, high] pair: both ends), kept in the
+    field's metadata so the check, the error message and the docs quote one range. Integer
+    defaults make integer settings."""
+    integer = isinstance(default, int) and not isinstance(default, bool)
+    return field(default=default, metadata={"lo": lo, "hi": hi, "unit": unit, "integer": integer})
+
+
+def check_ranges(obj: Any, prefix: str, skip: tuple[str, ...] = ()) -> None:
+    """Every :func:`bounded` field of dataclass ``obj`` inside its range (ConfigError naming it)."""
+    for f in dataclasses.fields(obj):
+        meta = f.metadata
+        if "lo" not in meta or f.name in skip:
+            continue
+        value = getattr(obj, f.name)
+        for v in value if isinstance(value, tuple) else (value,):
+            _check(f"{prefix}{f.name}", v, meta["lo"], meta["hi"], meta["integer"], meta["unit"])
+
+
+def unknown_key(key: Any, known: Any) -> str:
+    """'unknown key' with the nearest known name, if one is close (a misspelling), and the list."""
+    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.75)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown key{hint}; known: {', '.join(sorted(map(str, known)))}"
 
 
 @dataclass(frozen=True)
@@ -67,60 +96,52 @@ def _default_modes() -> dict[str, ModeParams]:
 class PlannerConfig:
     """OpenPlanner-style rollout planner. The values' public sources (hatem-darweesh/common
     ``op_planner``, hatem-darweesh/core_planning ``op_local_planner`` launch files) and our departures
-    from them are in ``docs/planner.md``."""
+    from them are in ``docs/planner.md``. Each setting's range is beside it (``bounded``)."""
 
-    num_rollouts: int = 4  # n: rollouts 0..n end at offsets k * lane_width / n (0 = ego-lane centre)
-    horizon_time: float = 4.0  # s; collision check against predicted paths of perceived vehicles
+    # n: rollouts 0..n end at offsets k * lane_width / n (0 = ego-lane centre)
+    num_rollouts: int = bounded(4, 1, 16)
+    horizon_time: float = bounded(4.0, 0.1, 60.0, "s")  # collision check against predicted paths of perceived vehicles
     # Constant-velocity prediction of perceived vehicles. OpenPlanner's evaluator has it off unless
     # enablePrediction is set (docs/planner.md); table1 runs it off, the env's default keeps it on.
     enable_prediction: bool = True
-    car_tip_margin: float = 1.0  # m the current offset is held before the roll-in starts
-    roll_in_speed_factor: float = 1.0  # roll-in length = factor * v + margin (m)
-    roll_in_margin: float = 4.0
-    horizontal_safety: float = 1.0  # m added to half widths (OpenPlanner launch: 1.2)
-    vertical_safety: float = 1.5  # m added to half lengths
+    car_tip_margin: float = bounded(1.0, 0.0, 100.0, "m")  # held at the current offset before the roll-in starts
+    roll_in_speed_factor: float = bounded(1.0, 0.01, 10.0, "s")  # roll-in length = factor * v + margin (m)
+    roll_in_margin: float = bounded(4.0, 0.0, 100.0, "m")
+    horizontal_safety: float = bounded(1.0, 0.0, 10.0, "m")  # added to half widths (OpenPlanner launch: 1.2)
+    vertical_safety: float = bounded(1.5, 0.0, 50.0, "m")  # added to half lengths
     # OpenPlanner's launch files weight the four costs equally; with that, the transition cost keeps
     # a finished pass in the opposite lane, so the centre preference is weighted up here.
-    weight_priority: float = 0.35
-    weight_transition: float = 0.1
-    weight_lateral: float = 0.35
-    weight_longitudinal: float = 0.2
-    keep_margin: float = 0.05  # keep the current rollout if its cost is within this of the best
-    time_headway: float = 1.0  # s, ego IDM headway behind a leader
-    comfortable_braking: float = 2.0  # m/s^2, ego IDM b
-    max_braking: float = 5.0  # m/s^2, ego emergency braking bound
+    weight_priority: float = bounded(0.35, 0.0, 100.0)
+    weight_transition: float = bounded(0.1, 0.0, 100.0)
+    weight_lateral: float = bounded(0.35, 0.0, 100.0)
+    weight_longitudinal: float = bounded(0.2, 0.0, 100.0)
+    keep_margin: float = bounded(0.05, 0.0, 100.0)  # keep the current rollout if its cost is within this of the best
+    time_headway: float = bounded(1.0, 0.1, 10.0, "s")  # ego IDM headway behind a leader
+    comfortable_braking: float = bounded(2.0, 0.1, 10.0, "m/s^2")  # ego IDM b
+    max_braking: float = bounded(5.0, 0.1, 15.0, "m/s^2")  # ego emergency braking bound (1.5 g at most)
     # Off (OpenPlanner's follow behaviour, and every single-ego suite): the speed plan follows only
     # same-direction vehicles, and the jerk limit bounds every brake. On: an oncoming vehicle on the
     # path is braked for too, and a brake beyond comfortable_braking is applied without the jerk limit.
     emergency_braking: bool = False
-    max_jerk: float = 3.0  # m/s^3
-    abort_clearance: float = 2.0  # m between the ego and the lead before an abort merges back
-    abort_drop_back: float = 1.5  # m/s below the lead's speed while an abort drops back
-    lookahead_min: float = 3.0  # pure pursuit lookahead = max(min, gain * v)
-    lookahead_gain: float = 1.0
-    max_steer: float = 0.42  # rad (OpenPlanner launch default)
-    max_steer_rate: float = 0.6  # rad/s
-    wheelbase: float = 2.7
+    max_jerk: float = bounded(3.0, 0.1, 100.0, "m/s^3")
+    abort_clearance: float = bounded(2.0, 0.0, 100.0, "m")  # between the ego and the lead before an abort merges back
+    abort_drop_back: float = bounded(1.5, 0.0, 40.0, "m/s")  # below the lead's speed while an abort drops back
+    lookahead_min: float = bounded(3.0, 0.1, 100.0, "m")  # pure pursuit lookahead = max(min, gain * v)
+    lookahead_gain: float = bounded(1.0, 0.01, 10.0, "s")
+    max_steer: float = bounded(0.42, 0.01, 1.2, "rad")  # OpenPlanner launch default; 1.2 rad is about 70 degrees
+    max_steer_rate: float = bounded(0.6, 0.01, 10.0, "rad/s")
+    wheelbase: float = bounded(2.7, 0.5, 10.0, "m")  # a small car to a bus
     modes: dict[str, ModeParams] = field(default_factory=_default_modes)
 
     def mode(self, index: int) -> ModeParams:
         return self.modes[MODE_NAMES[index]]
 
     def validate(self) -> None:
-        _check("planner.num_rollouts", self.num_rollouts, 1, 16, integer=True)
-        _check("planner.horizon_time", self.horizon_time, 0.1, 60.0)
-        for key in ("car_tip_margin", "roll_in_margin", "horizontal_safety", "vertical_safety",
-                    "keep_margin", "abort_clearance", "abort_drop_back"):
-            _check(f"planner.{key}", getattr(self, key), 0.0, 100.0)
-        for key in ("roll_in_speed_factor", "time_headway", "comfortable_braking", "max_braking",
-                    "max_jerk", "lookahead_min", "lookahead_gain", "max_steer", "max_steer_rate",
-                    "wheelbase"):
-            _check(f"planner.{key}", getattr(self, key), 1e-6, 100.0)
-        for key in ("weight_priority", "weight_transition", "weight_lateral", "weight_longitudinal"):
-            _check(f"planner.{key}", getattr(self, key), 0.0, 100.0)
+        check_ranges(self, "planner.")
         for key in ("enable_prediction", "emergency_braking"):
-            if not isinstance(getattr(self, key), bool):
-                raise ConfigError(f"planner.{key}: expected true or false, got {getattr(self, key)!r}")
+            _check_bool(f"planner.{key}", getattr(self, key))
+        if not isinstance(self.modes, dict):
+            raise ConfigError(f"planner.modes: expected a table of modes, got {self.modes!r}")
         unknown = set(self.modes) - set(MODE_NAMES)
         if unknown:
             raise ConfigError(f"planner.modes: unknown mode {sorted(unknown)[0]!r} "
@@ -133,18 +154,18 @@ class PlannerConfig:
 
 @dataclass(frozen=True)
 class NPCConfig:
-    """IDM parameters shared by every NPC (Treiber et al. 2000)."""
+    """IDM parameters shared by every NPC (Treiber et al. 2000); each range is beside it."""
 
-    max_acceleration: float = 1.0
-    comfortable_braking: float = 1.5
-    max_braking: float = 6.0
-    min_gap: float = 2.0
-    time_headway: float = 1.2
-    speedup_trigger: float = 2.0  # m: a speed-up lead reacts once the ego's front is this close behind it
+    max_acceleration: float = bounded(1.0, 0.1, 10.0, "m/s^2")
+    comfortable_braking: float = bounded(1.5, 0.1, 10.0, "m/s^2")
+    max_braking: float = bounded(6.0, 0.1, 15.0, "m/s^2")
+    min_gap: float = bounded(2.0, 0.1, 50.0, "m")
+    time_headway: float = bounded(1.2, 0.1, 10.0, "s")
+    # A speed-up lead reacts once the ego's front is this close behind it (negative: once level with it).
+    speedup_trigger: float = bounded(2.0, -50.0, 50.0, "m")
 
     def validate(self) -> None:
-        for f in dataclasses.fields(self):
-            _check(f"npc.{f.name}", getattr(self, f.name), 1e-6 if f.name != "speedup_trigger" else -50, 50.0)
+        check_ranges(self, "npc.")
 
 
 @dataclass(frozen=True)
@@ -153,25 +174,24 @@ class RewardConfig:
     for finishing in the correct lane, a crash penalty, a small penalty per switch into or out of
     OVERTAKE) plus a cost of time and a timeout penalty, so that following the lead until the time
     limit is never the best return (the paper's weights alone rank always-follow first on
-    table1-train; see the README's "Reward" section for the measured returns)."""
+    table1-train; see the README's "Reward" section for the measured returns). Every term lies in
+    [-1e6, 1e6] (far beyond any useful weight; it keeps returns finite in float32)."""
 
     # Progress per step: progress / (1 + distance_to_goal / progress_scale), at most 0.01 per step
     # (~6 over a 60 s episode): small next to the terminal terms, it only breaks ties towards the goal.
-    progress: float = 0.01
-    progress_scale: float = 10.0  # m: the progress term doubles over the last progress_scale metres
-    success: float = 10.0  # finishing past the goal in the ego lane, ahead of NPC1: the task
-    crash: float = -10.0  # a collision costs the success bonus it forgoes, and as much again
-    switch: float = -0.1  # per switch into or out of OVERTAKE: discourages dithering, not aborting
-    timeout: float = -5.0  # the time limit is part of the task: not finishing is a failure, half a crash
-    offroad: float = -10.0  # leaving the road is as bad as a crash
+    progress: float = bounded(0.01, -1e6, 1e6)
+    progress_scale: float = bounded(10.0, 1e-3, 1e6, "m")  # the progress term doubles over the last progress_scale metres
+    success: float = bounded(10.0, -1e6, 1e6)  # finishing past the goal in the ego lane, ahead of NPC1: the task
+    crash: float = bounded(-10.0, -1e6, 1e6)  # a collision costs the success bonus it forgoes, and as much again
+    switch: float = bounded(-0.1, -1e6, 1e6)  # per switch into or out of OVERTAKE: discourages dithering, not aborting
+    timeout: float = bounded(-5.0, -1e6, 1e6)  # the time limit is part of the task: not finishing is a failure, half a crash
+    offroad: float = bounded(-10.0, -1e6, 1e6)  # leaving the road is as bad as a crash
     # Per step of a running episode (-0.1 per s at dt = 0.1): waiting behind the lead is not free,
     # so a safe pass earns more than following and a pass that can be made is not put off.
-    time: float = -0.01
+    time: float = bounded(-0.01, -1e6, 1e6)
 
     def validate(self) -> None:
-        for f in dataclasses.fields(self):
-            _check(f"reward.{f.name}", getattr(self, f.name), -1e6, 1e6)
-        _check("reward.progress_scale", self.progress_scale, 1e-6, 1e6)
+        check_ranges(self, "reward.")
 
 
 @dataclass(frozen=True)
@@ -179,22 +199,25 @@ class ObservationConfig:
     """Per-lane nearest-vehicle slots; positions are divided by ``position_scale`` and speeds by
     ``speed_scale`` so features are O(1)."""
 
-    vehicles_per_lane: int = 2
-    position_scale: float = 50.0
-    speed_scale: float = 5.0
+    vehicles_per_lane: int = bounded(2, 1, 16)
+    position_scale: float = bounded(50.0, 0.1, 10000.0, "m")
+    speed_scale: float = bounded(5.0, 0.01, 100.0, "m/s")
 
     def validate(self) -> None:
-        _check("observation.vehicles_per_lane", self.vehicles_per_lane, 1, 16, integer=True)
-        _check("observation.position_scale", self.position_scale, 1e-6, 1e6)
-        _check("observation.speed_scale", self.speed_scale, 1e-6, 1e6)
+        check_ranges(self, "observation.")
+
+
+# An episode of at most this many core steps (time_limit / dt): table1's is 600; beyond this a run
+# would take hours, almost always a typo (time_limit in ms, dt in s).
+MAX_EPISODE_STEPS = 100_000
 
 
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything a face of the simulator needs besides the scenarios themselves."""
 
-    dt: float = 0.1
-    decision_interval: int = 1  # the decider acts every k steps
+    dt: float = bounded(0.1, 1e-3, 1.0, "s")
+    decision_interval: int = bounded(1, 1, 1000)  # the decider acts every k steps
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     npc: NPCConfig = field(default_factory=NPCConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -202,33 +225,43 @@ class EnvConfig:
     scenario: dict[str, Any] = field(default_factory=dict)  # a ScenarioDistribution as a dict
     # Must be 1. Kept so that every stored configuration (and its hash) keeps its field set: the
     # automated vehicles of a road come from the scenario distribution (platoon_size, oncoming_av).
-    num_egos: int = 1
+    num_egos: int = bounded(1, 1, 4096)
     npc_agents: bool = False
     render_mode: str | None = None
-    seed: int | None = None
+    seed: int | None = None  # None, or an integer in [0, 2**63 - 1] (numpy's seeds are non-negative)
 
     def __post_init__(self) -> None:
         self.validate()
 
     def validate(self) -> None:
-        _check("dt", self.dt, 1e-3, 1.0)
-        _check("decision_interval", self.decision_interval, 1, 1000, integer=True)
-        _check("num_egos", self.num_egos, 1, 4096, integer=True)
+        check_ranges(self, "")
         if self.num_egos != 1:
             raise ConfigError(
                 f"num_egos: {self.num_egos} is no longer supported (only 1): the agents of parallel_env are the "
                 "automated vehicles of one road (av_0, av_1, ...; set scenario.platoon_size / scenario.oncoming_av, "
                 "or use a multi-AV suite such as duel); for several roads at once use SuperSuit's vector of envs "
                 "or step OvertakeCore (see the PettingZoo section of the README)")
+        _check_bool("npc_agents", self.npc_agents)
+        if self.seed is not None:
+            _check("seed", self.seed, 0, 2**63 - 1, integer=True)
         if self.render_mode not in (None, "rgb_array", "human"):
             raise ConfigError(f"render_mode: {self.render_mode!r} is not one of None, 'rgb_array', 'human'")
+        for key, cls in _NESTED.items():  # a value that is no table (npc = [1, 2]) never reaches .validate
+            value = getattr(self, key)
+            if not isinstance(value, cls):
+                raise ConfigError(f"{key}: expected a table, got {value!r}" if not isinstance(value, dict) else
+                                  f"{key}: expected a {cls.__name__} (EnvConfig.from_dict builds one from a table)")
         self.planner.validate()
         self.npc.validate()
         self.reward.validate()
         self.observation.validate()
         from .scenarios import ScenarioDistribution
 
-        ScenarioDistribution.from_dict(self.scenario)  # raises ConfigError naming the key
+        dist = ScenarioDistribution.from_dict(self.scenario)  # raises ConfigError naming the key
+        steps = dist.time_limit / self.dt
+        if steps > MAX_EPISODE_STEPS:
+            raise ConfigError(f"scenario.time_limit: {dist.time_limit:g} s at dt = {self.dt:g} s is {steps:.0f} steps "
+                              f"per episode, more than {MAX_EPISODE_STEPS} (lower time_limit or raise dt)")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None = None, **overrides: Any) -> "EnvConfig":
@@ -240,14 +273,19 @@ class EnvConfig:
         return dataclasses.asdict(self)
 
 
-def _check(key: str, value: Any, lo: float, hi: float, integer: bool = False) -> None:
+def _check_bool(key: str, value: Any) -> None:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"{key}: expected true or false, got {value!r}")
+
+
+def _check(key: str, value: Any, lo: float, hi: float, integer: bool = False, unit: str = "") -> None:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ConfigError(f"{key}: expected {'an integer' if integer else 'a number'}, got {value!r}")
     # Counts and indices must be integers: 2.0 is refused (not rounded) so a typo cannot pass silently.
     if integer and not isinstance(value, numbers.Integral):
         raise ConfigError(f"{key}: expected an integer, got {value!r}")
     if not (lo <= value <= hi) or math.isnan(value):
-        raise ConfigError(f"{key}: {value!r} is out of range [{lo}, {hi}]")
+        raise ConfigError(f"{key}: {value!r} is out of range [{lo}, {hi}]" + (f" {unit}" if unit else ""))
 
 
 _NESTED = {"planner": PlannerConfig, "npc": NPCConfig, "reward": RewardConfig,
@@ -264,8 +302,8 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if key not in names:
-            raise ConfigError(f"{prefix}{key}: unknown key (known: {', '.join(sorted(names))})")
-        if key in _NESTED and cls is EnvConfig and isinstance(value, dict):
+            raise ConfigError(f"{prefix}{key}: {unknown_key(key, names)}")
+        if key in _NESTED and cls is EnvConfig and not isinstance(value, _NESTED[key]):
             value = _build(_NESTED[key], value, f"{prefix}{key}.")
         elif key == "modes" and cls is PlannerConfig:
             value = _build_modes(value, f"{prefix}{key}.")
@@ -291,6 +329,6 @@ def _build_modes(value: Any, prefix: str) -> dict[str, ModeParams]:
         known = {f.name for f in dataclasses.fields(ModeParams)}
         for key in params:
             if key not in known:
-                raise ConfigError(f"{prefix}{name}.{key}: unknown key (known: {', '.join(sorted(known))})")
+                raise ConfigError(f"{prefix}{name}.{key}: {unknown_key(key, known)}")
         modes[name] = dataclasses.replace(modes[name], **params)
     return modes

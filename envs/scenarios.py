@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .config import ConfigError
+from .config import ConfigError, bounded, check_ranges, unknown_key
 
 EGO_LANE, OPPOSITE_LANE = 0, 1
 # NPC behaviours. IDM (the env's default) is reactive: it brakes for whatever occupies its lane
@@ -144,48 +144,55 @@ class ScenarioDistribution:
     15 km/h); the suites in ``benchmark/suites`` choose and justify the values the paper leaves open.
     """
 
-    speed_limit: float = 15.0 * KMH
-    lane_width: float = 3.5
-    goal: float = 100.0  # m from the ego's start to the goal line
-    road_extra: float = 150.0  # road beyond the goal (ends a follower's episode by truncation)
-    sensor_range: float = 60.0
-    time_limit: float = 60.0
-    ego_speed: Range = (15.0 * KMH, 15.0 * KMH)
-    ego_length: float = 4.54
-    ego_width: float = 1.82
-    vehicle_length: float = 4.54
-    vehicle_width: float = 1.82
-    lead_speed: Range = (1.0, 3.0)
-    lead_gap: Range = (8.0, 25.0)  # D1: bumper gap from the ego to NPC1
-    lead_behaviour: str = "idm"
-    lead_boost: Range = (0.0, 0.0)  # m/s added to a speed-up lead's desired speed once passed
+    # Each setting's physical range is beside it (``bounded``; for a [low, high] pair both ends). They
+    # span a slow shuttle to a rural road's 144 km/h, a narrow lane to a wide one, a small car to a
+    # truck, and distances and times far beyond any shipped suite (most use 15 km/h, 3.5 m lanes,
+    # 4.54 m cars, 100-400 m goals and 60-80 s limits) but short of a run that never ends.
+    speed_limit: float = bounded(15.0 * KMH, 0.5, 40.0, "m/s")
+    lane_width: float = bounded(3.5, 2.0, 6.0, "m")
+    goal: float = bounded(100.0, 1.0, 5000.0, "m")  # from the ego's start to the goal line
+    road_extra: float = bounded(150.0, 0.0, 5000.0, "m")  # road beyond the goal (ends a follower's episode by truncation)
+    sensor_range: float = bounded(60.0, 1.0, 1000.0, "m")
+    time_limit: float = bounded(60.0, 0.1, 3600.0, "s")  # (tests end episodes within a few steps)
+    ego_speed: Range = bounded((15.0 * KMH, 15.0 * KMH), 0.0, 40.0, "m/s")
+    ego_length: float = bounded(4.54, 1.0, 20.0, "m")
+    ego_width: float = bounded(1.82, 0.5, 3.0, "m")
+    vehicle_length: float = bounded(4.54, 1.0, 20.0, "m")
+    vehicle_width: float = bounded(1.82, 0.5, 3.0, "m")
+    lead_speed: Range = bounded((1.0, 3.0), 0.0, 40.0, "m/s")
+    lead_gap: Range = bounded((8.0, 25.0), 0.0, 5000.0, "m")  # D1: bumper gap from the ego to NPC1
+    lead_behaviour: str = "idm"  # one of BEHAVIOURS
+    lead_boost: Range = bounded((0.0, 0.0), 0.0, 20.0, "m/s")  # added to a speed-up lead's desired speed once passed
     oncoming_behaviour: str = "idm"  # "idm" (reactive) or "scripted" (blind to the ego)
-    oncoming_count: int = 1
-    oncoming_speed: Range = (1.0, 3.0)
-    oncoming_gap: Range = (20.0, 150.0)  # D2: from the ego's front to the first oncoming front
-    oncoming_headway: Range = (15.0, 60.0)  # bumper gaps between successive oncoming vehicles
-    oncoming_reveal: Range = (math.inf, math.inf)  # perceived only this close (a late-appearing car)
-    follower_count: int = 0
-    follower_speed: Range = (3.0, 4.0)
-    follower_gap: Range = (5.0, 20.0)  # bumper gaps behind the ego, then between followers
-    reaction_time: Range = (0.5, 1.0)  # s before an NPC reacts to the ego in its lane
+    oncoming_count: int = bounded(1, 0, 64)
+    oncoming_speed: Range = bounded((1.0, 3.0), 0.0, 40.0, "m/s")
+    oncoming_gap: Range = bounded((20.0, 150.0), 0.0, 5000.0, "m")  # D2: from the ego's front to the first oncoming front
+    oncoming_headway: Range = bounded((15.0, 60.0), 0.0, 5000.0, "m")  # bumper gaps between successive oncoming vehicles
+    # Perceived only this close (a late-appearing car); [inf, inf], the default, means never hidden.
+    oncoming_reveal: Range = bounded((math.inf, math.inf), 1.0, 1000.0, "m")
+    follower_count: int = bounded(0, 0, 64)
+    follower_speed: Range = bounded((3.0, 4.0), 0.0, 40.0, "m/s")
+    follower_gap: Range = bounded((5.0, 20.0), 0.0, 5000.0, "m")  # bumper gaps behind the ego, then between followers
+    reaction_time: Range = bounded((0.5, 1.0), 0.0, 10.0, "s")  # before an NPC reacts to the ego in its lane
     # Further automated vehicles (AVs); the defaults are the single-ego road. Everything below is
     # drawn after all the above, and only when used, so single-ego batches stay bit-identical.
-    platoon_size: int = 1  # AVs in lane 0 behind NPC1: the ego, then AV 1, 2, ... each behind the last
-    platoon_gap: Range = (5.0, 20.0)  # bumper gaps between successive platoon AVs
-    oncoming_av: int = 0  # 1: one AV driving towards -s in lane 1, behind its own slow lead
-    oncoming_av_distance: Range = (60.0, 200.0)  # from the ego's front to that AV's front
-    oncoming_av_lead_gap: Range = (8.0, 25.0)  # bumper gap from that AV to its lead (between the AVs)
-    oncoming_av_lead_speed: Range = (1.0, 3.0)
+    platoon_size: int = bounded(1, 1, 16)  # AVs in lane 0 behind NPC1: the ego, then AV 1, 2, ... each behind the last
+    platoon_gap: Range = bounded((5.0, 20.0), 0.0, 5000.0, "m")  # bumper gaps between successive platoon AVs (> 0)
+    oncoming_av: int = bounded(0, 0, 1)  # 1: one AV driving towards -s in lane 1, behind its own slow lead
+    oncoming_av_distance: Range = bounded((60.0, 200.0), 0.0, 5000.0, "m")  # from the ego's front to that AV's front (> 0)
+    oncoming_av_lead_gap: Range = bounded((8.0, 25.0), 0.0, 5000.0, "m")  # bumper gap from that AV to its lead (> 0)
+    oncoming_av_lead_speed: Range = bounded((1.0, 3.0), 0.0, 40.0, "m/s")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> "ScenarioDistribution":
+        if data is not None and not isinstance(data, dict):
+            raise ConfigError(f"scenario: expected a table, got {data!r}")
         data = dict(data or {})
         names = {f.name: f for f in dataclasses.fields(cls)}
         kwargs: dict[str, Any] = {}
         for key, value in data.items():
             if key not in names:
-                raise ConfigError(f"scenario.{key}: unknown key (known: {', '.join(sorted(names))})")
+                raise ConfigError(f"scenario.{key}: {unknown_key(key, names)}")
             default = names[key].default
             if isinstance(default, tuple):
                 if not (isinstance(value, (list, tuple)) and len(value) == 2):
@@ -197,9 +204,9 @@ class ScenarioDistribution:
                 allowed = BEHAVIOURS if key == "lead_behaviour" else _ONCOMING_BEHAVIOURS
                 if value not in allowed:
                     raise ConfigError(f"scenario.{key}: {value!r} is not one of {', '.join(allowed)}")
-            elif isinstance(default, int):
-                if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 64:
-                    raise ConfigError(f"scenario.{key}: expected an integer in [0, 64], got {value!r}")
+            elif isinstance(default, int):  # its range is checked in validate
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ConfigError(f"scenario.{key}: expected an integer, got {value!r}")
             else:
                 value = _num(key, value)
             kwargs[key] = value
@@ -220,20 +227,9 @@ class ScenarioDistribution:
             if not all(math.isfinite(v) for v in values):
                 raise ConfigError(f"scenario.{f.name}: must be finite, got {value!r}"
                                   + (" ([inf, inf] means never hidden)" if f.name == "oncoming_reveal" else ""))
-        positive = ("speed_limit", "lane_width", "goal", "sensor_range", "time_limit", "ego_length",
-                    "ego_width", "vehicle_length", "vehicle_width")
-        for key in positive:
-            if not getattr(self, key) > 0:
-                raise ConfigError(f"scenario.{key}: must be > 0, got {getattr(self, key)!r}")
-        for key in ("ego_speed", "lead_speed", "lead_gap", "oncoming_speed", "oncoming_gap",
-                    "oncoming_headway", "follower_speed", "follower_gap", "reaction_time", "lead_boost"):
-            if getattr(self, key)[0] < 0:
-                raise ConfigError(f"scenario.{key}: must be >= 0, got {getattr(self, key)!r}")
-        if self.oncoming_reveal[0] <= 0:
-            raise ConfigError(f"scenario.oncoming_reveal: must be > 0, got {self.oncoming_reveal!r}")
-        if self.road_extra < 0:
-            raise ConfigError(f"scenario.road_extra: must be >= 0, got {self.road_extra!r}")
-        self._validate_avs()
+        self._validate_avs()  # first: its messages say why (vehicles may not start in contact, ...)
+        never_hidden = ("oncoming_reveal",) if self.oncoming_reveal == (math.inf, math.inf) else ()
+        check_ranges(self, "scenario.", skip=never_hidden)
 
     def _validate_avs(self) -> None:
         """The AV layout: counts in range, and no two vehicles overlapping (or touching) at the start."""

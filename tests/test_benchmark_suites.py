@@ -95,3 +95,51 @@ def test_fuzz_suite_loader_raises_only_user_errors(data):
         parse_suite(raw, SUITES_DIR / "fuzz.toml")
     except UserError as exc:
         assert str(exc) and "\n" not in str(exc).strip()
+
+
+# Issue 18: every setting has a physical range, kept once in its dataclass field (envs/config.py
+# `bounded`), documented in docs/settings.md; every default and every shipped suite lies inside.
+def _ranged_classes():
+    from overtakezoo.envs.config import EnvConfig, NPCConfig, ObservationConfig, PlannerConfig, RewardConfig
+    from overtakezoo.envs.scenarios import ScenarioDistribution
+
+    return {"scenario": ScenarioDistribution, "sim": EnvConfig, "sim.planner": PlannerConfig, "sim.npc": NPCConfig,
+            "sim.reward": RewardConfig, "sim.observation": ObservationConfig}
+
+
+def settings_rows():
+    """One docs row per ranged setting: | table | key | low | high | unit |."""
+    import dataclasses
+
+    rows = []
+    for table, cls in _ranged_classes().items():
+        for f in dataclasses.fields(cls):
+            if "lo" in f.metadata:
+                m = f.metadata
+                rows.append(f"| `[{table}]` | `{f.name}` | {m['lo']:g} | {m['hi']:g} | {m['unit']} |")
+    return rows
+
+
+def test_every_number_setting_has_a_range_holding_its_default_and_the_shipped_suites():
+    import dataclasses
+    import math
+
+    for table, cls in _ranged_classes().items():
+        for f in dataclasses.fields(cls):
+            default = f.default
+            if isinstance(default, bool) or not isinstance(default, (int, float, tuple)):
+                continue
+            assert "lo" in f.metadata, f"[{table}] {f.name} has no range"
+            values = default if isinstance(default, tuple) else (default,)
+            lo, hi = f.metadata["lo"], f.metadata["hi"]
+            assert all(lo <= v <= hi or math.isinf(v) for v in values), (table, f.name, default)
+    cls = _ranged_classes()
+    cls["sim"]()  # the defaults validate
+    for name in suite_names():  # and so does every shipped suite (load_suite validates)
+        assert load_suite(name).name == name
+
+
+def test_the_settings_doc_lists_every_range():
+    doc = (SUITES_DIR.parents[1] / "docs" / "settings.md").read_text()
+    missing = [row for row in settings_rows() if row not in doc]
+    assert not missing, "docs/settings.md is out of date; rows to add:\n" + "\n".join(missing)

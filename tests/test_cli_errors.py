@@ -41,12 +41,31 @@ def suite_with(tmp_path, scenario="", sim=""):
     ("", "[sim.planner]\nnum_rollouts = 4.0", "sim.planner.num_rollouts: expected an integer"),
     ("", "[sim.planner.modes.overtake]\nrollout_id = -1.0", "rollout_id: expected an integer"),
     ("", "decision_interval = 2.0", "sim.decision_interval: expected an integer"),
+    # Issue 18: huge finite values, non-table [sim] sections and wrongly typed settings were accepted
+    # (an endless run) or crashed with AttributeError; each is one line naming file, key and range.
+    ("speed_limit = 1e300", "", "scenario.speed_limit: 1e+300 is out of range [0.5, 40.0] m/s"),
+    ("lane_width = 1e-300", "", "scenario.lane_width: 1e-300 is out of range [2.0, 6.0] m"),
+    ("goal = 1e12", "", "scenario.goal: 1000000000000.0 is out of range [1.0, 5000.0] m"),
+    ("time_limit = 1e12", "", "scenario.time_limit: 1000000000000.0 is out of range [0.1, 3600.0] s"),
+    ("lead_gap = [8.0, 1e9]", "", "scenario.lead_gap: 1000000000.0 is out of range [0.0, 5000.0] m"),
+    ("oncoming_count = 65", "", "scenario.oncoming_count: 65 is out of range [0, 64]"),
+    ("time_limit = 3600", "dt = 0.001", "scenario.time_limit: 3600 s at dt = 0.001 s is 3600000 steps"),
+    ("", "npc = [1, 2]", "sim.npc: expected a table, got [1, 2]"),
+    ("", "observation = 3", "sim.observation: expected a table, got 3"),
+    ("", 'reward = "big"', "sim.reward: expected a table, got 'big'"),
+    ("", 'seed = "abc"', "sim.seed: expected an integer, got 'abc'"),
+    ("", "seed = -1", "sim.seed: -1 is out of range"),
+    ("", 'npc_agents = "no"', "sim.npc_agents: expected true or false, got 'no'"),
+    ("", "[sim.planner]\nmax_steer = 3.0", "sim.planner.max_steer: 3.0 is out of range [0.01, 1.2] rad"),
+    ("lead_gapp = [1.0, 2.0]", "", "scenario.lead_gapp: unknown key (did you mean 'lead_gap'?)"),
 ])
 def test_bad_suite_values_are_one_line(tmp_path, capsys, scenario, sim, needle):
     out = tmp_path / "r.json"
-    err = one_line_error(capsys, ["eval", "--suite", str(suite_with(tmp_path, scenario, sim)),
-                                  "--decider", "always-follow", "--out", str(out), "--no-progress"])
-    assert needle in err and not out.exists()
+    path = suite_with(tmp_path, scenario, sim)
+    err = one_line_error(capsys, ["eval", "--suite", str(path), "--decider", "always-follow", "--out", str(out),
+                                  "--no-progress"])
+    assert err.startswith(f"error: {path}: ") and needle in err, err
+    assert not out.exists()
 
 
 def test_integer_settings_take_integers_only():
@@ -259,3 +278,28 @@ def test_fuzz_eval_arguments_are_one_line_errors(tmp_path_factory, shard, chunk,
             code = exc.code
     if code != 0:
         assert code == 2 and err.getvalue().count("\n") <= 3 and "Traceback" not in err.getvalue(), err.getvalue()
+
+
+# Issue 18: count = 1000000 with 64 oncoming and 64 followers ended in a MemoryError traceback.
+def test_a_suite_too_big_for_memory_is_refused_before_drawing(tmp_path, capsys, monkeypatch):
+    from overtakezoo.benchmark import suites
+    from overtakezoo.envs import ScenarioDistribution
+
+    drawn = []
+    sample = ScenarioDistribution.sample
+    monkeypatch.setattr(ScenarioDistribution, "sample", lambda self, n, seed: drawn.append(n) or sample(self, n, seed))
+    monkeypatch.setattr(suites, "available_memory", lambda: 8 * 2**30)  # a laptop, whatever this machine has
+    big = tmp_path / "big.toml"
+    big.write_text('name = "big"\nversion = 1\ncount = 1000000\nseed = 1\n[scenario]\n'
+                   "oncoming_count = 64\nfollower_count = 64\n")
+    out = tmp_path / "r.json"
+    err = one_line_error(capsys, ["eval", "--suite", str(big), "--decider", "always-follow", "--out", str(out),
+                                  "--no-progress"])
+    assert err.startswith(f"error: {big}: count: 1000000 scenarios of 129 NPCs need about "), err
+    assert "only 8.0 GiB is available" in err and not out.exists()
+    assert max(drawn) == 1  # only the one-scenario probe of the estimate was drawn
+    # The same machine runs a small suite, and every shipped suite fits in it.
+    small = suite_with(tmp_path, "oncoming_count = 2")
+    assert main(["eval", "--suite", str(small), "--decider", "always-follow", "--out", str(out), "--no-progress"]) == 0
+    for name in suites.suite_names():
+        suites.check_memory(suites.load_suite(name))

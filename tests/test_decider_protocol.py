@@ -169,3 +169,75 @@ def test_runner_asks_for_a_decision_once_per_hold():
     dec = Counting(suite.config)
     res = run_suite(suite, dec, limit=4, progress=False)
     assert dec.calls == -(-res.timing["steps"] // 7)  # ceil: the last hold may end early
+
+
+# Issue 18: all-NaN / all-inf observations made the learned members overtake, rule-fsm and fuzzy
+# acted on observations of the wrong width, and every member but the constants raised on (0, D).
+def _bound(name, learned_dir, rows):
+    """A member and a core of ``rows`` rows (the oracle bound to it), with the core's observations."""
+    dec = member(name, learned_dir)
+    core = OvertakeCore(EnvConfig())
+    obs = core.reset(ScenarioDistribution().sample(rows, 7))
+    if dec.privileged:
+        dec.bind(core)
+    return dec, obs
+
+
+@pytest.mark.parametrize("name", MEMBERS)
+def test_non_finite_observations_are_refused_naming_the_column(name, learned_dir):
+    dec, obs = _bound(name, learned_dir, 3)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(zoo.ObservationError, match=r"^\S+: observation feature 0 \(ego\[0\]\) is \S*(nan|inf) "
+                                                       r"in row 0; observations must be finite$"):
+            dec.act(np.full_like(obs, bad))
+    one = obs.copy()
+    one[2, 12] = np.nan  # a single value, deep in the vector: named by its place in the layout
+    with pytest.raises(ValueError, match=r"feature 12 \(blocked\[3\]\) is nan in row 2"):
+        dec.act(one)
+    with pytest.raises(ValueError, match="must be finite"):
+        dec.act(one[2])
+
+
+@pytest.mark.parametrize("name", MEMBERS)
+def test_observations_of_the_wrong_width_are_refused(name, learned_dir):
+    dec, obs = _bound(name, learned_dir, 2)
+    width = observation_size(EnvConfig())
+    for bad in (obs[:, :-1], np.concatenate([obs, obs[:, :1]], axis=1), obs[0, :5]):
+        with pytest.raises(zoo.ObservationError, match=rf"observations have {bad.shape[-1]} features, expected {width}"):
+            dec.act(bad)
+
+
+@pytest.mark.parametrize("name", MEMBERS)
+def test_an_empty_batch_gives_an_empty_int_answer(name, learned_dir):
+    dec, obs = _bound(name, learned_dir, 4)
+    empty = dec.act(obs[:0])
+    assert isinstance(empty, np.ndarray) and empty.shape == (0,) and empty.dtype == np.int64
+    # ... and leaves the member's per-row state alone: the next real batch decides as without it.
+    fresh, _ = _bound(name, learned_dir, 4)
+    np.testing.assert_array_equal(dec.act(obs), fresh.act(obs))
+
+
+def test_the_oracle_refuses_a_core_of_another_width():
+    cfg = EnvConfig.from_dict({"observation": {"vehicles_per_lane": 3}})
+    core = OvertakeCore(cfg)
+    core.reset(ScenarioDistribution().sample(2, 1))
+    with pytest.raises(zoo.ObservationError, match="bound core.s observations have 44 features, expected 34"):
+        zoo.load("oracle").bind(core)
+    zoo.load("oracle", config=cfg).bind(core)  # its own config's width is fine
+
+
+def test_legitimate_observations_are_always_finite():
+    # Refusing NaN / inf is safe: every shipped suite's observation Box is finite (an empty slot is
+    # zeros, not an inf "no vehicle" code), and a run's observations lie in it.
+    from overtakezoo.benchmark.suites import list_suites
+    from overtakezoo.envs.spaces import ego_observation_space
+
+    for suite in list_suites():
+        box = ego_observation_space(suite.config)
+        assert np.isfinite(box.low).all() and np.isfinite(box.high).all(), suite.name
+    suite = load_suite("occluded")  # empty slots and late-appearing cars
+    core = OvertakeCore(suite.config)
+    obs = core.reset(suite.scenarios().take(slice(0, 64)))
+    for _ in range(40):
+        assert np.isfinite(obs).all()
+        obs = core.step(np.ones(core.num, np.int64)).obs

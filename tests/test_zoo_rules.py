@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from overtakezoo.envs import (ABORT, CRASH, FOLLOW, OVERTAKE, SUCCESS, EnvConfig, OvertakeCore,
-                              ScenarioDistribution, Scenarios, make_scenario)
+                              ScenarioDistribution, Scenarios, make_scenario, observation_size)
 from overtakezoo.zoo import load, names
 
 
@@ -108,7 +108,7 @@ def test_oracle_never_crashes_on_table1_first_200():
 
 def test_oracle_needs_a_bound_core():
     with pytest.raises(RuntimeError, match="bind"):
-        load("oracle").act(np.zeros((1, 4), np.float32))
+        load("oracle").act(np.zeros((1, observation_size(EnvConfig())), np.float32))
 
 
 def test_zoo_list_prints_the_names(capsys):

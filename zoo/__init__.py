@@ -1,5 +1,5 @@
 """OvertakeZoo deciders: each maps observations to modes and drives through the shared planner."""
 
-from .base import ConstantDecider, Decider, UnknownDecider, known_names, load, names, register
+from .base import ConstantDecider, Decider, ObservationError, UnknownDecider, known_names, load, names, register
 
-__all__ = ["ConstantDecider", "Decider", "UnknownDecider", "known_names", "load", "names", "register"]
+__all__ = ["ConstantDecider", "Decider", "ObservationError", "UnknownDecider", "known_names", "load", "names", "register"]

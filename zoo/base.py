@@ -6,7 +6,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
+
+
+class ObservationError(ValueError):
+    """An observation a decider cannot act on: the wrong shape or width, or a NaN / inf value."""
 
 
 class Decider:
@@ -14,7 +18,10 @@ class Decider:
 
     The protocol (every zoo member, and what ``overtakezoo.zoo.testing.check_decider`` checks):
 
-    - ``act(obs)``: one observation (D,) -> a Python ``int``; a batch (N, D) -> an (N,) int64 array.
+    - ``act(obs)``: one observation (D,) -> a Python ``int``; a batch (N, D) -> an (N,) int64 array
+      (an empty batch (0, D) -> an empty one). ``D`` must be ``observation_size(config)`` and every
+      value finite (the env's observations always are: an empty slot is zeros, not inf), else
+      :class:`ObservationError`; the check is here, once, so ``act_batch`` sees valid input only.
     - ``reset(mask)``: forget per-row state for the rows in ``mask`` (all rows when None); the
       runner calls it when episodes (re)start.
     - ``action_repeat``: core steps each decision was made for (from training); the benchmark runner
@@ -51,7 +58,7 @@ class Decider:
 
     def act(self, obs: np.ndarray) -> Any:
         """One observation (D,) -> int; a batch (N, D) -> (N,) int64."""
-        return act_with(self.act_batch, obs, self.name)
+        return act_with(self.act_batch, obs, self.name, self.config)
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """(N, D) observations -> (N,) modes."""
@@ -62,19 +69,51 @@ class Decider:
         return (self.__doc__ or self.name).strip().splitlines()[0]
 
 
-def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider") -> Any:
+def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider",
+             config: EnvConfig | None = None) -> Any:
     """The decider protocol around a batch function: (D,) -> int through a batch of one, (N, D) ->
-    (N,) int64; anything else is a ValueError naming the shape."""
+    (N,) int64, (0, D) -> an empty (0,) int64 without calling it. Anything else, and with ``config``
+    a width other than its observation's or a non-finite value, is an :class:`ObservationError`."""
     obs = np.asarray(obs)
     if obs.ndim not in (1, 2):
-        raise ValueError(f"{who}: act expects one observation (D,) or a batch (N, D), got shape {obs.shape}")
+        raise ObservationError(f"{who}: act expects one observation (D,) or a batch (N, D), got shape {obs.shape}")
     batch = obs[None] if obs.ndim == 1 else obs
+    if config is not None:
+        check_observations(batch, config, who)
+    if batch.shape[0] == 0:
+        return np.zeros(0, np.int64)
     modes = np.asarray(act_batch(batch))
     if modes.shape != (batch.shape[0],):
         raise ValueError(f"{who}: act returned shape {modes.shape} for {batch.shape[0]} observation(s); "
                          f"expected ({batch.shape[0]},)")
     modes = modes.astype(np.int64, copy=False)
     return int(modes[0]) if obs.ndim == 1 else modes
+
+
+def check_observations(batch: np.ndarray, config: EnvConfig, who: str = "decider") -> None:
+    """:class:`ObservationError` unless ``batch`` (N, D) has the config's width and finite values.
+    One vectorised pass: NaN or inf in a feature would otherwise pass every comparison a rule makes
+    (or none), and a network's argmax over NaN scores is mode 0 or worse."""
+    width = observation_size(config)
+    if batch.shape[1] != width:
+        raise ObservationError(f"{who}: observations have {batch.shape[1]} features, expected {width} "
+                               "(observation_size of the decider's config)")
+    try:
+        finite = np.isfinite(batch)
+    except TypeError:
+        raise ObservationError(f"{who}: observations must be numbers, got dtype {batch.dtype}") from None
+    if not finite.all():
+        row, col = (int(i[0]) for i in np.nonzero(~finite))
+        raise ObservationError(f"{who}: observation feature {col} ({_feature(config, col)}) is "
+                               f"{batch[row, col]} in row {row}; observations must be finite")
+
+
+def _feature(config: EnvConfig, col: int) -> str:
+    """``ego[2]``, ``opposite_lane[3]``: where column ``col`` sits in the observation layout."""
+    for part, where in observation_layout(config).items():
+        if where.start <= col < where.stop:
+            return f"{part}[{col - where.start}]"
+    return "?"
 
 
 class ConstantDecider(Decider):

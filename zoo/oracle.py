@@ -21,10 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_size
 from overtakezoo.envs.core import CRASH, SUCCESS
 
-from .base import Decider, register
+from .base import Decider, ObservationError, register
 
 CAND_OVERTAKE, CAND_RETREAT = 0, 1
 
@@ -69,6 +69,11 @@ class Oracle(Decider):
         self.verified = np.zeros(n, bool)
 
     def bind(self, core) -> None:
+        # The oracle reads the core, not the observation, yet takes the same input as every member:
+        # a core whose observations its act would refuse (another width) is refused here.
+        if core.obs_size != observation_size(self.config):
+            raise ObservationError(f"{self.name}: the bound core's observations have {core.obs_size} features, "
+                                   f"expected {observation_size(self.config)} (observation_size of the oracle's config)")
         self.core = core
         self._size(core.num)
 

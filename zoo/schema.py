@@ -23,7 +23,6 @@ default is required. ``choices`` in :func:`param` limits a value to a set.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import numbers
 import tomllib
@@ -33,7 +32,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from overtakezoo.envs.config import ConfigError
+from overtakezoo.envs.config import ConfigError, unknown_key  # noqa: F401 (unknown_key re-exported)
 
 T = TypeVar("T")
 
@@ -92,13 +91,6 @@ def build(cls: type[T], data: Any, where: str, prefix: str = "") -> T:
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise HyperparameterError(f"{where}: {prefix}{name}: missing (required)")
     return cls(**kwargs)
-
-
-def unknown_key(key: str, known: Any) -> str:
-    """'unknown key' with the nearest known name, if one is close (a misspelling), and the list."""
-    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.75)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return f"unknown key{hint}; known: {', '.join(sorted(map(str, known)))}"
 
 
 def _value(tp: Any, value: Any, meta: Mapping[str, Any], where: str, key: str) -> Any:

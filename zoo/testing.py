@@ -9,6 +9,7 @@ benchmark runner holds it) and raises ``AssertionError`` with a message naming t
 
 - ``act`` on a batch (N, D) returns an (N,) integer array of modes in {0, 1, 2};
 - ``act`` on one observation (D,) returns a Python ``int``, the same as that row of a batch;
+- ``act`` on an empty batch (0, D) returns an empty (0,) integer array;
 - ``reset(mask)`` (some rows) and ``reset()`` (all) are accepted and the batch form still works;
 - the same scenarios give the same decisions after ``reset()`` (deterministic);
 - ``name`` and ``version`` are strings and ``action_repeat`` is an int >= 1.
@@ -65,6 +66,10 @@ def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, d
     _expect(single in MODES, f"{who}: act(obs) returned {single}, expected 0 (follow), 1 (overtake) or 2 (abort)")
     _expect(single == int(first[0][0]), f"{who}: act(obs[0]) = {single} but act(obs)[0] = {int(first[0][0])}: "
                                         "a row's decision must not depend on the other rows of the batch")
+
+    # An empty batch (0, D) -> an empty (0,) int array (a caller that passes only its live rows may have none).
+    empty = _modes(decider, np.zeros((0, observation_size(config)), np.float32), who)
+    _expect(empty.shape == (0,), f"{who}: act(obs) with an empty batch returned shape {empty.shape}, expected (0,)")
 
     # reset(mask) for finished rows, then the batch form still works on the same batch.
     _, obs = _start(decider, config, scenarios)
