@@ -115,13 +115,15 @@ class SandboxedPolicy:
     def __init__(self, kind: str, data: bytes, config: Any, card: bytes | None = None, who: str = "policy",
                  limits: Limits | None = None) -> None:
         self.who, self.limits = who, limits or Limits.from_env()
-        self._tmp = tempfile.TemporaryDirectory(prefix="overtakezoo-sandbox-")
+        self._tmp = tempfile.TemporaryDirectory(prefix="overtakezoo-sandbox-", ignore_cleanup_errors=True)
+        # The child imports what this process imports (its sys.path: user installs, checkouts), nothing else.
         env = {"PATH": os.defpath, "HOME": self._tmp.name, "TMPDIR": self._tmp.name, "LANG": "C.UTF-8",
+               "PYTHONPATH": os.pathsep.join(p for p in sys.path if p), "PYTHONNOUSERSITE": "1",
                "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                "OVERTAKEZOO_SANDBOX_LANDLOCK": os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK", "1")}
         lim = self.limits
         self._proc = subprocess.Popen(
-            [sys.executable, "-I", "-B", "-m", "overtakezoo.benchmark.sandbox", str(lim.cpu_s),
+            [sys.executable, "-B", "-m", "overtakezoo.benchmark.sandbox", str(lim.cpu_s),
              str(lim.memory_bytes), str(lim.open_files)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=self._tmp.name,
             env=env, start_new_session=True, close_fds=True)

@@ -20,7 +20,7 @@ from overtakezoo.benchmark.results import PER_SCENARIO, Results
 from overtakezoo.benchmark.runner import run_indices, run_suite
 from overtakezoo.benchmark.rows import file_sha256
 from overtakezoo.benchmark.submission import submit
-from overtakezoo.benchmark.verify import sample_indices, verify
+from overtakezoo.benchmark.verify import changed_rows, default_base, sample_indices, verify
 from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
 
 from test_benchmark_results import fake_results
@@ -74,15 +74,18 @@ def test_sample_indices_are_seeded_sorted_and_per_row():
 
 # ------------------------------------------------------------------ the shipped leaderboard
 def test_every_shipped_row_reproduces_on_a_sample():
-    # CI: one seeded scenario of each row (9 suites x 11 zoo members, 3 multi-agent suites x 11 non-privileged
-    # members) re-runs exactly (two worker processes).
+    # CI: every row new or changed against the base of the change in full, one scenario of each other
+    # row (9 suites x 11 zoo members, 3 multi-agent suites x 11 non-privileged members) drawn from the
+    # submissions' tree hash, re-run exactly (two worker processes): what `leaderboard --verify --sample 1` does.
     rows = len(list(REPO.glob("submissions/*/*.json")))
     assert rows == 132
+    base = default_base(REPO)
+    changed = changed_rows(REPO, base) if base else set()
     t0 = time.perf_counter()
     lines = []
-    assert verify(REPO, sample=1, seed=0, jobs=2, log=lines.append) == rows
+    assert verify(REPO, sample=1, jobs=2, changed=changed, log=lines.append) == rows
     assert all(line.startswith("verified ") for line in lines)
-    print(f"verified {rows} rows in {time.perf_counter() - t0:.1f} s")
+    print(f"verified {rows} rows ({len(changed)} in full, against {base}) in {time.perf_counter() - t0:.1f} s")
 
 
 def test_privileged_rows_are_upper_bounds_not_ranked():
