@@ -38,9 +38,11 @@ def register(subparsers: Any) -> None:
 def run(args: Any) -> int:
     from ..errors import UserError
     from ..leaderboard import stale_files, write
+    from ..untrusted import check_tree
 
     if not args.verify and (args.sample is not None or args.only is not None):
         raise UserError("--sample and --only go with --verify")
+    check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
         from ..submission import verify
 
