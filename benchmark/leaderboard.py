@@ -8,6 +8,10 @@ hand; ``leaderboard --check`` fails when they differ from what the submissions g
 suites (``suites.MULTI``) get their own tables (multi_leaderboard.py) and index section
 (``multi_agent``); a cross-play matrix measured by ``overtakezoo crossplay`` (``crossplay/<suite>.json``,
 an input like the submissions) becomes ``crossplay-<suite>.md`` and ``.png`` (crossplay.py).
+
+A leaderboard pull request is hostile input (untrusted.py): regeneration replaces or removes only
+the files it generated (``index.json``'s ``files``), refuses a symlink or non-regular file under the
+root, and every string from input is escaped on the pages and plots.
 """
 
 from __future__ import annotations

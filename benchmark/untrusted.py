@@ -83,8 +83,8 @@ def check_tree(root: str | Path) -> None:
     root = Path(root)
     try:
         st = os.lstat(root)
-    except FileNotFoundError:
-        return  # nothing there yet (regeneration creates it)
+    except (FileNotFoundError, NotADirectoryError):
+        return  # nothing there yet (regeneration creates it, or says why it cannot)
     except OSError as exc:
         raise UserError(f"{root}: cannot read it: {exc.strerror or exc}") from None
     _refuse(root, st, top=True)
@@ -131,7 +131,7 @@ def check_target(root: Path, rel: str) -> Path:
     for p, top in ((root, True), (path, False)):
         try:
             st = os.lstat(p)
-        except FileNotFoundError:
+        except (FileNotFoundError, NotADirectoryError):
             break
         _refuse(p, st, top=top)
         if not top and stat.S_ISDIR(st.st_mode):
