@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import UserError
 from .suites import CORE  # noqa: F401 (re-exported: the score's suites)
+from .untrusted import md
 
 K = 2.0  # crash weight in the score
 SAMPLES = 2000
@@ -93,7 +94,9 @@ def mean_over_seeds(counts: list[Counts], key: str, samples: int = SAMPLES, seed
 
 
 def _pct(x: float | None) -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
+    # (a seeds file is input: anything but a number shows as "-")
+    ok = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    return f"{100 * x:.1f}" if ok else "-"
 
 
 def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], oracle: str = "oracle",
@@ -131,8 +134,8 @@ def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], orac
         sc = scored[name]
         txt = "-" if sc["value"] is None else f"{_pct(sc['value'])} [{_pct(sc['lo'])}, {_pct(sc['hi'])}]"
         if sc["missing"]:
-            txt += f" (missing: {', '.join(sc['missing'])})"
-        return "| " + " | ".join([rank, label or name, str(sc["seeds"] or "-"), txt, *[gap(name, s) for s in suites]]) + " |"
+            txt += f" (missing: {', '.join(map(md, sc['missing']))})"
+        return "| " + " | ".join([rank, md(label or name), str(sc["seeds"] or "-"), txt, *[gap(name, s) for s in suites]]) + " |"
 
     out += [row(str(i), n) for i, n in enumerate(ranked, 1)]
     for n in sorted(privileged & set(table)):
@@ -167,7 +170,7 @@ def generalization(table: dict[str, dict[str, list[Counts]]], learned: list[str]
            f"The target for a learned member on a suite: success at least `{bar}`'s, crash rate at most "
            f"`{safe}`'s and, on `table1`, no crash at all; each learned cell says whether it is met.", "",
            "| decider | " + " | ".join(suites) + " |", "|---|" + "---|" * len(suites)]
-    out += [f"| {n} | " + " | ".join(cell(n, s) for s in suites) + " |" for n in names]
+    out += [f"| {md(n)} | " + " | ".join(cell(n, s) for s in suites) + " |" for n in names]
     out.append("")
     return "\n".join(out)
 
@@ -227,17 +230,16 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
             if c is None:
                 continue
             cs.append(Counts(c["success"], c["crash"], c["n"]))
-            out.append(f"| {name} | {e['seed']} | {_pct(c['success_rate'])} % [{_pct(c['success_ci'][0])}, "
+            out.append(f"| {md(name)} | {md(e['seed'])} | {_pct(c['success_rate'])} % [{_pct(c['success_ci'][0])}, "
                        f"{_pct(c['success_ci'][1])}] | {_pct(c['crash_rate'])} % [{_pct(c['crash_ci'][0])}, "
                        f"{_pct(c['crash_ci'][1])}] | {'yes' if e['seed'] == doc['shipped_seed'] else ''} |")
         if cs:
             s, c = mean_over_seeds(cs, "success"), mean_over_seeds(cs, "crash")
-            out.append(f"| **{name}** | mean of {len(cs)} | {_pct(s['value'])} % [{_pct(s['lo'])}, {_pct(s['hi'])}] | "
+            out.append(f"| **{md(name)}** | mean of {len(cs)} | {_pct(s['value'])} % [{_pct(s['lo'])}, {_pct(s['hi'])}] | "
                        f"{_pct(c['value'])} % [{_pct(c['lo'])}, {_pct(c['hi'])}] | |")
-        rules.append(f"{name}: {doc['selection_rule']}")
+        rules.append((md(name), md(doc["selection_rule"])))
     by_rule: dict[str, list[str]] = {}  # one rule for all members, or each rule with its members
-    for r in rules:
-        name, text = r.split(': ', 1)
+    for name, text in rules:
         by_rule.setdefault(text, []).append(name)
     said = (next(iter(by_rule)) if len(by_rule) == 1 else
             "; ".join(f"{', '.join(names)}: {text}" for text, names in sorted(by_rule.items(), key=lambda kv: kv[1])))

@@ -8,6 +8,10 @@ hand; ``leaderboard --check`` fails when they differ from what the submissions g
 suites (``suites.MULTI``) get their own tables (multi_leaderboard.py) and index section
 (``multi_agent``); a cross-play matrix measured by ``overtakezoo crossplay`` (``crossplay/<suite>.json``,
 an input like the submissions) becomes ``crossplay-<suite>.md`` and ``.png`` (crossplay.py).
+
+A leaderboard pull request is hostile input (untrusted.py): regeneration replaces or removes only
+the files it generated (``index.json``'s ``files``), refuses a symlink or non-regular file under the
+root, and every string from input is escaped on the pages and plots.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from . import crossplay, headline, multi_leaderboard, paper_table
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from .rows import Row, load_submissions, stale_reasons
 from .suites import MULTI, load_suite, suite_names
+from .untrusted import check_target, check_tree, md, md_code, md_image, md_link, plain_name, plot_text
 
 REFERENCE = Path("reference") / "paper.json"
 REFERENCE_NOTE = "reported in the paper, different simulator"
@@ -52,6 +57,7 @@ def load_reference(root: Path) -> dict[str, Any] | None:
 def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     """Every generated file (relative path -> bytes), computed from the submissions."""
     root = Path(root)
+    check_tree(root)  # before anything under it is read: no links out, no FIFO to hang on
     subs, ref = load_submissions(root), load_reference(root)
     files: dict[str, bytes] = {}
     index: dict[str, Any] = {"generated_by": "overtakezoo leaderboard", "suites": {}}
@@ -95,6 +101,11 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     if multi or cross_index:  # (absent until a multi-agent row or matrix exists)
         index["multi_agent"] = multi
         index["crossplay"] = cross_index
+    for rel in files:  # suite names come from input (folder names, reference/paper.json)
+        if not plain_name(rel):
+            raise UserError(f"{root}: suite {rel.rsplit('.', 1)[0]!r}: not a plain file name; refusing to write {rel!r}")
+    # What regeneration owns (and may remove later): only these, never a file it did not write.
+    index["files"] = sorted(set(files) | {"index.json", "README.md"})
     files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
     files["README.md"] = _readme(index, head_md).encode()
     return files
@@ -168,25 +179,51 @@ def _entry(row: Row) -> dict[str, Any]:
 
 
 def write(root: str | Path = "leaderboards") -> list[str]:
-    """Regenerate the files; removes generated files no longer produced. Returns changed paths."""
+    """Regenerate the files; removes files it generated before and no longer produces (never a
+    file it did not generate). Returns changed paths."""
     root = Path(root)
     files = generate(root)
     changed = stale_files(root, files)
     for rel in changed:
+        path = check_target(root, rel)  # a plain name, not a link: the write stays in the root
         if rel in files:
-            atomic_write_bytes(root / rel, files[rel])
+            atomic_write_bytes(path, files[rel])
         else:
-            (root / rel).unlink()
+            path.unlink()
     return changed
 
 
 def stale_files(root: str | Path, files: dict[str, bytes] | None = None) -> list[str]:
-    """Generated files that are missing, different, or no longer produced."""
+    """Generated files that are missing, different, or no longer produced (among the owned ones)."""
     root = Path(root)
     files = generate(root) if files is None else files
-    on_disk = {p.name for p in root.glob("*") if p.is_file() and p.suffix in _GENERATED_SUFFIXES}
+    check_tree(root)  # (again, for files handed in): only regular files are compared or removed
     out = [rel for rel, data in files.items() if not (root / rel).is_file() or (root / rel).read_bytes() != data]
-    return sorted(out + sorted(on_disk - set(files)))
+    obsolete = [rel for rel in owned_files(root, files) - set(files) if (root / rel).is_file()]
+    return sorted(out + sorted(obsolete))
+
+
+def owned_files(root: Path, files: dict[str, bytes]) -> set[str]:
+    """The files regeneration may replace or remove: what it generates now, and what the previous
+    index.json lists as generated (``files``; an index from before that list: its tables and plots).
+    The index is input like the rest: only plain generated-looking names in the root count."""
+    owned = set(files)
+    try:
+        prev = json.loads((root / "index.json").read_bytes())
+    except (OSError, ValueError):
+        prev = {}
+    if not isinstance(prev, dict):
+        prev = {}
+    listed = prev.get("files")
+    if isinstance(listed, list):
+        owned |= {n for n in listed if isinstance(n, str)}
+    else:
+        for section in ("suites", "multi_agent", "crossplay"):
+            entries = prev.get(section)
+            for entry in entries.values() if isinstance(entries, dict) else ():
+                if isinstance(entry, dict):
+                    owned |= {v for v in (entry.get("table"), entry.get("plot")) if isinstance(v, str)}
+    return {n for n in owned if plain_name(n) and Path(n).suffix in _GENERATED_SUFFIXES}
 
 
 # ------------------------------------------------------------------ rendering
@@ -199,11 +236,11 @@ def _policy_cell(row: Row) -> str:
     """What re-runs the row: a built-in (version, weights) or a stored policy file (its sha256)."""
     policy = (row.results.meta.get("submission") or {}).get("policy")
     if policy is None:
-        return f"v{row.results.decider['version']}"
+        return f"v{md(row.results.decider['version'])}"
     if "artifact" in policy:
-        return f"file `{policy['sha256'][:10]}`"
-    weights = f" `{policy['weights_sha256'][:10]}`" if policy["weights_sha256"] else ""
-    return f"built-in v{policy['version']}{weights}"
+        return f"file {md_code(policy['sha256'][:10])}"
+    weights = f" {md_code(policy['weights_sha256'][:10])}" if policy["weights_sha256"] else ""
+    return f"built-in v{md(policy['version'])}{weights}"
 
 
 def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
@@ -213,9 +250,9 @@ def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
     for i, row in enumerate(rows, 1):
         r = row.results
         cells = ([str(i)] if ranked else []) + [
-            f"[{row.name}]({row.rel})", _policy_cell(row),
+            md_link(row.name, row.rel), _policy_cell(row),
             *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS],
-            r.meta["package"]["version"], (r.meta["git_commit"] or "-")[:10]]
+            md(r.meta["package"]["version"]), md((r.meta["git_commit"] or "-")[:10])]
         out.append("| " + " | ".join(cells) + " |")
     return out
 
@@ -230,7 +267,7 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
                    "`overtakezoo leaderboard --verify`.")
         out.append("")
         out += _rows_table(ranked, ranked=True) if ranked else ["No ranked submissions yet."]
-        out += ["", f"![success vs crash rate]({name}.png)", ""]
+        out += ["", md_image("success vs crash rate", f"{name}.png"), ""]
         if bounds:
             out += ["## Upper bounds (privileged deciders, not ranked)", "",
                     "These deciders read the simulator's state, the future included (`privileged = True`): "
@@ -238,22 +275,22 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
                     "achieves, so they are never ranked with the rows above.", ""]
             out += _rows_table(bounds, ranked=False) + [""]
         out += ["### Table I, every metric", ""]
-        cols = [(row.name, row.results.summary) for row in ranked]
-        cols += [(f"{row.name} (upper bound)", row.results.summary) for row in bounds]
+        cols = [(md(row.name), row.results.summary) for row in ranked]
+        cols += [(f"{md(row.name)} (upper bound)", row.results.summary) for row in bounds]
         out.append(render_table(cols, markdown=True).rstrip())
         out.append("")
     else:
         out += ["No measured submissions yet.", ""]
     if ref is not None:
         out += [f"## Reference: {REFERENCE_NOTE}", "",
-                f"Not measured here. Source: {ref['source']}. These numbers come from another simulator "
+                f"Not measured here. Source: {md(ref['source'])}. These numbers come from another simulator "
                 "and are shown for orientation only; they are never ranked with the measured rows.", ""]
         keys = [k for k, _, _, _ in TABLE if any(k in row for row in ref["rows"])]
         kinds = {k: (kind, unit) for k, _, kind, unit in TABLE}
         out += ["| decider | " + " | ".join(_LABELS[k] for k in keys) + " |", "|" + "---|" * (len(keys) + 1)]
         for row in ref["rows"]:
             cells = [_reported(row.get(k), *kinds[k]) for k in keys]
-            out.append(f"| {row['decider']} ({REFERENCE_NOTE}) | " + " | ".join(cells) + " |")
+            out.append(f"| {md(row['decider'])} ({REFERENCE_NOTE}) | " + " | ".join(cells) + " |")
         out.append("")
     if paper:
         out.append(paper)
@@ -278,8 +315,8 @@ def _readme(index: dict[str, Any], head: str = "") -> str:
            "| suite | version | scenarios | ranked rows | best success rate |", "|---|---|---|---|---|"]
     for name, s in index["suites"].items():
         best = s["entries"][0] if s["entries"] else None
-        best_txt = f"{best['success_rate'] * 100:.1f} % ({best['name']})" if best else "-"
-        out.append(f"| [{name}]({s['table']}) | {s['version'] or '-'} | {s['count'] or '-'} | "
+        best_txt = f"{best['success_rate'] * 100:.1f} % ({md(best['name'])})" if best else "-"
+        out.append(f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | "
                    f"{len(s['entries'])} | {best_txt} |")
     multi = multi_leaderboard.readme_section(index.get("multi_agent", {}), index.get("crossplay", {}))
     return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE
@@ -370,7 +407,7 @@ def _plot(name: str, ranked: list[Row], bounds: list[Row], x_of: Any = None, y_o
         FigureCanvasAgg(fig)
         ax = fig.add_subplot(1, 1, 1)
         for i, row in enumerate(ranked + bounds):
-            r, label = row.results, row.name + (" (upper bound)" if row.privileged else "")
+            r, label = row.results, plot_text(row.name) + (" (upper bound)" if row.privileged else "")
             s, c = x_of(r.summary), y_of(r.summary)
             x, y = 100 * s["value"], 100 * c["value"]
             # max(0, .): a Wilson bound can sit a rounding error beyond the rate it brackets.
@@ -378,12 +415,12 @@ def _plot(name: str, ranked: list[Row], bounds: list[Row], x_of: Any = None, y_o
             yerr = [[max(0.0, y - 100 * c["lo"])], [max(0.0, 100 * c["hi"] - y)]]
             ax.errorbar([x], [y], xerr=xerr, yerr=yerr, fmt="s" if row.privileged else "o", capsize=3,
                         color=f"C{i % 10}", label=label, mfc="none" if row.privileged else None)
-            ax.annotate(row.name, (x, y), textcoords="offset points", xytext=(5, 5))
+            ax.annotate(plot_text(row.name), (x, y), textcoords="offset points", xytext=(5, 5))
         ax.set_xlim(-5, 105)
         ax.set_ylim(-5, 105)
         ax.set_xlabel(labels[0])
         ax.set_ylabel(labels[1])
-        ax.set_title(f"{name}: {labels[2]} (95 % CI), measured")
+        ax.set_title(f"{plot_text(name)}: {labels[2]} (95 % CI), measured")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
         fig.tight_layout()

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from .metrics import TABLE, format_metric
+from .untrusted import md
 
 _LEVEL = {"success_rate": 0.02, "completion_time": 0.3, "crash_share_npc1": 0.05, "crash_share_npc2": 0.05,
           "npc1_speed_failed": 0.15, "npc2_speed_failed": 0.15}
@@ -64,7 +65,7 @@ def render(reference: dict[str, Any], dqn: dict[str, Any], fsm: dict[str, Any], 
     ``dqn`` / ``fsm`` are results summaries on table1; ``paired`` is crash-in-the-same-scenarios."""
     rl, op = reference["rows"][0], reference["rows"][1]
     v = verdicts(rl, op, dqn, fsm)
-    out = [f"| Table I row | paper: {rl['decider']} | ours: {labels[0]} | paper: {op['decider']} | "
+    out = [f"| Table I row | paper: {md(rl['decider'])} | ours: {labels[0]} | paper: {md(op['decider'])} | "
            f"ours: {labels[1]} | shape |", "|---|---|---|---|---|---|"]
     sentences = []
     for key in ROWS:
@@ -83,7 +84,7 @@ def render(reference: dict[str, Any], dqn: dict[str, Any], fsm: dict[str, Any], 
         out.append(f"| {label} | " + " | ".join(cells) + f" | {shape} |")
         note = notes.get(key)
         if isinstance(note, dict) and note.get("shape") == shape.split(" ")[0] and note.get("text"):
-            sentences.append(f"- **{label}**: {note['text']}")
+            sentences.append(f"- **{label}**: {md(note['text'])}")
         else:
             sentences.append(f"- **{label}**: {shape.split(' ')[0]}; no explanation recorded for this result.")
     return "\n".join(out + [""] + sentences) + "\n"

@@ -81,9 +81,15 @@ def test_regeneration_is_byte_identical_and_check_detects_mutation(root, capsys)
 
 
 def test_obsolete_generated_file_is_stale(root):
-    (root / "old-suite.md").write_text("x")
+    # Obsolete: a file the previous index lists as generated (a suite gone since); others are not ours.
     main(["leaderboard", "--root", str(root)])
-    assert not (root / "old-suite.md").exists() and stale_files(root) == []
+    index = json.loads((root / "index.json").read_text())
+    (root / "index.json").write_text(json.dumps({**index, "files": index["files"] + ["old-suite.md"]}))
+    (root / "old-suite.md").write_text("x")
+    (root / "notes.md").write_text("x")
+    assert "old-suite.md" in stale_files(root) and "notes.md" not in stale_files(root)
+    main(["leaderboard", "--root", str(root)])
+    assert not (root / "old-suite.md").exists() and (root / "notes.md").exists() and stale_files(root) == []
 
 
 def test_submit_refuses_shards_and_other_suite_versions(tmp_path):

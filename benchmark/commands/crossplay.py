@@ -37,6 +37,7 @@ def run(args: Any) -> int:
     from ..io import atomic_write_bytes
     from ..leaderboard import write
     from ..suites import load_suite
+    from ..untrusted import check_tree
 
     if args.jobs < 1:
         raise UserError(f"--jobs {args.jobs}: must be >= 1")
@@ -52,6 +53,7 @@ def run(args: Any) -> int:
         if unknown:
             raise UserError(f"--deciders: unknown decider {unknown[0]!r} (known: {', '.join(zoo.known_names())})")
     path = crossplay.data_path(args.root, suite.name)
+    check_tree(args.root)  # a PR's link or FIFO under the root: refused before reading or writing there
     if args.check:
         if not path.is_file():
             raise UserError(f"{path}: no stored matrix to check (run `overtakezoo crossplay --suite {suite.name}`)")

@@ -47,9 +47,11 @@ def register(subparsers: Any) -> None:
 def run(args: Any) -> int:
     from ..errors import UserError
     from ..leaderboard import stale_files, write
+    from ..untrusted import check_tree
 
     if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
         raise UserError("--sample, --seed, --base and --only go with --verify")
+    check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
         from ..verify import changed_rows, default_base, verify
 
