@@ -35,6 +35,7 @@ from .rows import (ARTIFACTS, Row, artifact_decider, builtin_names, file_sha256,
                    stored_files)
 from .sandbox import PolicyFailure
 from .suites import Suite, load_suite, suite_names
+from .untrusted import check_tree
 from .verify import compare, torch_single_threaded
 
 LOCK = ".lock"  # submissions_lock's file
@@ -76,6 +77,7 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         meta = {**results.meta, "decider": artifact_decider(name, art)}
         _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source)
     with submissions_lock(root):
+        check_tree(root)  # no symlink or FIFO planted under the root is written through
         path = root / "submissions" / suite.name / f"{name}.json"
         clash = [p.name for p in path.parent.glob("*.json") if p.stem.lower() == name.lower() and p.stem != name]
         if clash:

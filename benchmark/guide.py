@@ -1,0 +1,114 @@
+"""The prose of the generated ``leaderboards/README.md``: how to submit a policy, and the security model."""
+
+GUIDE = """## Submit your policy
+
+A row is a results file plus the policy that produced it, so anyone can re-run it:
+`overtakezoo leaderboard --verify` runs every row's policy again and requires every per-scenario
+value (outcome, times, aborts, ...) to equal the recorded one. A hand-edited results file, or one
+whose policy does not reproduce it, is refused with one line naming the first scenario that differs.
+
+**1. Train.** Any library works; the policy maps one observation of `overtakezoo/Overtake-v0` to a
+mode (0 follow, 1 overtake, 2 abort). With Stable-Baselines3 (`pip install 'overtakezoo[sb3]'`):
+
+```python
+import gymnasium as gym
+import overtakezoo.envs  # registers overtakezoo/Overtake-v0
+from stable_baselines3 import DQN
+
+model = DQN("MlpPolicy", gym.make("overtakezoo/Overtake-v0"), seed=0)
+model.learn(200_000)
+model.save("my-dqn.zip")
+```
+
+With CleanRL, rsl-rl or your own torch code, export the network to ONNX (observations in, Q-values
+or logits out; the mode is the argmax), e.g. `torch.onnx.export(net, (torch.zeros(1, D),),
+"my-dqn.onnx", dynamic_axes={...}, dynamo=False)`; a TorchScript file also works and is converted
+to ONNX when you submit it. `overtakezoo train dqn --out runs/my-dqn` (also `double-dqn`, `ppo`)
+writes `runs/my-dqn/dqn.npz` (numpy weights; the torch `dqn.pt` too) with its model card
+`dqn.json` beside it: pass the `.npz` to `eval` and `submit`, which finds the card the same way. A
+`package.module:factory` policy works with `eval` but is not a file: export it to submit it. Tune
+on `table1-train`, never on the suites you submit to.
+
+**2. Evaluate** on each suite you want a row on (`overtakezoo suites` lists them):
+
+```bash
+overtakezoo eval --suite table1 --policy my-dqn.zip --out results/table1/my-dqn.json
+```
+
+The results file records the suite's sha256, the environment config's sha256, the simulator
+version (`overtakezoo.envs.SIM_VERSION`), the OvertakeZoo version and commit, and your policy's
+sha256.
+
+**3. Submit** under a name of your own (the zoo's names, `overtakezoo zoo list`, are reserved):
+
+```bash
+overtakezoo submit results/table1/my-dqn.json --policy my-dqn.zip --name my-dqn
+overtakezoo leaderboard --verify --only '*/my-dqn'   # every scenario of your rows re-runs exactly
+overtakezoo leaderboard                              # regenerate the tables
+```
+
+`submit` refuses a results file measured on another suite file, environment config or simulator
+version, a policy file whose sha256 differs from the one the results recorded, a reserved name,
+and a name already on that suite's leaderboard unless you pass `--replace`. It converts your file
+to a stored format (below), re-runs that stored form on every scenario of the suite and files the
+row only if it gives your numbers exactly; the row's `decider` block then describes the stored
+file. It is stored once, by content, as `submissions/artifacts/<sha256>.npz` (with its model card
+`<sha256>.json`) or `submissions/artifacts/<sha256>.onnx`, whatever number of suites you submit it
+to. Keep it small (a few MB).
+
+**4. Open a pull request** that contains exactly:
+
+- `leaderboards/submissions/<suite>/my-dqn.json` for each suite (your results, with the
+  `submission` block `submit` adds);
+- `leaderboards/submissions/artifacts/<sha256>.npz` and `<sha256>.json`, or
+  `leaderboards/submissions/artifacts/<sha256>.onnx` (your stored policy);
+- the regenerated `leaderboards/README.md`, `leaderboards/index.json`, `leaderboards/<suite>.md`
+  and `leaderboards/<suite>.png`.
+
+CI checks that the tables are current and re-runs every scenario of your new rows; reviewers can
+run `overtakezoo leaderboard --verify --only '*/my-dqn'` themselves.
+
+A row goes *stale* (listed apart by name, under its suite's table) when the suite file, the
+environment config or the simulator version changes; re-run step 2 and submit again with
+`--replace`.
+"""
+
+SECURITY = """## Security model
+
+A pull request to this leaderboard is untrusted input, and so is a policy file you download.
+`overtakezoo leaderboard --verify` (run by CI and by reviewers) and `overtakezoo eval --policy FILE`
+never run code from either:
+
+- **Trusted:** the OvertakeZoo code of the base branch (simulator, zoo members, verifier), the suite
+  files in `benchmark/suites/`, and the maintainers' inputs (`reference/`, `seeds/`, `crossplay/`),
+  which only change with the code that writes them.
+- **Stored formats are data.** A row's policy is a built-in zoo member (by name, version and
+  weights sha256) or an artifact in one of two formats: the project's `.npz` MLP with its model card
+  (read with `numpy.load(allow_pickle=False)`) or one self-contained `.onnx` file (run by
+  onnxruntime, external data inlined). No pickle, TorchScript or cloudpickle is stored or loaded:
+  `submit` converts what you bring (an SB3 zip is read from its state dict with
+  `torch.load(weights_only=True)` and its `data` as JSON; TorchScript is exported to ONNX inside
+  the sandbox) and re-runs the converted file before filing the row.
+- **Artifacts run in a box.** Every stored artifact (and every file given to `eval --policy`) acts in
+  a child process: observations in, modes out, as `.npy` frames over pipes; an empty temporary
+  working directory; CPU-time, memory and per-call wall-clock limits (the child is killed, not asked
+  to stop); and, on Linux 5.13+, Landlock: no file can be written, created or removed outside its
+  temporary directory and no TCP connection opened. A policy that crashes, hangs, returns NaN, a
+  wrong shape or a mode outside {0, 1, 2} fails its row with one line naming the row, the scenario
+  and the step.
+- **Every label is re-derived.** The verifier does not believe a row's `decider` block: a built-in
+  row must carry its member's current name, version, weights and `privileged` flag; an artifact
+  row's block must equal what is derived from the artifact (kind from its content, `privileged`
+  always false, the name the row's own). Built-in names are reserved in every case, file names are
+  content hashes, and provenance (`git_commit`, `package.version`, `timing`) must match strict
+  patterns. Every string the pages render is escaped (Markdown and HTML).
+- **What CI verifies.** Every row that is new or changed against the pull request's base (a
+  `git diff` of `submissions/`, uncommitted files included; a changed artifact counts for each row
+  that uses it) is re-run on every scenario; every other row on `--sample K` scenarios, drawn from
+  a seed derived from the sha256 of the whole submissions tree, so the draw is unknown until the tree
+  is final and moves with any edit. A new or changed stale row is refused; stale rows show no
+  numbers, only their names.
+- **Regeneration owns only its files** (the list in `index.json`), refuses symlinks, FIFOs and
+  devices anywhere under the leaderboard root, and `submit` holds a lock on `submissions/` while it
+  files a row and prunes unused artifacts.
+"""
