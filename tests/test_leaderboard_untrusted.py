@@ -10,11 +10,11 @@ import threading
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.leaderboard import generate, submit
+from overtakezoo.benchmark.leaderboard import generate
 from overtakezoo.benchmark.untrusted import md, plot_text
 
 from test_benchmark_cli import one_line_error
-from test_benchmark_leaderboard import REPO_LEADERBOARDS, root  # noqa: F401 (root: a fixture)
+from test_benchmark_leaderboard import REPO_LEADERBOARDS, file_row, root  # noqa: F401 (root: a fixture)
 from test_benchmark_results import fake_results
 
 HOSTILE = "1 | ![t](https://x/t.png) | <b>x</b> `c` *e* _u_ [l] $m$ ~~s~~ &amp; \\ #h\nnext\x00\u202e"
@@ -52,9 +52,8 @@ def test_regeneration_keeps_files_it_did_not_generate(root):
 @pytest.mark.parametrize("listed", [True, False], ids=["files-list", "index-without-list"])
 def test_regeneration_removes_what_it_generated_before(root, tmp_path, listed):
     r = fake_results(n=1000, suite="dense")
-    policy = tmp_path / "dense.bin"
-    policy.write_bytes(b"dense")
-    submit(r, root, policy=policy, name="gamma")
+    r.meta["decider"] = {**r.meta["decider"], "name": "gamma"}
+    file_row(r, root, "gamma", b"dense")
     _regenerate(root)
     assert {"dense.md", "dense.png"} <= set(json.loads((root / "index.json").read_text())["files"])
     if not listed:  # an index written before the list: its tables and plots are what it owned
@@ -158,17 +157,21 @@ def _hostile_lines(text):
     return lines
 
 
-def test_hostile_package_version_is_escaped_and_stale_rows_show_names_only(root, tmp_path):
+def test_hostile_package_version_is_refused_and_stale_rows_show_names_only(root, tmp_path, capsys):
     r = fake_results(seed=3)
     r.meta["decider"] = {**r.meta["decider"], "name": "gamma"}
-    r.meta["package"] = {**r.meta["package"], "version": HOSTILE[:64]}
-    policy = tmp_path / "gamma.bin"
-    policy.write_bytes(b"gamma")
-    submit(r, root, policy=policy)
+    file_row(r, root, "gamma", b"gamma")
+    # A pull request writes the bytes it likes; the results schema holds provenance to patterns, so
+    # the hostile version never reaches a page.
+    path = root / "submissions" / "table1" / "gamma.json"
+    doc = json.loads(path.read_text())
+    doc["package"]["version"] = HOSTILE[:64]
+    path.write_text(json.dumps(doc))
+    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--check"])
+    assert "gamma.json" in err and "package.version" in err
+    file_row(r, root, "gamma", b"gamma")
     md_page = generate(root)["table1.md"].decode()
-    (line,) = _hostile_lines(md_page)
-    header = next(ln for ln in md_page.splitlines() if ln.startswith("| rank"))
-    assert line.replace("\\|", "").count("|") == header.count("|")  # the row keeps its cells
+    assert "[gamma](submissions/table1/gamma.json)" in md_page
 
     # Stale: listed apart by name (and the escaped reason), no numbers, no version.
     doc = json.loads((root / "submissions" / "table1" / "gamma.json").read_text())
