@@ -148,12 +148,18 @@ def names() -> list[str]:
 
 
 def known_names() -> list[str]:
-    """Every built-in name, members whose optional dependency is missing included (all reserved)."""
-    return sorted(set(_REGISTRY) | set(_MEMBER_OF))
+    """Every built-in name, members whose optional dependency is missing included (all reserved),
+    and each shieldable member behind the RSS shield (``<name>+shield``, :mod:`.shield`)."""
+    return sorted(set(_REGISTRY) | set(_MEMBER_OF) | {f"{m}+shield" for m in SHIELDABLE})
 
 
 def load(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Decider:
-    """A ready decider by registry name (pretrained weights included, checked by sha256)."""
+    """A ready decider by registry name (pretrained weights included, checked by sha256);
+    ``shielded:<name>`` or ``<name>+shield`` puts it behind the RSS shield (:mod:`.shield`)."""
+    if name.startswith("shielded:") or name.endswith("+shield"):
+        from .shield import load_shielded
+
+        return load_shielded(name, config, **kwargs)
     if name in _MEMBER_OF and name not in _REGISTRY:
         _import_member(_MEMBER_OF[name])  # import only what is asked for: torch loads only for learned members
     if name not in _REGISTRY:
@@ -172,6 +178,8 @@ register("always-abort", lambda config=None: ConstantDecider(ABORT, "always-abor
 _MEMBER_OF = {"rule-fsm": "rule_fsm", "fuzzy": "fuzzy", "oracle": "oracle", "dqn": "dqn", "double-dqn": "dqn",
               "ps-dqn": "dqn", "ppo": "ppo", "bc": "offline", "cql": "offline"}
 _MEMBERS = tuple(dict.fromkeys(_MEMBER_OF.values()))
+# Members the leaderboard shows behind the RSS shield: every non-privileged decider that overtakes.
+SHIELDABLE = ("rule-fsm", "fuzzy", "dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
 _UNAVAILABLE: dict[str, str] = {}  # member module -> the missing dependency (e.g. torch without [train])
 _loaded = False
 
