@@ -71,6 +71,9 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         block = _builtin_block(results, suite, source)
     else:
         reserved_name(name, "--name")
+        if decider["name"].endswith("+shield"):
+            raise UserError(f"{source}: decider {decider['name']!r} ran behind --shield, which the stored policy file "
+                            "does not carry: submit the results of the policy without --shield")
         if decider["privileged"]:
             raise UserError(f"{source}: decider.privileged: only built-in zoo members may read the simulator state")
         art = _converted(Path(policy), decider, suite)

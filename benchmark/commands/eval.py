@@ -21,6 +21,7 @@ def register(subparsers: Any) -> None:
                     "overtakezoo eval --suite table1 --policy runs/dqn/dqn.pt      # weights from `overtakezoo train`",
                     "overtakezoo eval --suite table1 --policy model.zip            # Stable-Baselines3 ([sb3] extra)",
                     "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
+                    "overtakezoo eval --suite table1 --decider shielded:dqn         # dqn behind the RSS shield",
                     "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards"])
     p.add_argument("--suite", required=True, help="a suite name (see `overtakezoo suites`) or a .toml path")
     add_decider_options(p)
@@ -61,6 +62,10 @@ def run(args: Any) -> int:
 
         # Each worker loads the decider itself: by registry name, or the policy spec (a file by absolute path).
         spec = args.decider or (str(Path(args.policy).resolve()) if Path(args.policy).is_file() else args.policy)
+        if args.shield:
+            if args.decider is None:
+                raise UserError("--ray with --shield takes --decider NAME (the workers load shielded:NAME)")
+            spec = f"shielded:{args.decider}"
         results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
         return _report(results, suite, decider, out)
     if not args.archive:
