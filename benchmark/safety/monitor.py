@@ -69,10 +69,13 @@ class SafetyMonitor:
             return
         geo = core.step_geometry()
         v_e = core.v * np.cos(core.psi)  # the AV's speed along its lane
+        # Only the rows concerned are computed (a few percent of a batch at a time).
         if in_opp.any():
-            self._opposite(geo, in_opp, v_e, y, t, mode)
+            rows = np.flatnonzero(in_opp)
+            self._opposite(rows, _columns(geo, rows), v_e[rows], y[rows], t[rows], mode[rows])
         if merged.any():
-            self._merge(geo, merged, v_e)
+            rows = np.flatnonzero(merged)
+            self._merge(rows, _columns(geo, rows), v_e[rows])
 
     def end_chunk(self, core: Any) -> dict[str, np.ndarray]:
         opp = self.opp_steps > 0
@@ -92,53 +95,54 @@ class SafetyMonitor:
         }
 
     # ------------------------------------------------------------------ opposite lane
-    def _opposite(self, geo: dict[str, Any], in_opp: np.ndarray, v_e: np.ndarray, y: np.ndarray, t: np.ndarray,
+    def _opposite(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray, y: np.ndarray, t: np.ndarray,
                   mode: np.ndarray) -> None:
-        p, w = self.p, self.w
+        """Def. 2, head-on TTC, the point of no return and the unsafe-overtake check of the AV
+        ``rows`` in the opposite lane (``geo`` and the row arrays hold just those rows)."""
+        p, w = self.p, self.w[rows]
         dx, half_len = geo["dx"], geo["half_len"]
         gap = dx - half_len  # bumper to bumper; <= 0 overlapping
-        lane1 = geo["d"] > w / 2  # in the AV's opposite lane (its frame)
-        present = self._present(geo, dx)
-        # Oncoming vehicles in their own (correct) lane that the AV has not yet passed.
-        onc = present & ~geo["same_dir"] & lane1 & (dx > -half_len) & in_opp
+        # Oncoming vehicles in their own (correct) lane, the AV's opposite lane, not yet passed.
+        onc = geo["present"] & ~geo["same_dir"] & (geo["d"] > w / 2) & (dx > -half_len)
         v_o = -geo["v_along"]  # towards the AV
         d_min = safe_distance_opposite_direction(v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min,
                                                  p.other_accel_max, p.other_brake_min_correct)
         margin = np.where(onc, gap - d_min, INF)
         worst = np.min(margin, axis=0, initial=INF)
-        viol = in_opp & (worst < 0)
-        self.opp_steps += in_opp
-        self.viol_steps += viol
-        self.first_viol = np.where(viol & np.isnan(self.first_viol), t, self.first_viol)
-        self.worst_margin = np.minimum(self.worst_margin, worst)
+        viol = worst < 0
+        self.opp_steps[rows] += 1
+        self.viol_steps[rows] += viol
+        self.first_viol[rows] = np.where(viol & np.isnan(self.first_viol[rows]), t, self.first_viol[rows])
+        self.worst_margin[rows] = np.minimum(self.worst_margin[rows], worst)
         closing = v_e + v_o
         approaching = onc & (closing > 1e-9)
-        ttc = np.where(approaching, np.maximum(gap, 0.0) / np.where(approaching, closing, 1.0), INF)
-        self.headon_ttc = np.minimum(self.headon_ttc, np.min(ttc, axis=0, initial=INF))
+        safe_closing = np.where(approaching, closing, 1.0)
+        ttc = np.where(approaching, np.maximum(gap, 0.0) / safe_closing, INF)
+        self.headon_ttc[rows] = np.minimum(self.headon_ttc[rows], np.min(ttc, axis=0, initial=INF))
         # Time until the Def.-2 distance is violated at constant speeds (d_min constant, gap closing).
-        t_rss = np.where(margin < 0, 0.0, np.where(approaching, np.maximum(margin, 0.0) / np.where(
-            approaching, closing, 1.0), INF))
+        t_rss = np.where(margin < 0, 0.0, np.where(approaching, np.maximum(margin, 0.0) / safe_closing, INF))
         t_rss_min = np.min(t_rss, axis=0, initial=INF)
-        t_complete, t_abort = self._return_times(geo, present, dx, half_len, v_e, y)
-        overtaking = in_opp & (mode == OVERTAKE)
-        # First state that is unsafe to complete while a threatening oncoming vehicle is visible.
+        t_complete, t_abort = self._return_times(geo, dx, half_len, v_e, y, w, self.y_exit[rows])
+        overtaking = mode == OVERTAKE
+        # The first state unsafe to complete while a threatening oncoming vehicle is visible.
         unsafe = overtaking & np.any(geo["visible"] & onc & (t_rss < t_complete), axis=0)
-        self.first_unsafe = np.where(unsafe & np.isnan(self.first_unsafe), t, self.first_unsafe)
-        self.viol_after_unsafe |= viol & ~np.isnan(self.first_unsafe)
+        first_unsafe = np.where(unsafe & np.isnan(self.first_unsafe[rows]), t, self.first_unsafe[rows])
+        self.first_unsafe[rows] = first_unsafe
+        self.viol_after_unsafe[rows] |= viol & ~np.isnan(first_unsafe)
         with np.errstate(invalid="ignore"):  # (inf - inf where no vehicle approaches: left out below)
             ponr = t_rss_min - np.minimum(t_complete, t_abort)
         ponr = np.where(np.isfinite(t_rss_min), np.maximum(np.nan_to_num(ponr, neginf=PONR_FLOOR), PONR_FLOOR), np.nan)
-        self.last_ponr = np.where(in_opp, ponr, self.last_ponr)
-        self.ponr = np.where(overtaking & ~np.isnan(ponr), np.minimum(self.ponr, ponr), self.ponr)
+        self.last_ponr[rows] = ponr
+        self.ponr[rows] = np.where(overtaking & ~np.isnan(ponr), np.minimum(self.ponr[rows], ponr), self.ponr[rows])
 
-    def _return_times(self, geo: dict[str, Any], present: np.ndarray, dx: np.ndarray, half_len: np.ndarray,
-                      v_e: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(B,) time back in the own lane by completing the pass / by aborting now, at constant
-        speeds (aborting: braking at ego_brake_min), each plus the lateral return."""
-        p, w = self.p, self.w
-        lat = p.lateral_return_time * np.clip((y - self.y_exit) / (w - self.y_exit), 0.0, 1.0)
+    def _return_times(self, geo: dict[str, Any], dx: np.ndarray, half_len: np.ndarray, v_e: np.ndarray,
+                      y: np.ndarray, w: np.ndarray, y_exit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Time back in the own lane by completing the pass / by aborting now, at constant speeds
+        (aborting: braking at ego_brake_min), each plus the lateral return."""
+        p = self.p
+        lat = p.lateral_return_time * np.clip((y - y_exit) / (w - y_exit), 0.0, 1.0)
         # The lead being passed: the nearest vehicle of the AV's lane and direction not yet behind it.
-        lane0 = present & geo["same_dir"] & (geo["d"] <= w / 2) & (dx > -half_len)
+        lane0 = geo["present"] & geo["same_dir"] & (geo["d"] <= w / 2) & (dx > -half_len)
         key = np.where(lane0, dx, INF)
         j = np.argmin(key, axis=0) if key.shape[0] else np.zeros(key.shape[1], np.int64)
         has = np.take_along_axis(key, j[None], 0)[0] < INF if key.shape[0] else np.zeros(key.shape[1], bool)
@@ -158,11 +162,12 @@ class SafetyMonitor:
         return t_c + lat, t_a + lat
 
     # ------------------------------------------------------------------ merge back
-    def _merge(self, geo: dict[str, Any], merged: np.ndarray, v_e: np.ndarray) -> None:
-        """Def. 1 against the nearest vehicle ahead and behind in the AV's lane, and the cut-in PET."""
-        p, w = self.p, self.w
+    def _merge(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray) -> None:
+        """Def. 1 against the nearest vehicle ahead and behind in the AV's lane, and the cut-in PET,
+        of the AV ``rows`` that merged back this step."""
+        p, w = self.p, self.w[rows]
         dx, half_len, v_o = geo["dx"], geo["half_len"], geo["v_along"]
-        lane0 = self._present(geo, dx) & geo["same_dir"] & (geo["d"] <= w / 2) & merged
+        lane0 = geo["present"] & geo["same_dir"] & (geo["d"] <= w / 2)
         gap = np.abs(dx) - half_len
         ahead, behind = lane0 & (dx >= 0), lane0 & (dx < 0)
         d_ahead = safe_distance_same_direction(v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min,
@@ -174,16 +179,19 @@ class SafetyMonitor:
         g_b = np.where(behind, gap, INF)
         viol = np.any(ahead & (g_a <= np.min(g_a, 0, initial=INF)) & (gap < d_ahead), axis=0) | np.any(
             behind & (g_b <= np.min(g_b, 0, initial=INF)) & (gap < d_behind), axis=0)
-        self.merge = np.where(merged, np.maximum(self.merge, viol.astype(np.int8)), self.merge)
+        self.merge[rows] = np.maximum(self.merge[rows], viol.astype(np.int8))
         # Post-encroachment time: the vehicle behind reaches the point the AV's rear left, at its speed.
         nearest_b = behind & (g_b <= np.min(g_b, 0, initial=INF)) & geo["visible"] & (v_o > 1e-9)
         pet = np.where(nearest_b, np.maximum(gap, 0.0) / np.where(nearest_b, v_o, 1.0), INF)
-        self.pet = np.minimum(self.pet, np.min(pet, axis=0, initial=INF))
+        self.pet[rows] = np.minimum(self.pet[rows], np.min(pet, axis=0, initial=INF))
 
-    @staticmethod
-    def _present(geo: dict[str, Any], dx: np.ndarray) -> np.ndarray:
-        present = geo.get("present")
-        return np.broadcast_to(present, dx.shape) if present is not None else np.ones(dx.shape, bool)
+
+_KEYS = ("dx", "half_len", "d", "same_dir", "v_along", "visible", "present")
+
+
+def _columns(geo: dict[str, Any], rows: np.ndarray) -> dict[str, np.ndarray]:
+    """The batch-last geometry of AV ``rows`` only (M', k)."""
+    return {k: np.asarray(geo[k])[:, rows] for k in _KEYS}
 
 
 def _drop_back_time(p: np.ndarray, rel: np.ndarray, v_e: np.ndarray, v_l: np.ndarray, b: float) -> np.ndarray:
