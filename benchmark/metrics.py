@@ -39,6 +39,20 @@ TABLE = [
     ("peak_jerk", "peak longitudinal jerk", "mean", "m/s^3"),
 ]
 PAIRED = {"crash_same_scenarios"}  # needs two results
+# The safety metrics (issue 22, docs/metrics.md): in a summary only when its arrays are in the file,
+# and a table of their own, so Table I (and every page rendering it) stays as it was.
+SAFETY_TABLE = [
+    ("rss_violation_rate", "RSS (opposite direction) violated, of scenarios in the opposite lane", "rate", "%"),
+    ("rss_violation_share", "share of opposite-lane time in RSS violation", "rate", "%"),
+    ("rss_first_violation", "time of the first RSS violation", "mean", "s"),
+    ("rss_worst_margin", "worst RSS margin in the opposite lane", "mean", "m"),
+    ("rss_merge_violation", "RSS (same direction) violated at the merge back, of merges", "rate", "%"),
+    ("min_headon_ttc", "min head-on time-to-collision (scenarios closing head-on)", "mean", "s"),
+    ("cutin_pet", "post-encroachment time at the cut-in", "mean", "s"),
+    ("abort_delay", "abort delay after the overtake became unsafe", "mean", "s"),
+    ("late_abort", "late or missing abort, of unsafe overtakes", "rate", "%"),
+    ("ponr_margin", "point-of-no-return margin", "mean", "s"),
+]
 
 
 def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -111,6 +125,27 @@ def summarize(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]
         "min_ttc": _mean(per["min_ttc"], seed, "min_ttc"),  # scenarios never on a collision course are inf: left out
         "peak_lat_accel": _mean(per["peak_lat_accel"], seed, "peak_lat_accel"),
         "peak_jerk": _mean(per["peak_jerk"], seed, "peak_jerk"),
+        **(summarize_safety(per, seed) if "rss_violation_share" in per else {}),
+    }
+
+
+def summarize_safety(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]]:
+    """The :data:`SAFETY_TABLE` metrics. Means leave out undefined values (NaN) and, as min_ttc,
+    infinite ones; rates count within the scenarios the metric applies to."""
+    share = per["rss_violation_share"]
+    in_opposite = ~np.isnan(share)
+    merge, late = per["rss_merge_violation"], per["late_abort"]
+    return {
+        "rss_violation_rate": _rate(share > 0, in_opposite),
+        "rss_violation_share": _mean(share, seed, "rss_violation_share"),
+        "rss_first_violation": _mean(per["rss_first_violation"], seed, "rss_first_violation"),
+        "rss_worst_margin": _mean(per["rss_worst_margin"], seed, "rss_worst_margin"),
+        "rss_merge_violation": _rate(merge == 1, merge >= 0),
+        "min_headon_ttc": _mean(per["min_headon_ttc"], seed, "min_headon_ttc"),
+        "cutin_pet": _mean(per["cutin_pet"], seed, "cutin_pet"),
+        "abort_delay": _mean(per["abort_delay"], seed, "abort_delay"),
+        "late_abort": _rate(late == 1, late >= 0),
+        "ponr_margin": _mean(per["ponr_margin"], seed, "ponr_margin"),
     }
 
 

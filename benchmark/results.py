@@ -46,11 +46,27 @@ PER_SCENARIO: dict[str, tuple[type, float | None]] = {
 }
 # ... and in multi-AV files: the other AV a crash was with (its index, -1 none), the AV's own lead's NPC slot.
 MULTI_PER_SCENARIO: dict[str, tuple[type, float | None]] = {"crash_av": (np.int64, None), "lead_npc": (np.int64, None)}
+# The safety metrics (issue 22; docs/metrics.md): a file has all of them or none (files written before
+# they existed, e.g. the shipped leaderboard rows, have none and still load; verify compares what a row has).
+# -1 in the int arrays: not applicable (no merge back / never unsafe).
+SAFETY_PER_SCENARIO: dict[str, tuple[type, float | None]] = {
+    "rss_violation_share": (np.float64, math.nan), "rss_first_violation": (np.float64, math.nan),
+    "rss_worst_margin": (np.float64, math.nan), "rss_merge_violation": (np.int8, None),
+    "min_headon_ttc": (np.float64, math.inf),  # inf: never closing head-on in the opposite lane
+    "cutin_pet": (np.float64, math.nan), "abort_delay": (np.float64, math.nan), "late_abort": (np.int8, None),
+    "ponr_margin": (np.float64, math.nan),
+}
 
 
 def per_scenario_keys(num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
     """The per-scenario arrays of a results file with ``num_avs`` AVs per scenario."""
     return PER_SCENARIO if num_avs == 1 else {**PER_SCENARIO, **MULTI_PER_SCENARIO}
+
+
+def stored_keys(per: dict[str, Any], num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
+    """The per-scenario arrays ``per`` holds: the required ones, and the safety ones when it has them."""
+    keys = per_scenario_keys(num_avs)
+    return {**keys, **SAFETY_PER_SCENARIO} if any(k in per for k in SAFETY_PER_SCENARIO) else keys
 
 
 def summary_of(per: dict[str, np.ndarray], seed: int, num_avs: int = 1) -> dict[str, Any]:
@@ -64,7 +80,7 @@ def summary_of(per: dict[str, np.ndarray], seed: int, num_avs: int = 1) -> dict[
 def round_per_scenario(per: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Cast and round once, so summaries are computed from exactly what the file stores."""
     out = {}
-    for key, (dtype, _) in per_scenario_keys(2 if "crash_av" in per else 1).items():
+    for key, (dtype, _) in stored_keys(per, 2 if "crash_av" in per else 1).items():
         a = np.asarray(per[key])
         out[key] = np.round(a.astype(np.float64), DECIMALS) if dtype is np.float64 else a.astype(dtype)
     return out
@@ -218,10 +234,12 @@ class Results:
                 raise UserError(f"{where}: shard: {shard} does not match range {meta['range']}")
         per = {}
         num_avs = int(meta.get("num_avs") or 1)
-        for key, (dtype, null) in per_scenario_keys(num_avs).items():
+        for key, (dtype, null) in stored_keys(doc["scenarios"], num_avs).items():
             values = doc["scenarios"].get(key)
             if values is None:
-                raise UserError(f"{where}: scenarios.{key}: missing (a file with num_avs {num_avs} needs it)")
+                why = "a file with any safety array needs all" if key in SAFETY_PER_SCENARIO else \
+                    f"a file with num_avs {num_avs} needs it"
+                raise UserError(f"{where}: scenarios.{key}: missing ({why})")
             if len(values) != (stop - start) * num_avs:
                 raise UserError(f"{where}: scenarios.{key}: expected {(stop - start) * num_avs} values "
                                 f"({num_avs} per scenario), got {len(values)}")
@@ -229,9 +247,9 @@ class Results:
                 per[key] = np.array([null if v is None else v for v in values], dtype=np.float64)
             else:
                 per[key] = np.array(values, dtype=dtype)
-        if num_avs == 1 and set(doc["scenarios"]) - set(PER_SCENARIO):
-            raise UserError(f"{where}: scenarios: {sorted(set(doc['scenarios']) - set(PER_SCENARIO))[0]}: only "
-                            "in multi-AV files (num_avs >= 2)")
+        if num_avs == 1 and set(doc["scenarios"]) - set(PER_SCENARIO) - set(SAFETY_PER_SCENARIO):
+            extra = sorted(set(doc["scenarios"]) - set(PER_SCENARIO) - set(SAFETY_PER_SCENARIO))[0]
+            raise UserError(f"{where}: scenarios: {extra}: only in multi-AV files (num_avs >= 2)")
         per = round_per_scenario(per)
         summary = summary_of(per, meta["seed"], num_avs)
         if _canonical(summary) != _canonical(doc["summary"]):
@@ -259,8 +277,10 @@ def merge(parts: list[Results]) -> Results:
     if edge != first.suite["count"]:
         raise UserError(f"merge: range: shards cover {edge} of {first.suite['count']} scenarios")
     e = first.num_avs  # AV-major: join each AV's part of every shard
-    per = {k: np.concatenate([p.per[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
-           for k in per_scenario_keys(e)}
+    # (the safety arrays only when every shard has them)
+    keys = stored_keys(first.per, e) if all(any(k in p.per for k in SAFETY_PER_SCENARIO) for p in parts) \
+        else per_scenario_keys(e)
+    per = {k: np.concatenate([p.per[k].reshape(e, -1) for p in parts], axis=1).reshape(-1) for k in keys}
     meta = {**first.meta, "shard": None, "range": [0, edge], "submission": None}
     timing = {"wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
               "started": min(str(p.timing.get("started", "")) for p in parts),
@@ -286,7 +306,8 @@ def validate(doc: Any, where: str = "results") -> None:
     scen = doc.get("scenarios") if isinstance(doc, dict) else None
     arrays = {}
     if isinstance(scen, dict):
-        arrays = {k: v for k, v in scen.items() if isinstance(v, list) and k in per_scenario_keys(2)}
+        known = {**per_scenario_keys(2), **SAFETY_PER_SCENARIO}
+        arrays = {k: v for k, v in scen.items() if isinstance(v, list) and k in known}
         doc = {**doc, "scenarios": {**scen, **{k: [] for k in arrays}}}
     error = next(iter(_validator().iter_errors(doc)), None)  # the first error: its path is the field to fix
     if error is not None:

@@ -23,19 +23,21 @@ from tqdm import tqdm
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
 
-from .results import Results, per_scenario_keys, round_per_scenario
+from .results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
 from .errors import UserError
+from .safety import SafetyMonitor
 from .sandbox import PolicyFailure, check_modes
 from .suites import CHUNK_SIZE, Suite, shard_bounds
 
 
 def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = CHUNK_SIZE,
-              progress: bool = True, recorder: Any = None, limit: int | None = None) -> Results:
+              progress: bool = True, recorder: Any = None, limit: int | None = None, safety: bool = True) -> Results:
     """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
 
     ``recorder`` (optional) gets ``begin_chunk(core, scenario_index)``, ``record_step(core, modes,
     step_result)`` after every step and ``end_chunk(core)``; its creator closes it. ``limit`` keeps
-    only the first ``limit`` scenarios of the (shard's) range.
+    only the first ``limit`` scenarios of the (shard's) range. ``safety`` (default on) records the
+    safety metrics (benchmark/safety, docs/metrics.md); off, the file has only the older arrays.
     """
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
@@ -44,14 +46,16 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
     t0, started = time.perf_counter(), datetime.now(timezone.utc)
-    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder)
+    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder,
+                            safety)
     timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
               "started": started.isoformat(timespec="seconds"), "steps": total_steps}
     return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing,
                           num_avs=scenarios.num_avs)
 
 
-def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE) -> dict[str, np.ndarray]:
+def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE,
+                safety: bool = True) -> dict[str, np.ndarray]:
     """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
 
     The whole suite is drawn and the rows taken, and rows never interact, so each value equals the
@@ -61,7 +65,7 @@ def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int
         raise ValueError(f"scenario indices must lie in [0, {suite.count})")
     scenarios = suite.scenarios().take(indices)
     _check_multi_av(suite, scenarios, decider, None)
-    return _run(suite, decider, scenarios, indices, chunk_size, False, None)[0]
+    return _run(suite, decider, scenarios, indices, chunk_size, False, None, safety)[0]
 
 
 def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -> None:
@@ -79,7 +83,7 @@ def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -
 
 
 def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,
-         recorder: Any) -> tuple[dict[str, np.ndarray], int]:
+         recorder: Any, safety: bool = True) -> tuple[dict[str, np.ndarray], int]:
     """Step ``scenarios`` (suite rows ``index``) in chunks; returns (per-scenario arrays, steps)."""
     if chunk_size < 1:
         raise ValueError("chunk_size must be >= 1")
@@ -87,6 +91,7 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
     max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10
+    keys = {**per_scenario_keys(scenarios.num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
     parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
     bar = tqdm(total=scenarios.num * scenarios.num_avs, unit="AV", desc=f"{suite.name}/{decider.name}", leave=False,
@@ -101,7 +106,10 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
                 decider.bind(core)
             if recorder is not None:
                 recorder.begin_chunk(core, index[lo:lo + chunk.num])
-            record = None if recorder is None else (lambda modes, res: recorder.record_step(core, modes, res))
+            monitor = SafetyMonitor() if safety else None
+            if monitor is not None:
+                monitor.begin_chunk(core)
+            record = _on_step(core, recorder, monitor)
             step = 0
             while not core.done.all():
                 if step >= max_steps:
@@ -114,13 +122,27 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             total_steps += step
             if recorder is not None:
                 recorder.end_chunk(core)
-            parts.append(_per_scenario(core))
+            parts.append({**_per_scenario(core), **(monitor.end_chunk(core) if monitor is not None else {})})
     finally:
         bar.close()
     e = scenarios.num_avs  # AV-major: join each AV's part of every chunk
     per = round_per_scenario({k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
-                              for k in per_scenario_keys(e)})
+                              for k in keys})
     return per, total_steps
+
+
+def _on_step(core: Any, recorder: Any, monitor: Any) -> Any:
+    """The hold's per-step hook: the recorder's and the safety monitor's (None when neither)."""
+    if recorder is None and monitor is None:
+        return None
+    if recorder is None:
+        return lambda modes, res: monitor.record_step(core, modes, res)
+
+    def both(modes: np.ndarray, res: Any) -> None:
+        recorder.record_step(core, modes, res)
+        if monitor is not None:
+            monitor.record_step(core, modes, res)
+    return both
 
 
 class RunFailure(UserError):
@@ -146,7 +168,7 @@ def _decide(decider: Any, obs: np.ndarray, scenarios: np.ndarray, step: int, dt:
 
 
 def _per_scenario_empty() -> dict[str, np.ndarray]:
-    return {k: np.zeros(0, dtype) for k, (dtype, _) in per_scenario_keys(2).items()}
+    return {k: np.zeros(0, dtype) for k, (dtype, _) in {**per_scenario_keys(2), **SAFETY_PER_SCENARIO}.items()}
 
 
 def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:

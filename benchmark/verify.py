@@ -34,7 +34,6 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .errors import UserError
-from .results import per_scenario_keys
 from .sandbox import PolicyFailure
 from .rows import (ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe, file_sha256, load_submissions,
                          reserved_name, stale_reasons, stored_files)
@@ -290,7 +289,7 @@ def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
     Multi-AV rows compare every AV's value (AV-major arrays, results.py)."""
     first: tuple[int, str, Any, Any, int] | None = None
     e = row.results.num_avs
-    for key in per_scenario_keys(e):
+    for key in row.results.per:  # the keys the row has (older rows have no safety arrays)
         want, have = row.results.per[key].reshape(e, -1)[:, indices].reshape(-1), got[key]
         indices_av = np.tile(indices, e)
         same = (want == have) | (np.isnan(want) & np.isnan(have)) if want.dtype.kind == "f" else want == have

@@ -118,6 +118,7 @@ class OvertakeCore:
         self._set_scenarios(scenarios)
         self._start_rows(xp.arange(n), scenarios)
         self.last_plan = None
+        self._step_geo = None
         return self.observe()
 
     def _set_scenarios(self, sc: Scenarios, rows: Any = None) -> None:
@@ -359,6 +360,12 @@ class OvertakeCore:
                 "lat_cost": T["lat_cost"], "priority": T["priority"], "lon_reach": T["lon_reach"],
                 "beside_reach": T["beside_reach"]}
 
+    def step_geometry(self) -> dict[str, Any] | None:
+        """The batch-last geometry (M', B) the last :meth:`step` computed after the vehicles moved (the
+        one its outcomes and statistics used; before any auto-reset), with ``present`` (which slots
+        hold a vehicle); None before the first step. Read-only: the arrays are the core's own."""
+        return getattr(self, "_step_geo", None)
+
     def geometry(self) -> dict[str, Any]:
         """The same geometry as (B, M') arrays: dx, dy, d, same_dir, direction, v_along, half_len,
         half_wid, visible."""
@@ -412,6 +419,7 @@ class OvertakeCore:
         self.episode_steps += active
 
         geo = self._geometry()
+        self._step_geo = {**geo, "present": self._sc["present"]}  # for step_geometry(): not recomputed
         hit = self._contacts(geo)
         self._npc_collisions(hit)
         terminated, truncated = resolve(self, geo, hit, active)
