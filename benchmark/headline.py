@@ -100,9 +100,10 @@ def _pct(x: float | None) -> str:
 
 
 def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], oracle: str = "oracle",
-           suites: tuple[str, ...] = CORE) -> str:
+           suites: tuple[str, ...] = CORE, safety: dict[str, str] | None = None) -> str:
     """The headline section (Markdown): deciders ranked by score, the privileged ones apart, each
-    with its gap to the oracle's success rate per suite (percentage points, mean over seeds)."""
+    with its gap to the oracle's success rate per suite (percentage points, mean over seeds), and
+    (``safety``) the mean RSS violation rate over the suites."""
     scored = {name: score(runs, suites) for name, runs in table.items()}
     ranked = sorted((n for n in table if n not in privileged),
                     key=lambda n: (-(scored[n]["value"] if scored[n]["value"] is not None else -math.inf), n))
@@ -126,8 +127,11 @@ def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], orac
            "deciders are the mean over their training seeds, and the CI resamples the seeds as well as the "
            "scenarios (a stratified bootstrap, as rliable does). The columns after the score give the "
            "success rate minus the oracle's on each suite (percentage points; the oracle sees the future "
-           "and is an upper bound, listed apart).", ""]
-    head = ["rank", "decider", "seeds", "score [95 % CI]", *[f"gap {s}" for s in suites]]
+           "and is an upper bound, listed apart)."
+           + (" *RSS violated* is the mean over the suites of the share of overtakes that broke the RSS "
+              "opposite-direction distance (shipped rows; see *Safety and the RSS shield*)." if safety else ""), ""]
+    head = ["rank", "decider", "seeds", "score [95 % CI]", *(["RSS violated (%)"] if safety else []),
+            *[f"gap {s}" for s in suites]]
     out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
     def row(rank: str, name: str, label: str | None = None) -> str:
@@ -135,7 +139,9 @@ def render(table: dict[str, dict[str, list[Counts]]], privileged: set[str], orac
         txt = "-" if sc["value"] is None else f"{_pct(sc['value'])} [{_pct(sc['lo'])}, {_pct(sc['hi'])}]"
         if sc["missing"]:
             txt += f" (missing: {', '.join(map(md, sc['missing']))})"
-        return "| " + " | ".join([rank, md(label or name), str(sc["seeds"] or "-"), txt, *[gap(name, s) for s in suites]]) + " |"
+        extra = [(safety or {}).get(name, "-")] if safety else []
+        return "| " + " | ".join([rank, md(label or name), str(sc["seeds"] or "-"), txt, *extra,
+                                  *[gap(name, s) for s in suites]]) + " |"
 
     out += [row(str(i), n) for i, n in enumerate(ranked, 1)]
     for n in sorted(privileged & set(table)):

@@ -23,7 +23,7 @@ from typing import Any
 
 from .errors import UserError
 from .io import atomic_write_bytes
-from . import crossplay, headline, multi_leaderboard, paper_table
+from . import crossplay, headline, multi_leaderboard, paper_table, safety_board
 from .guide import GUIDE, SECURITY
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from .rows import Row, load_submissions, stale_reasons
@@ -99,6 +99,11 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
     head_md, index["headline"] = _headline(live_rows, seeds)
+    shield_md, shield_png = safety_board.readme_section(safety_board.core_means(live_rows, headline.CORE),
+                                                        headline.CORE)
+    if shield_png is not None:
+        files["shield.png"] = shield_png
+        head_md += "\n" + "\n".join(shield_md)
     if multi or cross_index:  # (absent until a multi-agent row or matrix exists)
         index["multi_agent"] = multi
         index["crossplay"] = cross_index
@@ -143,8 +148,10 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[s
     table = headline.build_table(rows, seeds, hashes)
     scores = {name: headline.score(runs) for name, runs in table.items()}
     learned = sorted(set(seeds) | (LEARNED & set(table)))
-    text = (headline.render(table, privileged) + "\n" + headline.generalization(table, learned) + "\n"
-            + headline.seed_lines(seeds))
+    means = safety_board.core_means(live_rows, headline.CORE)
+    safety = safety_board.safety_column(means) if any(m["rss"] == m["rss"] for m in means.values()) else None
+    text = (headline.render(table, privileged, safety=safety) + "\n" + headline.generalization(table, learned)
+            + "\n" + headline.seed_lines(seeds))
     return text, {"core": list(headline.CORE), "k": headline.K, "scores": scores}
 
 
@@ -280,6 +287,7 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
         cols += [(f"{md(row.name)} (upper bound)", row.results.summary) for row in bounds]
         out.append(render_table(cols, markdown=True).rstrip())
         out.append("")
+        out += safety_board.safety_section(ranked + bounds) + safety_board.shield_section(ranked)
     else:
         out += ["No measured submissions yet.", ""]
     if ref is not None:

@@ -13,6 +13,7 @@ from typing import Any
 from .metrics import format_metric, render_table
 from .multi_metrics import JOINT, MULTI_TABLE
 from .rows import Row, describe
+from .safety_board import safety_section
 from .untrusted import md, md_code, md_image, md_link
 
 _LABELS = {k: label for k, label, _, _ in MULTI_TABLE}
@@ -103,6 +104,7 @@ def markdown(name: str, suite: Any, ranked: list[Row], stale: list, policy_cell:
         out.append(render_table([(md(row.name), row.results.summary) for row in ranked], markdown=True,
                                 table=MULTI_TABLE).rstrip())
         out.append("")
+    out += safety_section(ranked, "## Safety (per AV, pooled)")
     return "\n".join(out + stale_section(stale))
 
 
