@@ -1,7 +1,9 @@
 """Safety metrics of the results files (issue 22; definitions, formulas and sources in docs/metrics.md):
-RSS distances (rss.py) and the per-step monitor the runner drives (monitor.py)."""
+RSS distances (overtakezoo.envs.rss, shared with the shield) and the per-step monitor the runner drives
+(monitor.py)."""
+
+from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
 from .monitor import SafetyMonitor
-from .rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
 __all__ = ["RSSParams", "SafetyMonitor", "safe_distance_opposite_direction", "safe_distance_same_direction"]

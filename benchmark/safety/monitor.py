@@ -15,7 +15,7 @@ import numpy as np
 
 from overtakezoo.envs.config import ABORT, OVERTAKE
 
-from .rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
+from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
 INF = np.inf
 PONR_FLOOR = -1000.0  # s: a margin of "never back in lane" (no finite return time) is stored as this
