@@ -34,6 +34,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--scene-every", type=int, default=1, metavar="K",
                    help="with --archive: the Foxglove scene every K-th step and at each episode's end "
                         "(default 1: every step; 0: no scene)")
+    p.add_argument("--no-safety", action="store_true", help="do not record the safety metrics (RSS, head-on "
+                   "TTC, abort timing: docs/metrics.md); the results file then has only Table I's arrays")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="fan shards over Ray (a local instance, or ADDRESS such as ray://head:10001 or auto) "
                         "and merge them into one results file; needs the [ray] extra")
@@ -56,8 +58,9 @@ def run(args: Any) -> int:
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
     if args.ray is not None:
-        if shard or args.archive:
-            raise UserError("--ray runs every shard itself: it cannot be combined with --shard or --archive")
+        if shard or args.archive or args.no_safety:
+            raise UserError("--ray runs every shard itself: it cannot be combined with --shard, --archive or "
+                            "--no-safety")
         from ..distributed import parse_address, run_suite_ray
 
         # Each worker loads the decider itself: by registry name, or the policy spec (a file by absolute path).
@@ -69,7 +72,8 @@ def run(args: Any) -> int:
         results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
         return _report(results, suite, decider, out)
     if not args.archive:
-        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress)
+        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress,
+                            safety=not args.no_safety)
         return _report(results, suite, decider, out)
     from ..archive import recorder_for_run  # MCAP archive of every episode (benchmark/archive.py)
 
@@ -83,7 +87,7 @@ def run(args: Any) -> int:
     try:
         with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
             results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size,
-                                progress=not args.no_progress, recorder=recorder)
+                                progress=not args.no_progress, recorder=recorder, safety=not args.no_safety)
     except KeyboardInterrupt:
         print(f"interrupted: {args.archive} holds the {recorder.episodes} whole episodes", file=sys.stderr)
         raise

@@ -4,7 +4,11 @@ no return, accumulated per AV row over one chunk of the runner (docs/metrics.md 
 It reads what the core already has after each step (``step_geometry()``: every vehicle an AV row
 sees, batch-last (M', B); the AV rows' ``y, v, psi, mode, t, done``), with no loop over rows or
 vehicles. Most steps have no row in the opposite lane and no row merging back: those cost a few
-elementwise passes over (B,).
+elementwise passes over (B,). The opposite-lane checks of a step depend on that step's state only, so
+the monitor buffers the columns of the rows concerned and computes up to ``FLUSH_COLUMNS`` of them in
+one pass (numpy's cost per call, not per element, dominated a per-step pass); what depends on the
+order of steps (the first violation, the first unsafe state, the margin at an abort decision) is
+recovered from the step times, and an abort decision flushes the buffer first.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, sa
 
 INF = np.inf
 PONR_FLOOR = -1000.0  # s: a margin of "never back in lane" (no finite return time) is stored as this
+FLUSH_COLUMNS = 65536  # buffered (row, step) columns computed in one pass
 
 
 class SafetyMonitor:
@@ -48,6 +53,7 @@ class SafetyMonitor:
         self.abort_late = np.zeros(b, bool)
         self.viol_after_unsafe = np.zeros(b, bool)
         self.ponr, self.last_ponr = np.full(b, INF), nan()
+        self.step, self.pending, self.pending_columns, self.merging = 0, [], 0, []
 
     def record_step(self, core: Any, *_: Any) -> None:
         done_before, self.done = self.done, np.array(core.done, bool)
@@ -58,26 +64,32 @@ class SafetyMonitor:
         # Abort decisions of this step were taken on the state the previous call evaluated.
         decided = active & (mode == ABORT) & (self.mode != ABORT)
         if decided.any():
+            self._flush()  # the first unsafe state and the previous step's margin, up to date
             first = decided & np.isnan(self.abort_t) & ~np.isnan(self.first_unsafe)
             self.abort_t = np.where(first, t - core.cfg.dt, self.abort_t)  # the state time it saw
             self.abort_late |= first & (self.last_ponr < 0)
         self.mode = mode.astype(np.int64)
         merged = self.in_opp & ~in_opp & active
         self.in_opp = in_opp
-        self.last_ponr = np.where(active, np.nan, self.last_ponr)
+        self.step += 1
         if not (in_opp.any() or merged.any()):
             return
         geo = core.step_geometry()
-        v_e = core.v * np.cos(core.psi)  # the AV's speed along its lane
-        # Only the rows concerned are computed (a few percent of a batch at a time).
+        v, psi = core.v, core.psi
+        # Only the rows concerned are kept (a few percent of a batch at a time); v_e: speed along the lane.
         if in_opp.any():
             rows = np.flatnonzero(in_opp)
-            self._opposite(rows, _columns(geo, rows), v_e[rows], y[rows], t[rows], mode[rows])
+            v_e = v[rows] * np.cos(psi[rows])
+            self.pending.append((self.step - 1, rows, _columns(geo, rows), v_e, y[rows], t[rows], mode[rows]))
+            self.pending_columns += rows.size
+            if self.pending_columns >= FLUSH_COLUMNS:
+                self._flush()
         if merged.any():
             rows = np.flatnonzero(merged)
-            self._merge(rows, _columns(geo, rows), v_e[rows])
+            self.merging.append((rows, _columns(geo, rows), v[rows] * np.cos(psi[rows])))
 
     def end_chunk(self, core: Any) -> dict[str, np.ndarray]:
+        self._flush()
         opp = self.opp_steps > 0
         unsafe = ~np.isnan(self.first_unsafe)
         aborted = ~np.isnan(self.abort_t)
@@ -95,11 +107,50 @@ class SafetyMonitor:
         }
 
     # ------------------------------------------------------------------ opposite lane
+    def _flush(self) -> None:
+        """Compute the buffered opposite-lane columns in one pass and fold them into the per-row state;
+        ``last_ponr`` becomes each row's margin at the last recorded step (NaN where it was not in the
+        opposite lane then)."""
+        last = self.step - 1
+        self.last_ponr = np.full(self.w.shape[0], np.nan)
+        if self.merging:  # (order-free: the worst merge and the least PET per row)
+            rows = np.concatenate([r for r, _, _ in self.merging])
+            geo = {key: np.concatenate([c[key] for _, c, _ in self.merging], axis=1) for key in _KEYS}
+            viol, pet = self._merge(rows, geo, np.concatenate([v for _, _, v in self.merging]))
+            self.merging = []
+            np.maximum.at(self.merge, rows, viol.astype(np.int8))
+            np.minimum.at(self.pet, rows, pet)
+        if not self.pending:
+            return
+        steps = np.concatenate([np.full(r.size, k) for k, r, *_ in self.pending])
+        rows = np.concatenate([r for _, r, *_ in self.pending])
+        geo = {key: np.concatenate([c[key] for _, _, c, *_ in self.pending], axis=1) for key in _KEYS}
+        v_e, y, t, mode = (np.concatenate([entry[i] for entry in self.pending]) for i in range(3, 7))
+        self.pending, self.pending_columns = [], 0
+        worst, ttc, unsafe, ponr = self._opposite(rows, geo, v_e, y, t, mode)
+        viol = worst < 0
+        b = self.w.shape[0]
+        self.opp_steps += np.bincount(rows, minlength=b)  # (bincount: a counting pass, ufunc.at is slower)
+        self.viol_steps += np.bincount(rows[viol], minlength=b)
+        self.first_viol = _first_time(self.first_viol, rows, np.where(viol, t, INF))
+        np.minimum.at(self.worst_margin, rows, worst)
+        np.minimum.at(self.headon_ttc, rows, ttc)
+        # The first unsafe state: a violation counts once the overtake was unsafe (at or before it).
+        self.first_unsafe = _first_time(self.first_unsafe, rows, np.where(unsafe, t, INF))
+        np.logical_or.at(self.viol_after_unsafe, rows, viol & (t >= self.first_unsafe[rows]))
+        np.minimum.at(self.ponr, rows, np.where((mode == OVERTAKE) & ~np.isnan(ponr), ponr, INF))
+        at_last = steps == last
+        self.last_ponr[rows[at_last]] = ponr[at_last]
+
     def _opposite(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray, y: np.ndarray, t: np.ndarray,
-                  mode: np.ndarray) -> None:
-        """Def. 2, head-on TTC, the point of no return and the unsafe-overtake check of the AV
-        ``rows`` in the opposite lane (``geo`` and the row arrays hold just those rows)."""
+                  mode: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Def. 2, head-on TTC, the point of no return and the unsafe-overtake check of AV rows in the
+        opposite lane, one column per (row, step) (``geo`` and the arrays hold just those): the worst
+        RSS margin, the least head-on TTC, unsafe to complete, the point-of-no-return margin."""
         p, w = self.p, self.w[rows]
+        # Each part reads only the vehicle slots that can matter to it (slots never oncoming here give
+        # inf margins and TTCs; slots never in the AV's direction are no lead): the same values, less work.
+        full, geo = geo, _slots(geo, ~geo["same_dir"])
         dx, half_len = geo["dx"], geo["half_len"]
         gap = dx - half_len  # bumper to bumper; <= 0 overlapping
         # Oncoming vehicles in their own (correct) lane, the AV's opposite lane, not yet passed.
@@ -109,31 +160,29 @@ class SafetyMonitor:
                                                  p.other_accel_max, p.other_brake_min_correct)
         margin = np.where(onc, gap - d_min, INF)
         worst = np.min(margin, axis=0, initial=INF)
-        viol = worst < 0
-        self.opp_steps[rows] += 1
-        self.viol_steps[rows] += viol
-        self.first_viol[rows] = np.where(viol & np.isnan(self.first_viol[rows]), t, self.first_viol[rows])
-        self.worst_margin[rows] = np.minimum(self.worst_margin[rows], worst)
         closing = v_e + v_o
         approaching = onc & (closing > 1e-9)
         safe_closing = np.where(approaching, closing, 1.0)
-        ttc = np.where(approaching, np.maximum(gap, 0.0) / safe_closing, INF)
-        self.headon_ttc[rows] = np.minimum(self.headon_ttc[rows], np.min(ttc, axis=0, initial=INF))
+        ttc = np.min(np.where(approaching, np.maximum(gap, 0.0) / safe_closing, INF), axis=0, initial=INF)
         # Time until the Def.-2 distance is violated at constant speeds (d_min constant, gap closing).
         t_rss = np.where(margin < 0, 0.0, np.where(approaching, np.maximum(margin, 0.0) / safe_closing, INF))
         t_rss_min = np.min(t_rss, axis=0, initial=INF)
-        t_complete, t_abort = self._return_times(geo, dx, half_len, v_e, y, w, self.y_exit[rows])
-        overtaking = mode == OVERTAKE
-        # The first state unsafe to complete while a threatening oncoming vehicle is visible.
-        unsafe = overtaking & np.any(geo["visible"] & onc & (t_rss < t_complete), axis=0)
-        first_unsafe = np.where(unsafe & np.isnan(self.first_unsafe[rows]), t, self.first_unsafe[rows])
-        self.first_unsafe[rows] = first_unsafe
-        self.viol_after_unsafe[rows] |= viol & ~np.isnan(first_unsafe)
-        with np.errstate(invalid="ignore"):  # (inf - inf where no vehicle approaches: left out below)
-            ponr = t_rss_min - np.minimum(t_complete, t_abort)
-        ponr = np.where(np.isfinite(t_rss_min), np.maximum(np.nan_to_num(ponr, neginf=PONR_FLOOR), PONR_FLOOR), np.nan)
-        self.last_ponr[rows] = ponr
-        self.ponr[rows] = np.where(overtaking & ~np.isnan(ponr), np.minimum(self.ponr[rows], ponr), self.ponr[rows])
+        # The return times matter only where an oncoming vehicle approaches (t_rss finite): elsewhere
+        # nothing is unsafe and there is no point of no return.
+        unsafe, ponr = np.zeros(rows.size, bool), np.full(rows.size, np.nan)
+        near = np.flatnonzero(np.isfinite(t_rss_min))
+        if near.size:
+            g, lane = {k: v[:, near] for k, v in geo.items()}, _slots({k: v[:, near] for k, v in full.items()},
+                                                                      full["same_dir"][:, near])
+            t_complete, t_abort = self._return_times(lane, lane["dx"], lane["half_len"], v_e[near], y[near], w[near],
+                                                     self.y_exit[rows[near]])
+            # Unsafe to complete while a threatening oncoming vehicle is visible.
+            unsafe[near] = (mode[near] == OVERTAKE) & np.any(g["visible"] & onc[:, near] & (t_rss[:, near] < t_complete),
+                                                            axis=0)
+            with np.errstate(invalid="ignore"):
+                gap_t = t_rss_min[near] - np.minimum(t_complete, t_abort)
+            ponr[near] = np.maximum(np.nan_to_num(gap_t, neginf=PONR_FLOOR), PONR_FLOOR)
+        return worst, ttc, unsafe, ponr
 
     def _return_times(self, geo: dict[str, Any], dx: np.ndarray, half_len: np.ndarray, v_e: np.ndarray,
                       y: np.ndarray, w: np.ndarray, y_exit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,9 +211,9 @@ class SafetyMonitor:
         return t_c + lat, t_a + lat
 
     # ------------------------------------------------------------------ merge back
-    def _merge(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray) -> None:
+    def _merge(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Def. 1 against the nearest vehicle ahead and behind in the AV's lane, and the cut-in PET,
-        of the AV ``rows`` that merged back this step."""
+        of AV rows at the step they merged back (one column per (row, step)): violated, the PET."""
         p, w = self.p, self.w[rows]
         dx, half_len, v_o = geo["dx"], geo["half_len"], geo["v_along"]
         lane0 = geo["present"] & geo["same_dir"] & (geo["d"] <= w / 2)
@@ -179,11 +228,10 @@ class SafetyMonitor:
         g_b = np.where(behind, gap, INF)
         viol = np.any(ahead & (g_a <= np.min(g_a, 0, initial=INF)) & (gap < d_ahead), axis=0) | np.any(
             behind & (g_b <= np.min(g_b, 0, initial=INF)) & (gap < d_behind), axis=0)
-        self.merge[rows] = np.maximum(self.merge[rows], viol.astype(np.int8))
         # Post-encroachment time: the vehicle behind reaches the point the AV's rear left, at its speed.
         nearest_b = behind & (g_b <= np.min(g_b, 0, initial=INF)) & geo["visible"] & (v_o > 1e-9)
         pet = np.where(nearest_b, np.maximum(gap, 0.0) / np.where(nearest_b, v_o, 1.0), INF)
-        self.pet[rows] = np.minimum(self.pet[rows], np.min(pet, axis=0, initial=INF))
+        return viol, np.min(pet, axis=0, initial=INF)
 
 
 _KEYS = ("dx", "half_len", "d", "same_dir", "v_along", "visible", "present")
@@ -192,6 +240,20 @@ _KEYS = ("dx", "half_len", "d", "same_dir", "v_along", "visible", "present")
 def _columns(geo: dict[str, Any], rows: np.ndarray) -> dict[str, np.ndarray]:
     """The batch-last geometry of AV ``rows`` only (M', k)."""
     return {k: np.asarray(geo[k])[:, rows] for k in _KEYS}
+
+
+def _slots(geo: dict[str, np.ndarray], wanted: np.ndarray) -> dict[str, np.ndarray]:
+    """``geo`` restricted to the vehicle slots (rows of the (M', k) arrays) where ``wanted`` holds in
+    some column and a vehicle is present."""
+    keep = np.flatnonzero(np.any(wanted & geo["present"], axis=1))
+    return geo if keep.size == geo["present"].shape[0] else {k: v[keep] for k, v in geo.items()}
+
+
+def _first_time(first: np.ndarray, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``first`` (NaN: not yet) lowered to the least of ``times`` (inf: not this column) per row."""
+    least = np.full(first.shape, INF)
+    np.minimum.at(least, rows, times)
+    return np.where(np.isnan(first), np.where(np.isfinite(least), least, np.nan), np.minimum(first, least))
 
 
 def _drop_back_time(p: np.ndarray, rel: np.ndarray, v_e: np.ndarray, v_l: np.ndarray, b: float) -> np.ndarray:
