@@ -30,21 +30,19 @@ from overtakezoo.envs.config import ConfigError, bounded, check_ranges, unknown_
 class RSSParams:
     """RSS parameters of the safety metrics (docs/metrics.md, "RSS parameters").
 
-    Reference values: ad-rss-lib's documented parameter discussion and its test dynamics (response
-    time 1 s; a_max_accel 3.5, a_min_brake 4, a_max_brake 8, a_min_brake_correct 3 m/s^2), chosen for
-    passenger cars at road speeds. This simulator's vehicles cannot reach those accelerations, and
-    an RSS bound that assumes more than a vehicle can do is no bound, so each value is the
+    ad-rss-lib's passenger-car values assume accelerations this simulator's vehicles cannot reach,
+    and an RSS bound that assumes more than a vehicle can do is no bound, so each value is the
     simulator's own limit (envs/config.py defaults, no shipped suite overrides them):
 
-    - ``response_time`` rho = 1 s, ad-rss-lib's value: the planner's jerk limit (3 m/s^3) needs
+    - ``response_time`` rho = 1 s: the planner's jerk limit (3 m/s^3) needs
       ~0.7 s to build a 2 m/s^2 brake, and NPCs react after 0.5-1 s (scenario reaction_time).
     - the ego (the planner): ``ego_accel_max`` 1.5 (the overtake mode's acceleration),
       ``ego_brake_min`` 2.0 (planner.comfortable_braking, the brake it always applies),
       ``ego_brake_max`` 5.0 (planner.max_braking).
     - the others (IDM NPCs, and other AVs alike): ``other_accel_max`` 1.0 (npc.max_acceleration),
       ``other_brake_min`` 1.5 (npc.comfortable_braking), ``other_brake_max`` 6.0 (npc.max_braking),
-      ``other_brake_min_correct`` 1.125 = 1.5 * 3/4, ad-rss-lib's ratio of a_min_brake_correct to
-      a_min_brake (the car in its own lane is asked to brake less than the one in the wrong lane).
+      ``other_brake_min_correct`` 1.125 = 1.5 * 3/4 (the car in its own lane is asked to brake less
+      than the one in the wrong lane, the paper's a_min,brake,correct < a_min,brake).
     - ``lateral_return_time`` 2.0 s: a full lane change back from the opposite lane's centre (the
       planner's roll-in is v * 1 s + 4 m + 1 m tip margin, 9.2 m or 2.2 s at 15 km/h); used by the
       point-of-no-return and abort metrics only.
