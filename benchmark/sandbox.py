@@ -61,17 +61,25 @@ class Limits:
     call_s: float = 60.0
     load_s: float = 120.0
     cpu_s: int = 900
-    memory_bytes: int = 4 << 30
+    memory_bytes: int = 8 << 30  # address space: a CUDA build of torch reserves a few GB just to import
     open_files: int = 256
 
     @classmethod
     def from_env(cls) -> "Limits":
         """Defaults, overridden by ``OVERTAKEZOO_SANDBOX_CALL_S`` / ``_CPU_S`` / ``_MEMORY_MB``."""
-        env = os.environ
-        return cls(call_s=float(env.get("OVERTAKEZOO_SANDBOX_CALL_S", cls.call_s)),
-                   load_s=float(env.get("OVERTAKEZOO_SANDBOX_LOAD_S", cls.load_s)),
-                   cpu_s=int(env.get("OVERTAKEZOO_SANDBOX_CPU_S", cls.cpu_s)),
-                   memory_bytes=int(env.get("OVERTAKEZOO_SANDBOX_MEMORY_MB", cls.memory_bytes >> 20)) << 20)
+        env, d = os.environ, cls()
+
+        def read(name: str, default: float, kind: type) -> Any:
+            try:
+                value = kind(env.get(name, default))
+            except ValueError:
+                return default  # (a malformed override falls back to the default, never a traceback)
+            return value if value > 0 else default
+
+        return cls(call_s=read("OVERTAKEZOO_SANDBOX_CALL_S", d.call_s, float),
+                   load_s=read("OVERTAKEZOO_SANDBOX_LOAD_S", d.load_s, float),
+                   cpu_s=read("OVERTAKEZOO_SANDBOX_CPU_S", d.cpu_s, int),
+                   memory_bytes=read("OVERTAKEZOO_SANDBOX_MEMORY_MB", d.memory_bytes >> 20, int) << 20)
 
 
 def check_modes(modes: Any, n: int) -> np.ndarray:
@@ -188,7 +196,7 @@ class SandboxedPolicy:
         try:
             self._proc.stdin.write(_HEADER.pack(tag, len(payload)) + payload)
             self._proc.stdin.flush()
-        except (BrokenPipeError, OSError):
+        except (BrokenPipeError, OSError, ValueError):  # (ValueError: the pipe was closed after a failure)
             raise PolicyFailure(self._died("while receiving observations")) from None
 
     def _receive(self, timeout: float, what: str) -> tuple[bytes, bytes]:
@@ -213,7 +221,11 @@ class SandboxedPolicy:
         return bytes(out)
 
     def _died(self, when: str) -> str:
-        code = self._proc.wait()
+        try:
+            code = self._proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # alive but silent: killed like a hang
+            self.close()
+            return f"stopped answering {when} (killed)"
         self.close()
         if code < 0:
             name = signal.Signals(-code).name
