@@ -41,7 +41,7 @@ import numpy as np
 from overtakezoo import zoo
 from overtakezoo.envs import ConfigError, EnvConfig, observation_size
 
-from .artifacts import Artifact, model_card, read_policy_file  # noqa: F401 (model_card: for submission.py)
+from .artifacts import Artifact, read_policy_file
 from .errors import UserError
 from .sandbox import PolicyFailure, SandboxedPolicy, check_modes
 

@@ -12,20 +12,14 @@ layout is described in :mod:`.rows`; verification in :mod:`.verify`.
 from __future__ import annotations
 
 import contextlib
-import fnmatch
 import hashlib
 import json
 import os
 import re
-import sys
-import zlib
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import numpy as np
-
-from overtakezoo.envs import SIM_VERSION
 
 from .artifacts import Artifact
 from .errors import UserError

@@ -14,7 +14,6 @@ import warnings
 import zipfile
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from overtakezoo.benchmark import suites
