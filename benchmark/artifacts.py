@@ -171,13 +171,18 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
     if "features_extractor_class" in kwargs and "FlattenExtractor" not in str(kwargs["features_extractor_class"]):
         raise UserError(f"policy {path}: a custom features extractor ({kwargs['features_extractor_class']}) "
                         "cannot be read as data; export the policy to ONNX instead")
+    from overtakezoo.zoo.export import linear_layers
+
     state = _torch_state(path, state_bytes, "policy.pth")
-    if algo == "dqn":
-        layers = _linears(state, "q_net.q_net.")
-    else:
-        layers = _linears(state, "mlp_extractor.policy_net.") + [(state.get("action_net.weight"),
-                                                                   state.get("action_net.bias"))]
-    if not layers or any(w is None or b is None for w, b in layers):
+    try:
+        if algo == "dqn":
+            layers = linear_layers(state, "q_net.q_net.")
+        else:
+            layers = linear_layers(state, "mlp_extractor.policy_net.") + [(state["action_net.weight"],
+                                                                           state["action_net.bias"])]
+    except KeyError:
+        layers = []
+    if not layers:
         raise UserError(f"policy {path}: policy.pth lacks the {'q_net' if algo == 'dqn' else 'policy'} layers of an "
                         "MlpPolicy")
     try:
@@ -208,12 +213,6 @@ def _torch_state(path: Path, data: bytes, what: str) -> dict[str, Any]:
     if not isinstance(state, dict):
         raise UserError(f"policy {path}: {what} is not a state dict")
     return state
-
-
-def _linears(state: dict[str, Any], prefix: str) -> list[tuple[Any, Any]]:
-    idx = sorted({int(m.group(1)) for k in state for m in [re.fullmatch(re.escape(prefix) + r"(\d+)\.weight", k)]
-                  if m})
-    return [(state.get(f"{prefix}{i}.weight"), state.get(f"{prefix}{i}.bias")) for i in idx]
 
 
 def _zip_names(data: bytes) -> list[str]:

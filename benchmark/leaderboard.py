@@ -98,9 +98,9 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
                       for row, why in stale],
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
-    head_md, index["headline"] = _headline(live_rows, seeds)
-    shield_md, shield_png = safety_board.readme_section(safety_board.core_means(live_rows, headline.CORE),
-                                                        headline.CORE)
+    means = safety_board.core_means(live_rows, headline.CORE)  # (the score page's RSS column, the shield section)
+    head_md, index["headline"] = _headline(live_rows, seeds, means)
+    shield_md, shield_png = safety_board.readme_section(means, headline.CORE)
     if shield_png is not None:
         files["shield.png"] = shield_png
         head_md += "\n" + "\n".join(shield_md)
@@ -133,7 +133,8 @@ def _multi_suite(name: str, suite: Any, rows: list[Row], reasons: dict[str, Any]
                       for row, why in stale]}
 
 
-def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
+              means: dict[str, dict[str, float]]) -> tuple[str, dict[str, Any]]:
     """The OvertakeZoo score over the core suites (benchmark/headline.py), learned members as the
     mean over their training seeds (``seeds/<member>.json``) where those cover the current suites."""
     rows: dict[str, dict[str, Any]] = {}
@@ -148,7 +149,6 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any]) -> tuple[s
     table = headline.build_table(rows, seeds, hashes)
     scores = {name: headline.score(runs) for name, runs in table.items()}
     learned = sorted(set(seeds) | (LEARNED & set(table)))
-    means = safety_board.core_means(live_rows, headline.CORE)
     safety = safety_board.safety_column(means) if any(m["rss"] == m["rss"] for m in means.values()) else None
     text = (headline.render(table, privileged, safety=safety) + "\n" + headline.generalization(table, learned)
             + "\n" + headline.seed_lines(seeds))

@@ -136,7 +136,7 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     except OSError as exc:
         raise UserError(f"policy {path}: cannot read ({exc.strerror or exc})") from None
     art = read_policy_file(path, data, config)
-    dec = boxed(art, config, str(path))
+    dec = boxed(art, config, str(path), allow_code=True)  # the user's own file, on their request
     # Named and hashed by the user's file (for ONNX with external data: the inlined model, all that runs).
     dec.name = f"{_slug(path.stem)}-{art.source_sha256[:8]}"
     dec.weights_sha256 = art.source_sha256
@@ -144,11 +144,12 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     return dec
 
 
-def boxed(art: Artifact, config: EnvConfig, who: str) -> PolicyDecider:
+def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) -> PolicyDecider:
     """The decider acting ``art`` in a sandboxed child (:mod:`.sandbox`), probed on this config's
-    observations; :class:`UserError` naming ``who`` when it cannot load or act."""
+    observations; :class:`UserError` naming ``who`` when it cannot load or act. ``allow_code``: a
+    TorchScript file (the user's own, for ``eval --policy`` or ``submit``'s conversion) may load."""
     try:
-        box = SandboxedPolicy(art.kind, art.data, config, art.card_bytes, who)
+        box = SandboxedPolicy(art.kind, art.data, config, art.card_bytes, who, allow_code=allow_code)
     except PolicyFailure as exc:
         raise UserError(f"policy {who}: {exc}") from None
     try:

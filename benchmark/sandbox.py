@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 NUM_MODES = 3
+DATA_KINDS = ("mlp", "onnx")  # what a box loads as data; "torchscript" (code) needs allow_code
 _HEADER = struct.Struct("<cQ")  # frame: one tag byte, the payload's length
 _MAX_FRAME = 1 << 30
 
@@ -121,7 +122,11 @@ class SandboxedPolicy:
     observations come from. ``info`` is what the child reported after loading (e.g. the action repeat)."""
 
     def __init__(self, kind: str, data: bytes, config: Any, card: bytes | None = None, who: str = "policy",
-                 limits: Limits | None = None) -> None:
+                 limits: Limits | None = None, allow_code: bool = False) -> None:
+        if kind not in DATA_KINDS and not (allow_code and kind == "torchscript"):
+            # Loading TorchScript runs its code (boxed all the same): only a user's own file, by request
+            # (eval --policy, submit's conversion), never a stored artifact a verifier re-runs.
+            raise PolicyFailure(f"kind {kind!r} is not a stored data format ({', '.join(DATA_KINDS)})")
         self.who, self.limits = who, limits or Limits.from_env()
         self._tmp = tempfile.TemporaryDirectory(prefix="overtakezoo-sandbox-", ignore_cleanup_errors=True)
         # The child imports what this process imports (its sys.path: user installs, checkouts), nothing else.

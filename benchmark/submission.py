@@ -154,7 +154,7 @@ def _converted(policy: Path, decider: dict[str, Any], suite: Suite) -> Artifact:
         from .policy import boxed
         from overtakezoo.envs import observation_size
 
-        dec = boxed(art, suite.config, str(policy))
+        dec = boxed(art, suite.config, str(policy), allow_code=True)
         try:
             onnx_bytes = dec.inner.export_onnx(observation_size(suite.config))
         except PolicyFailure as exc:

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
+import os
 import subprocess
 import sys
 import zlib
@@ -61,8 +63,6 @@ def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.nd
 def default_base(root: str | Path) -> str | None:
     """The git revision a pull request is compared with: ``$OVERTAKEZOO_VERIFY_BASE``, else the
     merge base of HEAD with ``origin/$GITHUB_BASE_REF`` or ``origin/HEAD``; None outside git."""
-    import os
-
     wanted = os.environ.get("OVERTAKEZOO_VERIFY_BASE")
     if wanted:
         return wanted
@@ -163,8 +163,6 @@ def stored_artifact(row: Row, root: Path, policy: dict[str, Any]) -> Any:
         data[rel] = content
     card = None
     if kind == "mlp":
-        import json
-
         try:
             card = json.loads(data[Path(policy["artifact"]).with_suffix(".json").as_posix()])
             assert isinstance(card, dict) and isinstance(card.get("architecture"), dict)

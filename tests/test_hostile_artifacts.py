@@ -305,7 +305,8 @@ def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path,
     from overtakezoo.benchmark.policy import boxed
 
     torch.jit.save(torch.jit.script(net), tmp_path / "bad.pt")
-    box = boxed(Artifact("torchscript", (tmp_path / "bad.pt").read_bytes()), suites.load_suite(tiny).config, "bad")
+    box = boxed(Artifact("torchscript", (tmp_path / "bad.pt").read_bytes()), suites.load_suite(tiny).config, "bad",
+                allow_code=True)
     onnx_bytes = box.inner.export_onnx(D)
     box.inner.close()
     honest = scripted_policy(tmp_path / "honest.pt", 0, 1)
@@ -316,6 +317,16 @@ def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path,
     err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify"])
     assert err.startswith("error: submissions/tiny/seven.json: ") and "step 0" in err and "scenario" in err
     assert "returned mode 7" in err
+
+
+def test_a_box_loads_code_only_when_asked(tmp_path, scripts):
+    """What verify builds (no allow_code) refuses TorchScript before any process starts."""
+    from overtakezoo.benchmark.sandbox import PolicyFailure, SandboxedPolicy
+
+    torch.jit.save(torch.jit.script(scripts.Writer(str(tmp_path / "pwned"))), tmp_path / "w.pt")
+    with pytest.raises(PolicyFailure, match="not a stored data format"):
+        SandboxedPolicy("torchscript", (tmp_path / "w.pt").read_bytes(), EnvConfig())
+    assert not (tmp_path / "pwned").exists()
 
 
 # ----------------------------------------------------------------------------- train --resume

@@ -45,8 +45,9 @@ def torch_to_numpy(data: bytes, card: dict[str, Any], who: str = "weights") -> N
         raise WeightsError(f"{who}: cannot load ({type(exc).__name__}: {exc})") from None
 
 
-def _layers(state: dict[str, Any], prefix: str) -> list[tuple[Any, Any]]:
-    """``prefix<i>.weight`` / ``.bias`` in the order of i (an ``nn.Sequential``'s Linear layers)."""
+def linear_layers(state: dict[str, Any], prefix: str) -> list[tuple[Any, Any]]:
+    """``prefix<i>.weight`` / ``.bias`` in the order of i (an ``nn.Sequential``'s Linear layers);
+    KeyError for a weight without its bias."""
     idx = sorted(int(k[len(prefix):-len(".weight")]) for k in state
                  if k.startswith(prefix) and k.endswith(".weight") and k[len(prefix):-len(".weight")].isdigit())
     return [(state[f"{prefix}{i}.weight"], state[f"{prefix}{i}.bias"]) for i in idx]
@@ -59,7 +60,7 @@ def _arrays(layers: list[tuple[Any, Any]]) -> tuple[tuple[Any, Any], ...]:
 def dqn_net(state: dict[str, Any], dueling: bool) -> NumpyMLP:
     """A ``train_dqn.QNetwork`` state_dict: body = [Linear, ReLU]*, head = Linear (value +
     advantages when dueling)."""
-    layers = _layers(state, "body.") + [(state["head.weight"], state["head.bias"])]
+    layers = linear_layers(state, "body.") + [(state["head.weight"], state["head.bias"])]
     return NumpyMLP(_arrays(layers), "relu", bool(dueling))
 
 
@@ -71,7 +72,7 @@ def _ppo_net(blob: dict[str, Any]) -> NumpyMLP:
     if cfg.get("obs_normalization"):
         raise WeightsError("ppo: an actor with obs_normalization cannot be exported (the numpy MLP has no "
                            "normalizer); train with [actor] obs_normalization = false")
-    return NumpyMLP(_arrays(_layers(blob["state_dict"], "mlp.")), str(cfg.get("activation", "elu")), False)
+    return NumpyMLP(_arrays(linear_layers(blob["state_dict"], "mlp.")), str(cfg.get("activation", "elu")), False)
 
 
 def exported_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) -> dict[str, Any]:

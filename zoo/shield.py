@@ -51,7 +51,6 @@ class Shielded(Decider):
         self.vehicle_length = dist.vehicle_length
         overtake = cfg.planner.modes["overtake"]
         self.accel, self.v_mode = overtake.acceleration, overtake.velocity
-        self.vetoes = self.aborts = 0  # counted over the decider's life (a diagnostic)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         self.inner.reset(mask)
@@ -62,8 +61,6 @@ class Shielded(Decider):
         unsafe, passing_lead = self.unsafe(obs)
         veto = unsafe & (want == OVERTAKE) & (mode != OVERTAKE)
         force = unsafe & (mode == OVERTAKE) & (want == OVERTAKE) & passing_lead
-        self.vetoes += int(veto.sum())
-        self.aborts += int(force.sum())
         out = np.where(veto, np.where(mode == ABORT, ABORT, FOLLOW), want)
         return np.where(force, ABORT, out)
 
@@ -118,10 +115,6 @@ class Shielded(Decider):
                 "cannot keep the RSS opposite-direction distance (Shalev-Shwartz et al. 2017, Def. 2) to the "
                 "nearest visible oncoming vehicle until back in lane is vetoed, or aborted while the lead is "
                 "not yet passed.")
-
-
-def shielded(inner: Decider, params: RSSParams | None = None) -> Shielded:
-    return Shielded(inner, params)
 
 
 def load_shielded(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Shielded:
