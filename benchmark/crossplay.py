@@ -25,7 +25,7 @@ from overtakezoo.envs import SIM_VERSION
 from .errors import UserError
 from .metrics import format_metric, wilson
 from .results import config_sha256
-from .suites import Suite, load_suite
+from overtakezoo.envs.suites import Suite, load_suite
 from .untrusted import md, md_code, md_image, plot_text
 
 DATA = Path("crossplay")
@@ -223,7 +223,7 @@ def heatmap(doc: dict[str, Any]) -> bytes:
 
 def generated(root: str | Path) -> tuple[dict[str, bytes], dict[str, Any]]:
     """The generated files of every measured matrix under ``root/crossplay/``, and their index entries."""
-    from .suites import suite_names
+    from overtakezoo.envs.suites import suite_names
 
     files: dict[str, bytes] = {}
     index: dict[str, Any] = {}

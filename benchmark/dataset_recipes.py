@@ -70,7 +70,7 @@ def read_recipes(path: Path = RECIPES_FILE) -> dict[str, Any]:
 
 def plan(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Dataset name -> {level, env, suite, count, policies (level specs), components} from the table."""
-    from .suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     out = {}
     levels = data.get("levels", {})
@@ -113,7 +113,7 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
     """(suite, episodes) for a registry recipe, after checking that this installation has the suite
     file and decider versions it names (else the rebuild could not match; said with the reason)."""
     from .cmdutil import load_decider
-    from .suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     try:
         suite = load_suite(recipe["suite"])

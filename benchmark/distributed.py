@@ -17,7 +17,7 @@ from typing import Any
 
 from .errors import UserError
 from .results import Results, merge
-from .suites import Suite
+from overtakezoo.envs.suites import Suite
 
 
 def _run_shard(suite_bytes: bytes, suite_path: str, decider_name: str, shard: tuple[int, int]) -> str:
@@ -25,7 +25,7 @@ def _run_shard(suite_bytes: bytes, suite_path: str, decider_name: str, shard: tu
     spec (``benchmark/policy.py``): a registry name, a file or package.module:factory."""
     from .policy import load_policy
     from .runner import run_suite
-    from .suites import parse_suite
+    from overtakezoo.envs.suites import parse_suite
 
     suite = parse_suite(suite_bytes, Path(suite_path))
     decider = load_policy(decider_name, suite.config)

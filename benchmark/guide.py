@@ -80,7 +80,7 @@ A pull request to this leaderboard is untrusted input, and so is a policy file y
 never run code from either:
 
 - **Trusted:** the OvertakeZoo code of the base branch (simulator, zoo members, verifier), the suite
-  files in `benchmark/suites/`, and the maintainers' inputs (`reference/`, `seeds/`, `crossplay/`),
+  files in `envs/suites/`, and the maintainers' inputs (`reference/`, `seeds/`, `crossplay/`),
   which only change with the code that writes them.
 - **Stored formats are data.** A row's policy is a built-in zoo member (by name, version and
   weights sha256) or an artifact in one of two formats: the project's `.npz` MLP with its model card

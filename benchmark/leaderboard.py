@@ -27,7 +27,7 @@ from . import crossplay, headline, multi_leaderboard, paper_table, safety_board
 from .guide import GUIDE, SECURITY
 from .metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from .rows import Row, load_submissions, stale_reasons
-from .suites import MULTI, load_suite, suite_names
+from overtakezoo.envs.suites import MULTI, load_suite, suite_names
 from .untrusted import check_target, check_tree, md, md_code, md_image, md_link, plain_name, plot_text
 
 REFERENCE = Path("reference") / "paper.json"

@@ -128,7 +128,7 @@ def suite_wall_times(suite: str, decider: str, repeats: int) -> dict[str, Any]:
     process start-up and imports not)."""
     from overtakezoo import zoo
     from overtakezoo.benchmark.runner import run_suite
-    from overtakezoo.benchmark.suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     s = load_suite(suite)
     d = zoo.load(decider, config=s.config)
@@ -197,7 +197,7 @@ def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-f
 
     from overtakezoo import zoo
     from overtakezoo.benchmark.runner import run_suite
-    from overtakezoo.benchmark.suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     s = load_suite(suite)
     d = zoo.load(decider, config=s.config)

@@ -228,7 +228,7 @@ class Results:
             raise UserError(f"{where}: range: {meta['range']} is not inside [0, {meta['suite']['count']}]")
         shard = meta["shard"]
         if shard is not None:
-            from .suites import shard_bounds
+            from overtakezoo.envs.suites import shard_bounds
             if not 0 <= shard[0] < shard[1] <= meta["suite"]["count"] or \
                     list(shard_bounds(meta["suite"]["count"], tuple(shard))) != [start, stop]:
                 raise UserError(f"{where}: shard: {shard} does not match range {meta['range']}")

@@ -17,7 +17,7 @@ import numpy as np
 from overtakezoo.envs.config import RewardConfig
 
 from .runner import run_suite
-from .suites import Suite, load_suite
+from overtakezoo.envs.suites import Suite, load_suite
 
 DECIDERS = ("rule-fsm", "always-follow", "always-overtake", "dqn")
 

@@ -26,7 +26,7 @@ from overtakezoo.envs import SIM_VERSION
 from .artifacts import Artifact, policy_kind
 from .errors import UserError
 from .results import Results, config_sha256
-from .suites import Suite
+from overtakezoo.envs.suites import Suite
 
 ARTIFACTS = "artifacts"
 STORED_KINDS = {".npz": "mlp", ".onnx": "onnx"}  # what a stored artifact may be: data, never code

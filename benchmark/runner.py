@@ -27,7 +27,7 @@ from .results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_
 from .errors import UserError
 from .safety import SafetyMonitor
 from .sandbox import PolicyFailure, check_modes
-from .suites import CHUNK_SIZE, Suite, shard_bounds
+from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
 
 
 def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = CHUNK_SIZE,

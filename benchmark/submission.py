@@ -28,7 +28,7 @@ from .results import Results
 from .rows import (ARTIFACTS, Row, artifact_decider, builtin_names, file_sha256, reserved_name, stale_reasons,
                    stored_files)
 from .sandbox import PolicyFailure
-from .suites import Suite, load_suite, suite_names
+from overtakezoo.envs.suites import Suite, load_suite, suite_names
 from .untrusted import check_tree
 from .verify import compare, torch_single_threaded
 

@@ -39,7 +39,7 @@ from .errors import UserError
 from .sandbox import PolicyFailure
 from .rows import (ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe, file_sha256, load_submissions,
                          reserved_name, stale_reasons, stored_files)
-from .suites import Suite, load_suite, suite_names
+from overtakezoo.envs.suites import Suite, load_suite, suite_names
 
 
 # ------------------------------------------------------------------ what to verify

@@ -7,7 +7,7 @@ other.
 
 Building: ``parallel_env(config, **overrides)`` with an :class:`EnvConfig` or a dict (keyword
 arguments are EnvConfig keys), or ``parallel_env(suite)`` / ``parallel_env(suite=suite)`` with a
-loaded suite (``overtakezoo.benchmark.suites.load_suite("duel")``: its simulator settings and
+loaded suite (``overtakezoo.envs.suites.load_suite("duel")``: its simulator settings and
 scenario distribution; this package does not read suite files itself). Each ``reset(seed=s)`` draws
 the road from the distribution with the env's generator (``ScenarioDistribution.sample(1, rng)``;
 without a seed, the next draw of the generator, first seeded by the config's ``seed``), or starts on
@@ -92,8 +92,8 @@ def as_config(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any
 
 def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str, Any] | None:
     """The config of a loaded suite (anything with an :class:`EnvConfig` ``config``, passed as
-    ``suite`` or as ``config``), else ``config`` unchanged. A suite's name is refused with the way
-    to load it: this package does not read suite files (``envs`` knows nothing of ``benchmark``)."""
+    ``suite`` or as ``config``; a built-in suite's name or a suite file's path is loaded), else
+    ``config`` unchanged."""
     if suite is None and (isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)):
         config, suite = None, config
     if suite is None:
@@ -101,8 +101,9 @@ def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str,
     if config is not None:
         raise ConfigError("suite: pass either a config or a suite, not both (override keys as keywords)")
     if isinstance(suite, str):
-        raise ConfigError(f"suite: {suite!r} is a name; pass the loaded suite, e.g. "
-                          f"parallel_env(overtakezoo.benchmark.suites.load_suite({suite!r}))")
+        from .suites import load_suite
+
+        suite = load_suite(suite)
     if not isinstance(getattr(suite, "config", None), EnvConfig):
         raise ConfigError(f"suite: expected a loaded suite (with an EnvConfig .config), got {type(suite).__name__}")
     return suite.config

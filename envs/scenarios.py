@@ -141,7 +141,7 @@ class ScenarioDistribution:
     """The paper's distribution and its scale-ups. Ranges are uniform [lo, hi].
 
     Defaults are the paper's setting where it gives one (NPC speeds 1-3 m/s, ego capped at
-    15 km/h); the suites in ``benchmark/suites`` choose and justify the values the paper leaves open.
+    15 km/h); the suites in ``envs/suites`` choose and justify the values the paper leaves open.
     """
 
     # Each setting's physical range is beside it (``bounded``; for a [low, high] pair both ends). They

@@ -5,7 +5,7 @@ Usage: python scripts/multi_rates.py SUITE[,SUITE...] DECIDER[,DECIDER...] [--li
 Runs the first N scenarios of each suite (a name or a .toml path) with each zoo decider through the
 benchmark runner, and prints per-AV rates
 (success / crash / timeout) and joint ones: every AV succeeds, any AV crashes, any crash between
-two AVs. The numbers quoted in benchmark/suites/{duel,platoon,mixed-traffic}.toml come from it;
+two AVs. The numbers quoted in envs/suites/{duel,platoon,mixed-traffic}.toml come from it;
 scripts/seed_results.py calls :func:`rates` for the multi-AV suites (every seed of a member).
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 
 from overtakezoo.benchmark.multi_metrics import by_av
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import Suite, load_suite
+from overtakezoo.envs.suites import Suite, load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 from overtakezoo.zoo.base import Decider, load
 

@@ -7,7 +7,7 @@ import time
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 
 ROUNDS = 9
 suite = load_suite(sys.argv[1] if len(sys.argv) > 1 else "table1")

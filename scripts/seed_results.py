@@ -32,7 +32,7 @@ from overtakezoo.benchmark.headline import CORE
 from overtakezoo.benchmark.io import atomic_write_bytes
 from overtakezoo.benchmark.policy import load_policy
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import MIXTURES, load_suite, load_training
+from overtakezoo.envs.suites import MIXTURES, load_suite, load_training
 from overtakezoo.zoo.export import export, trained_sha256
 
 from multi_rates import rates as multi_rates  # this script's folder is on sys.path

@@ -29,7 +29,7 @@ n, seconds, suite = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
 if suite == "-":  # the env's defaults, as `overtakezoo perf` measures
     dist, cfg = ScenarioDistribution(), EnvConfig()
 else:
-    from overtakezoo.benchmark.suites import load_suite
+    from overtakezoo.envs.suites import load_suite
     dist, cfg = load_suite(suite).distribution, load_suite(suite).config
 core = OvertakeCore(cfg, auto_reset=True, source=lambda k, rng: dist.sample(k, rng), seed=0)
 core.reset(dist.sample(n, 0))

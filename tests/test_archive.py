@@ -19,7 +19,7 @@ from overtakezoo.benchmark.archive import (EPISODE_GAP_NS, ArchiveRecorder, list
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import OUTCOME_NAMES
 from overtakezoo.zoo.base import Decider
 from test_benchmark_cli import one_line_error
@@ -238,7 +238,7 @@ sys.path.insert(0, {tests!r})
 from test_archive import MixedDecider, _Stop
 from overtakezoo.benchmark.archive import ArchiveRecorder
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 suite = load_suite("table1")
 with ArchiveRecorder({path!r}) as rec:
     run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=4, progress=False,
@@ -427,7 +427,7 @@ def test_replay_help_has_examples(capsys):
 
 def test_eval_archive_end_to_end(tmp_path, capsys):
     from overtakezoo.benchmark.archive import read_archive_meta
-    from overtakezoo.benchmark.suites import SUITES_DIR
+    from overtakezoo.envs.suites import SUITES_DIR
 
     suite = tmp_path / "tiny.toml"
     suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 8")

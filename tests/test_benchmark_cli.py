@@ -5,7 +5,7 @@ import json
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.suites import SUITES_DIR
+from overtakezoo.envs.suites import SUITES_DIR
 
 COMMANDS = ["suites", "eval", "compare", "submit", "leaderboard", "decision-map"]
 

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results import PER_SCENARIO, Results
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 
 
 class Stub:

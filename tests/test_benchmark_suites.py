@@ -8,8 +8,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.suites import SUITES_DIR, load_suite, parse_shard, parse_suite, shard_bounds, suite_names
+from overtakezoo.envs.suites import SuiteError
+from overtakezoo.envs.suites import SUITES_DIR, load_suite, parse_shard, parse_suite, shard_bounds, suite_names
 
 EXPECTED = {"table1", "table1-train", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
             "adversarial", "occluded"}
@@ -44,9 +44,9 @@ def test_load_by_path_and_shards(tmp_path):
     np.testing.assert_array_equal(np.concatenate([p.npc_s for p in parts]), full.npc_s)
     assert shard_bounds(10, None) == (0, 10) and parse_shard("1/4") == (1, 4)
     for bad in ("4/4", "x", "-1/2", "1/0"):
-        with pytest.raises(UserError):
+        with pytest.raises(SuiteError):
             parse_shard(bad)
-    with pytest.raises(UserError):
+    with pytest.raises(SuiteError):
         shard_bounds(10, (0, 11))
 
 
@@ -64,12 +64,12 @@ def test_load_by_path_and_shards(tmp_path):
 def test_bad_suite_files_name_the_problem(tmp_path, text, needle):
     path = tmp_path / "bad.toml"
     path.write_text(text)
-    with pytest.raises(UserError, match=needle.replace(".", r"\.")):
+    with pytest.raises(SuiteError, match=needle.replace(".", r"\.")):
         load_suite(path)
 
 
 def test_unknown_suite_name():
-    with pytest.raises(UserError, match="unknown suite 'nope'"):
+    with pytest.raises(SuiteError, match="unknown suite 'nope'"):
         load_suite("nope")
 
 
@@ -93,7 +93,7 @@ def test_fuzz_suite_loader_raises_only_user_errors(data):
     raw = data if isinstance(data, bytes) else data.encode()
     try:
         parse_suite(raw, SUITES_DIR / "fuzz.toml")
-    except UserError as exc:
+    except SuiteError as exc:
         assert str(exc) and "\n" not in str(exc).strip()
 
 

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.suites import SUITES_DIR
+from overtakezoo.envs.suites import SUITES_DIR
 from overtakezoo.envs import ConfigError, EnvConfig
 
 from test_benchmark_cli import one_line_error, small_suite_file
@@ -238,13 +238,13 @@ def _suite_text(scenario, sim):
 @given(st.dictionaries(st.sampled_from(_SCENARIO_KEYS), _value, max_size=3),
        st.dictionaries(st.sampled_from(_SIM_KEYS), _value, max_size=3))
 def test_fuzz_suite_values_load_run_or_fail_with_user_errors(scenario, sim):
-    from overtakezoo.benchmark.errors import UserError
-    from overtakezoo.benchmark.suites import parse_suite
+    from overtakezoo.envs.suites import SuiteError
+    from overtakezoo.envs.suites import parse_suite
     from overtakezoo.envs import OvertakeCore
 
     try:
         suite = parse_suite(_suite_text(scenario, sim).encode(), SUITES_DIR / "fuzz.toml")
-    except UserError as exc:
+    except SuiteError as exc:
         assert str(exc).startswith(str(SUITES_DIR / "fuzz.toml")) and "\n" not in str(exc)
         return
     # A suite that loads must also sample and step: no error may wait until the run.
@@ -282,7 +282,7 @@ def test_fuzz_eval_arguments_are_one_line_errors(tmp_path_factory, shard, chunk,
 
 # Issue 18: count = 1000000 with 64 oncoming and 64 followers ended in a MemoryError traceback.
 def test_a_suite_too_big_for_memory_is_refused_before_drawing(tmp_path, capsys, monkeypatch):
-    from overtakezoo.benchmark import suites
+    from overtakezoo.envs import suites
     from overtakezoo.envs import ScenarioDistribution
 
     drawn = []

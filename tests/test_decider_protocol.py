@@ -8,7 +8,7 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution, observation_size
 from overtakezoo.envs.hold import hold, hold_steps
 from overtakezoo.zoo.testing import check_decider
@@ -229,7 +229,7 @@ def test_the_oracle_refuses_a_core_of_another_width():
 def test_legitimate_observations_are_always_finite():
     # Refusing NaN / inf is safe: every shipped suite's observation Box is finite (an empty slot is
     # zeros, not an inf "no vehicle" code), and a run's observations lie in it.
-    from overtakezoo.benchmark.suites import list_suites
+    from overtakezoo.envs.suites import list_suites
     from overtakezoo.envs.spaces import ego_observation_space
 
     for suite in list_suites():

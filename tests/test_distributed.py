@@ -7,7 +7,7 @@ import pytest
 from overtakezoo import zoo
 from overtakezoo.benchmark.distributed import run_suite_ray
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 
 ray = pytest.importorskip("ray")
 

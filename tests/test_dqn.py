@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 
 from overtakezoo import zoo
 from overtakezoo.envs import (ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario,

@@ -14,7 +14,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import vector as vector_wrappers
 
 from overtakezoo.benchmark.results import config_sha256
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import (EnvConfig, OvertakeCore, make_scenario, make_vec, observation_layout, observation_size,
                               parallel_env)
 from overtakezoo.envs.config import RewardConfig

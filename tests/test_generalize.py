@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.suites import CORE, MIXTURES, load_suite, load_training
+from overtakezoo.envs.suites import SuiteError
+from overtakezoo.envs.suites import CORE, MIXTURES, load_suite, load_training
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, make_scenario, observation_layout
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore, split_rows
@@ -26,7 +26,7 @@ def test_every_core_suite_has_a_disjoint_training_split(name):
 
 
 def test_a_split_takes_its_tables_from_its_base_and_its_hash_covers_the_base(tmp_path, monkeypatch):
-    from overtakezoo.benchmark import suites
+    from overtakezoo.envs import suites
 
     folder = tmp_path / "suites"
     folder.mkdir()
@@ -40,10 +40,10 @@ def test_a_split_takes_its_tables_from_its_base_and_its_hash_covers_the_base(tmp
     assert load_suite(split).hash != before  # an edit of the base re-identifies the split
     split.write_text('name = "x-train"\nversion = 1\nbase = "oncoming-2"\ncount = 10\nseed = 1\n'
                      '[scenario]\ngoal = 50.0\n')
-    with pytest.raises(UserError, match="scenario: a split takes its tables from its base suite"):
+    with pytest.raises(SuiteError, match="scenario: a split takes its tables from its base suite"):
         load_suite(split)
     split.write_text('name = "x-train"\nversion = 1\nbase = "nope"\ncount = 10\nseed = 1\n')
-    with pytest.raises(UserError, match="base: 'nope' is not a built-in suite"):
+    with pytest.raises(SuiteError, match="base: 'nope' is not a built-in suite"):
         load_suite(split)
 
 
@@ -51,7 +51,7 @@ def test_the_core_mixture_is_every_core_suites_split():
     assert [s.name for s in load_training("core-train")] == [f"{n}-train" for n in CORE]
     assert MIXTURES["core-train"] == tuple(f"{n}-train" for n in CORE)
     assert [s.name for s in load_training("table1-train+urban-50-train")] == ["table1-train", "urban-50-train"]
-    with pytest.raises(UserError, match="unknown suite"):
+    with pytest.raises(SuiteError, match="unknown suite"):
         load_training("table1-train+nope")
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from overtakezoo.benchmark import suites
+from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.results import Results
 from overtakezoo.benchmark.rows import file_sha256

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from overtakezoo.benchmark.suites import SUITES_DIR
+from overtakezoo.envs.suites import SUITES_DIR
 
 from conftest import shipped_weights_current
 

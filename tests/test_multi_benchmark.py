@@ -17,7 +17,7 @@ from overtakezoo.benchmark.pairing import Pairing
 from overtakezoo.benchmark.results import Results, merge, round_per_scenario
 from overtakezoo.benchmark.runner import _per_scenario, run_suite
 from overtakezoo.benchmark.verify import verify
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.core import CRASH, SUCCESS, OvertakeCore
 from overtakezoo.envs.scenarios import Scenarios

@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.suites import CORE, MIXTURES, MULTI, load_suite, load_training
+from overtakezoo.envs.suites import CORE, MIXTURES, MULTI, load_suite, load_training
 from overtakezoo.envs import ConfigError, ScenarioDistribution, make_scenario
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, Scenarios
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.suites import load_suite, load_training
+from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore

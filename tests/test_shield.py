@@ -8,7 +8,7 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.runner import run_indices
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, CRASH, SUCCESS, EnvConfig, observation_layout
 from overtakezoo.envs.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction

@@ -13,7 +13,7 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.runner import run_suite
-from overtakezoo.benchmark.suites import load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import SIM_VERSION
 
 # SIM_VERSION -> decider -> (per-scenario (outcome, steps), sha256 of the final states rounded to 1e-6).

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark import suites
+from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import generate

@@ -91,7 +91,7 @@ def test_fuzzy_rule_base_is_checked():
 
 def _table1_head(n):
     try:
-        from overtakezoo.benchmark.suites import load_suite
+        from overtakezoo.envs.suites import load_suite
     except ImportError:  # the suites module is not there: the same distribution, sampled directly
         return EnvConfig(), ScenarioDistribution().sample(n, 20240101)
     suite = load_suite("table1")

@@ -94,7 +94,7 @@ def evaluate(decider: Any, suite: Any, progress: bool = False, limit: int | None
     """Run ``decider`` on ``suite`` (a name, path or Suite) with the benchmark runner: the card's
     summary and the full Results."""
     from overtakezoo.benchmark.runner import run_suite
-    from overtakezoo.benchmark.suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     suite = load_suite(suite) if isinstance(suite, (str, Path)) else suite
     res = run_suite(suite, decider, progress=progress, limit=limit)

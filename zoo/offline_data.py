@@ -175,7 +175,7 @@ def finish(name: str, algorithm: str, net: Any, data: Transitions, hp: Any, iden
                       hp.seed, wall, {"training": stats})
     full = None
     if eval_suite:
-        from overtakezoo.benchmark.suites import load_suite
+        from overtakezoo.envs.suites import load_suite
 
         suite = load_suite(eval_suite)
         summary, full = evaluate(MLPDecider(mlp, name, suite.config, card), suite, progress=progress)

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from overtakezoo.benchmark.suites import load_suite, load_training
+from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir

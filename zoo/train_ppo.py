@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from overtakezoo.benchmark.suites import load_training
+from overtakezoo.envs.suites import load_training
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 from overtakezoo.envs.io import atomic_path, atomic_write_bytes, atomic_write_json, check_writable_dir
 

@@ -36,7 +36,7 @@ def run(args: Any) -> int:
     from ..errors import UserError
     from ..io import atomic_write_bytes
     from ..leaderboard import write
-    from ..suites import load_suite
+    from overtakezoo.envs.suites import load_suite
     from ..untrusted import check_tree
 
     if args.jobs < 1:

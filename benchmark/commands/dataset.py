@@ -71,7 +71,7 @@ def run_build(args: Any) -> int:
     from ..cmdutil import load_decider
     from ..datasets import build_dataset, datasets_dir
     from ..errors import UserError
-    from ..suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     if args.chunk_size < 1:
         raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")

@@ -41,7 +41,7 @@ def run(args: Any) -> int:
     from ..decision_map import decision_map, plot
     from ..errors import UserError
     from ..io import atomic_write_bytes
-    from ..suites import load_suite
+    from overtakezoo.envs.suites import load_suite
 
     if not 0 <= args.warmup <= 100:
         raise UserError(f"--warmup {args.warmup}: expected 0..100")

@@ -46,7 +46,7 @@ def register(subparsers: Any) -> None:
 def run(args: Any) -> int:
     from ..errors import UserError
     from ..runner import run_suite
-    from ..suites import load_suite, parse_shard, shard_bounds
+    from overtakezoo.envs.suites import load_suite, parse_shard, shard_bounds
 
     suite = load_suite(args.suite)
     shard = parse_shard(args.shard)

@@ -16,7 +16,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..suites import list_suites
+    from overtakezoo.envs.suites import list_suites
 
     rows = [("suite", "version", "count", "seed", "hash", "description")]
     for s in list_suites():

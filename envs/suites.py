@@ -20,10 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from overtakezoo.envs import ConfigError, EnvConfig, ScenarioDistribution, Scenarios
-from overtakezoo.envs.config import unknown_key
+from .config import ConfigError, EnvConfig, unknown_key
+from .scenarios import ScenarioDistribution, Scenarios
 
-from .errors import UserError
+
+
+class SuiteError(ConfigError):
+    """A suite name, file or shard the user gave is unknown or malformed (the CLI prints one line)."""
+
 
 SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
@@ -105,13 +109,13 @@ def available_memory() -> int | None:
 
 
 def check_memory(suite: Suite) -> None:
-    """UserError naming the sizes when a run of ``suite`` cannot fit in the available memory."""
+    """SuiteError naming the sizes when a run of ``suite`` cannot fit in the available memory."""
     scenarios, core = memory_needed(suite)
     available = available_memory()
     if available is not None and scenarios + core > available:
         one = suite.distribution
         gib = 2.0**30
-        raise UserError(
+        raise SuiteError(
             f"{suite.path}: count: {suite.count} scenarios of {1 + one.oncoming_count + one.follower_count} NPCs "
             f"need about {(scenarios + core) / gib:.1f} GiB ({scenarios / gib:.1f} GiB of scenarios, "
             f"{core / gib:.1f} GiB per chunk of {CHUNK_SIZE}), only {available / gib:.1f} GiB is available: "
@@ -124,9 +128,9 @@ def shard_bounds(count: int, shard: tuple[int, int] | None) -> tuple[int, int]:
         return 0, count
     i, k = shard
     if not (isinstance(i, int) and isinstance(k, int)) or k < 1 or not 0 <= i < k:
-        raise UserError(f"shard {i}/{k}: expected i/k with 0 <= i < k")
+        raise SuiteError(f"shard {i}/{k}: expected i/k with 0 <= i < k")
     if k > count:
-        raise UserError(f"shard {i}/{k}: more shards than the suite's {count} scenarios")
+        raise SuiteError(f"shard {i}/{k}: more shards than the suite's {count} scenarios")
     return i * count // k, (i + 1) * count // k
 
 
@@ -136,10 +140,10 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", text)
     if not m:
-        raise UserError(f"--shard {text!r}: expected i/k, e.g. 0/4 (the first of four slices)")
+        raise SuiteError(f"--shard {text!r}: expected i/k, e.g. 0/4 (the first of four slices)")
     i, k = int(m.group(1)), int(m.group(2))
     if k < 1 or i >= k:
-        raise UserError(f"--shard {text!r}: expected 0 <= i < k")
+        raise SuiteError(f"--shard {text!r}: expected 0 <= i < k")
     return i, k
 
 
@@ -157,7 +161,7 @@ def load_training(spec: str) -> list[Suite]:
     ``core-train+multi-train``), or one suite."""
     names = tuple(name for part in str(spec).split("+") if part for name in MIXTURES.get(part, (part,)))
     if not names:
-        raise UserError(f"no training suite in {spec!r}")
+        raise SuiteError(f"no training suite in {spec!r}")
     return [load_suite(n) for n in names]
 
 
@@ -167,57 +171,57 @@ def load_suite(name_or_path: str | Path) -> Suite:
     path = Path(text)
     if not (text.endswith(".toml") or path.is_file()):
         if not NAME_RE.match(text) or not (SUITES_DIR / f"{text}.toml").is_file():
-            raise UserError(f"unknown suite {text!r} (known: {', '.join(suite_names())}; or pass a .toml path)")
+            raise SuiteError(f"unknown suite {text!r} (known: {', '.join(suite_names())}; or pass a .toml path)")
         path = SUITES_DIR / f"{text}.toml"
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise UserError(f"cannot read suite file {path}: {exc.strerror or exc}") from None
+        raise SuiteError(f"cannot read suite file {path}: {exc.strerror or exc}") from None
     return parse_suite(data, path)
 
 
 def parse_suite(data: bytes, path: Path) -> Suite:
-    """Validate the bytes of a suite file; every problem is a UserError naming the file and key."""
+    """Validate the bytes of a suite file; every problem is a SuiteError naming the file and key."""
     where = str(path)
     try:
         doc = tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError:
-        raise UserError(f"{where}: not UTF-8 text") from None
+        raise SuiteError(f"{where}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{where}: malformed TOML: {exc}") from None
+        raise SuiteError(f"{where}: malformed TOML: {exc}") from None
     unknown = sorted(set(doc) - _KEYS)
     if unknown:
-        raise UserError(f"{where}: {unknown[0]}: {unknown_key(unknown[0], _KEYS)}")
+        raise SuiteError(f"{where}: {unknown[0]}: {unknown_key(unknown[0], _KEYS)}")
     digest = hashlib.sha256(data)
     if "base" in doc:
         doc, digest = _with_base(doc, where, digest)
     for key in ("name", "version", "count", "seed", "scenario"):
         if key not in doc:
-            raise UserError(f"{where}: {key}: missing")
+            raise SuiteError(f"{where}: {key}: missing")
     name = doc["name"]
     if not isinstance(name, str) or not NAME_RE.match(name):
-        raise UserError(f"{where}: name: expected lowercase letters, digits, '.', '_' or '-', got {name!r}")
+        raise SuiteError(f"{where}: name: expected lowercase letters, digits, '.', '_' or '-', got {name!r}")
     version = _int(where, "version", doc["version"], 1, 10**9)
     count = _int(where, "count", doc["count"], 1, MAX_COUNT)
     seed = _int(where, "seed", doc["seed"], 0, 2**63 - 1)
     description = doc.get("description", "")
     if not isinstance(description, str):
-        raise UserError(f"{where}: description: expected a string")
+        raise SuiteError(f"{where}: description: expected a string")
     scenario, sim = doc["scenario"], doc.get("sim", {})
     if not isinstance(scenario, dict):
-        raise UserError(f"{where}: scenario: expected a table")
+        raise SuiteError(f"{where}: scenario: expected a table")
     if not isinstance(sim, dict):
-        raise UserError(f"{where}: sim: expected a table")
+        raise SuiteError(f"{where}: sim: expected a table")
     if "scenario" in sim:
-        raise UserError(f"{where}: sim.scenario: put scenario keys in the [scenario] table")
+        raise SuiteError(f"{where}: sim.scenario: put scenario keys in the [scenario] table")
     try:
         config = EnvConfig.from_dict(sim, scenario=scenario)
         distribution = ScenarioDistribution.from_dict(scenario)
     except ConfigError as exc:
         section = "" if str(exc).startswith("scenario.") else "sim."
-        raise UserError(f"{where}: {section}{exc}") from None
+        raise SuiteError(f"{where}: {section}{exc}") from None
     except (TypeError, ValueError) as exc:  # a value of the wrong type deep in a nested table
-        raise UserError(f"{where}: sim: {exc}") from None
+        raise SuiteError(f"{where}: sim: {exc}") from None
     return Suite(name=name, version=version, count=count, seed=seed, description=description,
                  hash=digest.hexdigest(), path=path.resolve(), config=config,
                  distribution=distribution)
@@ -227,19 +231,19 @@ def _with_base(doc: dict[str, Any], where: str, digest: Any) -> tuple[dict[str, 
     """A split's document completed with its base suite's tables (a built-in suite, by name)."""
     base = doc["base"]
     if not isinstance(base, str) or not NAME_RE.match(base) or not (SUITES_DIR / f"{base}.toml").is_file():
-        raise UserError(f"{where}: base: {base!r} is not a built-in suite (known: {', '.join(suite_names())})")
+        raise SuiteError(f"{where}: base: {base!r} is not a built-in suite (known: {', '.join(suite_names())})")
     both = sorted({"scenario", "sim"} & set(doc))
     if both:
-        raise UserError(f"{where}: {both[0]}: a split takes its tables from its base suite {base!r}")
+        raise SuiteError(f"{where}: {both[0]}: a split takes its tables from its base suite {base!r}")
     base_bytes = (SUITES_DIR / f"{base}.toml").read_bytes()
     base_doc = tomllib.loads(base_bytes.decode("utf-8"))
     if "base" in base_doc:
-        raise UserError(f"{where}: base: {base!r} is itself a split")
+        raise SuiteError(f"{where}: base: {base!r} is itself a split")
     digest.update(b"\0" + base_bytes)
     return {**doc, "scenario": base_doc["scenario"], "sim": base_doc.get("sim", {})}, digest
 
 
 def _int(where: str, key: str, value: Any, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise UserError(f"{where}: {key}: expected an integer in [{lo}, {hi}], got {value!r}")
+        raise SuiteError(f"{where}: {key}: expected an integer in [{lo}, {hi}], got {value!r}")
     return value
