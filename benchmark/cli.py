@@ -1,7 +1,8 @@
 """The ``overtakezoo`` command line.
 
 Each subcommand lives in its own module under ``benchmark/commands/`` exposing
-``register(subparsers)``; modules are discovered, so adding a command touches no other file.
+``register(subparsers)``; modules are discovered, so adding a command touches no other file
+(``_options.py`` holds the options they share).
 Bad input raises :class:`~overtakezoo.benchmark.errors.UserError` (or, from the layers below, a
 ``ConfigError`` or an unwritable path's ``WriteError``): one line on stderr, exit 2. SIGTERM is raised
 like Ctrl-C so cleanup runs and no half-written file is left; a closed stdout pipe ends quietly.
@@ -19,9 +20,9 @@ import threading
 
 from overtakezoo.envs import ConfigError
 
-from . import commands
-from .errors import UserError
-from .io import WriteError
+from overtakezoo.benchmark import commands
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs.io import WriteError
 
 
 class Terminated(KeyboardInterrupt):
@@ -42,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):  # shared option helpers (_options.py), not a command
+            continue
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         module.register(sub)
     return parser

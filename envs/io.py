@@ -15,13 +15,14 @@ exists, and the kernel drops a dead process's locks. Before a new temp is made b
 target's temps that nobody holds (what SIGKILL or a crash left) are deleted: :func:`sweep_stale`.
 
 This module sits in ``envs``, the lowest layer, so the zoo's trainers and the benchmark share it;
-``overtakezoo.benchmark.io`` re-exports it.
+
 """
 
 from __future__ import annotations
 
 import contextlib
 import glob
+import hashlib
 import json
 import os
 import secrets
@@ -36,7 +37,7 @@ try:
 except ImportError:  # Windows: temps are not locked, so none is ever swept
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["WriteError", "atomic_output", "atomic_path", "atomic_directory", "atomic_write_bytes",
+__all__ = ["WriteError", "file_sha256", "atomic_output", "atomic_path", "atomic_directory", "atomic_write_bytes",
            "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir", "sweep_stale",
            "temp_directory"]
 
@@ -354,3 +355,12 @@ def check_writable_dir(path: str | os.PathLike) -> Path:
         raise _fail(path, exc) from None
     check_writable(path / ".write-probe")
     return path
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes, read in 1 MiB blocks (datasets, artifacts, leaderboard files)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

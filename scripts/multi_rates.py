@@ -15,8 +15,8 @@ import argparse
 
 import numpy as np
 
-from overtakezoo.benchmark.multi_metrics import by_av
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.results.multi_metrics import by_av
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import Suite, load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 from overtakezoo.zoo.base import Decider, load

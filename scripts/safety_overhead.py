@@ -6,7 +6,7 @@ import sys
 import time
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 
 ROUNDS = 9

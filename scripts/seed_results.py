@@ -28,10 +28,10 @@ import json
 import shutil
 from pathlib import Path
 
-from overtakezoo.benchmark.headline import CORE
-from overtakezoo.benchmark.io import atomic_write_bytes
-from overtakezoo.benchmark.policy import load_policy
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.leaderboard.headline import CORE
+from overtakezoo.envs.io import atomic_write_bytes
+from overtakezoo.benchmark.run.policy import load_policy
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import MIXTURES, load_suite, load_training
 from overtakezoo.zoo.export import export, trained_sha256
 

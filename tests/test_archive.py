@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from overtakezoo.benchmark.archive import (EPISODE_GAP_NS, ArchiveRecorder, list_episodes, read_archive,
-                                           read_episode, read_index)
+from overtakezoo.benchmark.archive.format import EPISODE_GAP_NS
+from overtakezoo.benchmark.archive.recorder import ArchiveRecorder
+from overtakezoo.benchmark.archive.reader import list_episodes, read_archive, read_episode, read_index
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import OUTCOME_NAMES
 from overtakezoo.zoo.base import Decider
@@ -236,8 +237,8 @@ _WRITER = """
 import sys
 sys.path.insert(0, {tests!r})
 from test_archive import MixedDecider, _Stop
-from overtakezoo.benchmark.archive import ArchiveRecorder
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.archive.recorder import ArchiveRecorder
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 suite = load_suite("table1")
 with ArchiveRecorder({path!r}) as rec:
@@ -403,7 +404,7 @@ def test_replay_cli(run, tmp_path, capsys):
 
 
 def test_fast_message_path_writes_the_same_bytes_as_mcap_add_message(tmp_path, monkeypatch):
-    from overtakezoo.benchmark import mcap_sink
+    from overtakezoo.benchmark.archive import sink as mcap_sink
 
     suite = load_suite("table1")
     blobs = []
@@ -426,7 +427,7 @@ def test_replay_help_has_examples(capsys):
 
 
 def test_eval_archive_end_to_end(tmp_path, capsys):
-    from overtakezoo.benchmark.archive import read_archive_meta
+    from overtakezoo.benchmark.archive.reader import read_archive_meta
     from overtakezoo.envs.suites import SUITES_DIR
 
     suite = tmp_path / "tiny.toml"
@@ -487,7 +488,7 @@ def test_gif_of_the_246_frame_episode(tmp_path):
     from PIL import Image
 
     from overtakezoo import zoo
-    from overtakezoo.benchmark.replay import replay
+    from overtakezoo.benchmark.archive.replay import replay
 
     suite = load_suite("table1")
     path, gif = tmp_path / "rule.mcap", tmp_path / "ep29.gif"
@@ -502,8 +503,8 @@ def test_gif_of_the_246_frame_episode(tmp_path):
 
 
 def test_foxglove_layout_ships_and_replay_says_how_to_open_it(capsys):
-    from overtakezoo.benchmark.archive_format import FOXGLOVE_SCHEMAS, SCHEMAS
-    from overtakezoo.benchmark.replay import FOXGLOVE_LAYOUT
+    from overtakezoo.benchmark.archive.format import FOXGLOVE_SCHEMAS, SCHEMAS
+    from overtakezoo.benchmark.archive.replay import FOXGLOVE_LAYOUT
 
     layout = json.loads(FOXGLOVE_LAYOUT.read_text())
     panels = layout["configById"]
@@ -526,7 +527,7 @@ def test_foxglove_layout_ships_and_replay_says_how_to_open_it(capsys):
 _EVAL = """
 import os, signal, sys
 import mcap.writer
-from overtakezoo.benchmark import archive
+from overtakezoo.benchmark.archive import recorder as archive
 from overtakezoo.benchmark.cli import main
 Rec, term = archive.ArchiveRecorder, lambda: os.kill(os.getpid(), signal.SIGTERM)
 {hook}
@@ -621,7 +622,7 @@ def test_full_disk_while_archiving_is_one_error_line_and_keeps_the_old_file(tmp_
     the previous archive untouched."""
     import errno
 
-    from overtakezoo.benchmark import archive
+    from overtakezoo.benchmark.archive import recorder as archive
 
     target = tmp_path / "run.mcap"
     target.write_bytes(b"the previous archive")
@@ -644,7 +645,7 @@ def test_full_disk_while_archiving_is_one_error_line_and_keeps_the_old_file(tmp_
 def test_a_killed_writers_temp_file_is_swept_by_the_next_write_not_a_live_one(tmp_path):
     """SIGKILL leaves its temp file (readable, see above); the next write of that archive deletes it,
     while the temp file of a writer still running stays."""
-    from overtakezoo.benchmark.io import check_writable
+    from overtakezoo.envs.io import check_writable
 
     target = tmp_path / "run.mcap"
     code = _WRITER.format(tests=os.path.dirname(__file__), path=str(target), how="kill")

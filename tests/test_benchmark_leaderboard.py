@@ -10,10 +10,10 @@ import pytest
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard import generate, stale_files
-from overtakezoo.benchmark.submission import submit
-from overtakezoo.benchmark.metrics import summarize
-from overtakezoo.benchmark.results import Results
+from overtakezoo.benchmark.leaderboard.generate import generate, stale_files
+from overtakezoo.benchmark.leaderboard.submission import submit
+from overtakezoo.benchmark.results.metrics import summarize
+from overtakezoo.benchmark.results.results import Results
 
 from test_benchmark_results import fake_results
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from overtakezoo.benchmark.metrics import bootstrap_mean, crash_same_scenarios, render_table, summarize, wilson
+from overtakezoo.benchmark.results.metrics import bootstrap_mean, crash_same_scenarios, render_table, summarize, wilson
 
 
 def test_wilson_known_values():

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results import PER_SCENARIO, Results
+from overtakezoo.benchmark.results.results import PER_SCENARIO, Results
 from overtakezoo.envs.suites import load_suite
 
 

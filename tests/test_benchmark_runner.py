@@ -7,8 +7,8 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results import Results, merge
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.results.results import Results, merge
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import SUITES_DIR, load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 

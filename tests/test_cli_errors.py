@@ -176,7 +176,7 @@ def test_sigterm_during_eval_leaves_no_file(tmp_path):
 _SLOW_WRITER = """
 import signal, sys, time
 from overtakezoo.benchmark.cli import _on_sigterm
-from overtakezoo.benchmark.io import atomic_output
+from overtakezoo.envs.io import atomic_output
 signal.signal(signal.SIGTERM, _on_sigterm)  # what the CLI installs
 with atomic_output(sys.argv[1]) as f:
     f.write(b"x" * 100000)

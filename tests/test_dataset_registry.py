@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.dataset_recipes import RECIPES_FILE, read_recipes
+from overtakezoo.benchmark.datasets.recipes import RECIPES_FILE, read_recipes
 
 from test_datasets import RangeHandler, home, load_minari, server  # noqa: F401 - fixtures
 
@@ -80,7 +80,7 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
     assert err.startswith("error:") and err.count("\n") == 1 and "--build" in err and "unreachable" in err
     assert main(["dataset", "download", MEDIUM, "--build", "--no-progress"]) == 0  # rebuilt, hash checked
 
-    from overtakezoo.benchmark.datasets import content_sha256
+    from overtakezoo.benchmark.datasets.store import content_sha256
 
     fresh = home / "fresh" / "datasets"
     ds = load_minari(fresh, MEDIUM)  # Minari's own loader reads the rebuild
@@ -138,7 +138,7 @@ def test_mirrors_in_order_with_resume(published, home, server, capsys):  # noqa:
     assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 0
     assert RangeHandler.seen == [f"bytes={len(blob) // 2}-"]  # the dead mirror skipped, the live one resumed
     assert not part.exists()
-    from overtakezoo.benchmark.datasets import content_sha256
+    from overtakezoo.benchmark.datasets.store import content_sha256
 
     assert content_sha256(load_minari(home / "fresh" / "datasets", MEDIUM)) == reg[MEDIUM]["content_sha256"]
 
@@ -157,7 +157,7 @@ def test_pack_is_byte_deterministic_and_recipe_table_is_checked(home, tmp_path, 
     table = read_recipes(RECIPES_FILE)  # the shipped table is valid, with the four levels
     assert set(table["levels"]) == {"random", "medium", "expert", "mixed"}
     # The expert is the best learned member by the leaderboard's OvertakeZoo score.
-    from overtakezoo.benchmark.leaderboard import LEARNED
+    from overtakezoo.benchmark.leaderboard.generate import LEARNED
 
     scores = json.loads((Path(__file__).resolve().parents[1] / "leaderboards" / "index.json").read_text())
     learned = {k: v["value"] for k, v in scores["headline"]["scores"].items() if k in LEARNED}
@@ -169,7 +169,7 @@ def test_pack_is_byte_deterministic_and_recipe_table_is_checked(home, tmp_path, 
 
 
 def test_shipped_registry_names_the_readme_example():
-    from overtakezoo.benchmark.datasets import REGISTRY_FILE, load_registry
+    from overtakezoo.benchmark.datasets.registry import REGISTRY_FILE, load_registry
 
     reg = load_registry(REGISTRY_FILE)
     e = reg["overtakezoo/table1/rule-fsm-v0"]

@@ -246,7 +246,7 @@ BUILD = ["dataset", "build", "--suite", "table1-train", "--decider", "always-ove
 
 
 def _content(name):
-    from overtakezoo.benchmark.datasets import content_sha256, load
+    from overtakezoo.benchmark.datasets.store import content_sha256, load
 
     return content_sha256(load(name))
 
@@ -317,7 +317,7 @@ def test_a_killed_builds_temp_folder_is_swept_by_the_next_build(home):
     import subprocess
     import sys
 
-    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets import _staging, datasets_dir\n"
+    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets.store import _staging, datasets_dir\n"
             f"with _staging(datasets_dir() / {NAME!r}) as staging:\n"
             "    (staging / 'half.hdf5').write_bytes(b'x')\n    os.kill(os.getpid(), signal.SIGKILL)\n")
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == -9

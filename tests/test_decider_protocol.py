@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution, observation_size
 from overtakezoo.envs.hold import hold, hold_steps

@@ -5,8 +5,8 @@ import re
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.distributed import run_suite_ray
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.run.distributed import run_suite_ray
+from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 
 ray = pytest.importorskip("ray")

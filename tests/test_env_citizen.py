@@ -13,7 +13,7 @@ import pytest
 from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import vector as vector_wrappers
 
-from overtakezoo.benchmark.results import config_sha256
+from overtakezoo.benchmark.results.results import config_sha256
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import (EnvConfig, OvertakeCore, make_scenario, make_vec, observation_layout, observation_size,
                               parallel_env)
@@ -26,7 +26,7 @@ HYPERPARAMS = Path(__file__).resolve().parents[1] / "zoo" / "hyperparams"
 
 # ------------------------------------------------------------------ reward
 def test_default_reward_ranks_rule_fsm_above_the_constant_baselines():
-    from overtakezoo.benchmark.returns import mean_returns
+    from overtakezoo.benchmark.results.returns import mean_returns
 
     means = mean_returns("table1-train", ("rule-fsm", "always-follow", "always-overtake"), limit=200)
     assert means["rule-fsm"] > means["always-overtake"] > means["always-follow"], means

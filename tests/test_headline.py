@@ -5,8 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from overtakezoo.benchmark import headline, paper_table
-from overtakezoo.benchmark.headline import CORE, Counts, score
+from overtakezoo.benchmark.leaderboard import headline
+from overtakezoo.benchmark.leaderboard import paper_table
+from overtakezoo.benchmark.leaderboard.headline import CORE, Counts, score
 
 REFERENCE = Path(__file__).resolve().parents[1] / "leaderboards" / "reference" / "paper.json"
 

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
+from overtakezoo.envs.io import file_sha256
 from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.results import Results
-from overtakezoo.benchmark.rows import file_sha256
-from overtakezoo.benchmark.sandbox import landlock_abi
+from overtakezoo.benchmark.results.results import Results
+from overtakezoo.benchmark.run.sandbox import landlock_abi
 from overtakezoo.envs import EnvConfig, observation_size
 
 from test_submissions import one_line_error, scripted_policy, tiny  # noqa: F401 (fixture)
@@ -301,8 +301,8 @@ def test_a_row_storing_code_is_refused_by_verify(tmp_path, tiny, capsys, scripts
 def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path, tiny, capsys, scripts):
     pytest.importorskip("onnxruntime")
     net = scripts.Bad(0)  # mode 7 on real observations, exported to ONNX through the sandbox by submit's path
-    from overtakezoo.benchmark.artifacts import Artifact
-    from overtakezoo.benchmark.policy import boxed
+    from overtakezoo.benchmark.run.artifacts import Artifact
+    from overtakezoo.benchmark.run.policy import boxed
 
     torch.jit.save(torch.jit.script(net), tmp_path / "bad.pt")
     box = boxed(Artifact("torchscript", (tmp_path / "bad.pt").read_bytes()), suites.load_suite(tiny).config, "bad",
@@ -321,7 +321,7 @@ def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path,
 
 def test_a_box_loads_code_only_when_asked(tmp_path, scripts):
     """What verify builds (no allow_code) refuses TorchScript before any process starts."""
-    from overtakezoo.benchmark.sandbox import PolicyFailure, SandboxedPolicy
+    from overtakezoo.benchmark.run.sandbox import PolicyFailure, SandboxedPolicy
 
     torch.jit.save(torch.jit.script(scripts.Writer(str(tmp_path / "pwned"))), tmp_path / "w.pt")
     with pytest.raises(PolicyFailure, match="not a stored data format"):

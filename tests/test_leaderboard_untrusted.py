@@ -10,8 +10,8 @@ import threading
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.leaderboard import generate
-from overtakezoo.benchmark.untrusted import md, plot_text
+from overtakezoo.benchmark.leaderboard.generate import generate
+from overtakezoo.benchmark.leaderboard.untrusted import md, plot_text
 
 from test_benchmark_cli import one_line_error
 from test_benchmark_leaderboard import REPO_LEADERBOARDS, file_row, root  # noqa: F401 (root: a fixture)

@@ -8,20 +8,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtakezoo.benchmark import crossplay
+from overtakezoo.benchmark.leaderboard import crossplay
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard import generate, stale_files
-from overtakezoo.benchmark.multi_metrics import summarize_multi, yielded
-from overtakezoo.benchmark.pairing import Pairing
-from overtakezoo.benchmark.results import Results, merge, round_per_scenario
-from overtakezoo.benchmark.runner import _per_scenario, run_suite
-from overtakezoo.benchmark.verify import verify
+from overtakezoo.benchmark.leaderboard.generate import generate, stale_files
+from overtakezoo.benchmark.results.multi_metrics import summarize_multi, yielded
+from overtakezoo.benchmark.run.pairing import Pairing
+from overtakezoo.benchmark.results.results import Results, merge, round_per_scenario
+from overtakezoo.benchmark.run.runner import _per_scenario, run_suite
+from overtakezoo.benchmark.leaderboard.verify import verify
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.core import CRASH, SUCCESS, OvertakeCore
 from overtakezoo.envs.scenarios import Scenarios
-from overtakezoo.zoo.base import ConstantDecider, Decider, load
+from overtakezoo.zoo.base import Decider, load
 
 from test_multi_av import drive, duel
 

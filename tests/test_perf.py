@@ -3,7 +3,7 @@
 import json
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.benchmark.perf import eval_process_times, highway_version
+from overtakezoo.benchmark.run.perf import eval_process_times, highway_version
 from test_benchmark_cli import one_line_error, small_suite_file
 
 

@@ -13,9 +13,9 @@ with warnings.catch_warnings():  # pettingzoo.test imports its own example envs 
     warnings.simplefilter("ignore", DeprecationWarning)
     from pettingzoo.test import parallel_api_test, parallel_seed_test
 
+from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.suites import MULTI, load_suite
 from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env
-from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.spaces import ego_observation_space
 
 KMH = 1 / 3.6

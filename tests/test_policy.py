@@ -14,7 +14,7 @@ import pytest
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.policy import load_policy
+from overtakezoo.benchmark.run.policy import load_policy
 from overtakezoo.envs.suites import SUITES_DIR, load_suite
 from overtakezoo.envs import EnvConfig, observation_size
 from overtakezoo.zoo.testing import check_decider

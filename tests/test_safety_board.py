@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 from overtakezoo import zoo
-from overtakezoo.benchmark import safety_board
-from overtakezoo.benchmark.headline import CORE
-from overtakezoo.benchmark.results import SAFETY_PER_SCENARIO, Results
-from overtakezoo.benchmark.rows import Row
-from overtakezoo.benchmark.runner import run_suite
+from overtakezoo.benchmark.leaderboard import safety_board
+from overtakezoo.benchmark.leaderboard.headline import CORE
+from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
+from overtakezoo.benchmark.leaderboard.rows import Row
+from overtakezoo.benchmark.run.runner import run_suite
 
 from test_benchmark_runner import small_suite
 
@@ -25,7 +25,7 @@ def rows(tmp_path, names, count=40):
 def without_safety(row: Row) -> Row:
     r = row.results
     per = {k: v for k, v in r.per.items() if k not in SAFETY_PER_SCENARIO}
-    from overtakezoo.benchmark.results import summary_of
+    from overtakezoo.benchmark.results.results import summary_of
 
     meta = {**r.meta, "decider": {**r.meta["decider"], "name": "recorded-before"}}
     return Row(row.rel.replace(".json", "-old.json"), Results(meta, per, summary_of(per, r.meta["seed"]), r.timing))

@@ -9,13 +9,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results import SAFETY_PER_SCENARIO, Results
-from overtakezoo.benchmark.runner import run_indices, run_suite
+from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
+from overtakezoo.benchmark.run.runner import run_indices, run_suite
 from overtakezoo.benchmark.safety import (RSSParams, SafetyMonitor, safe_distance_opposite_direction,
                                           safe_distance_same_direction)
 from overtakezoo.envs.suites import load_suite
-from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.zoo.base import load
 
 P = RSSParams()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.runner import run_indices
+from overtakezoo.benchmark.run.runner import run_indices
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, CRASH, SUCCESS, EnvConfig, observation_layout
 from overtakezoo.envs.observation import SLOT_FEATURES

@@ -9,18 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from overtakezoo.envs.io import file_sha256
 from overtakezoo import zoo
 from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard import generate
-from overtakezoo.benchmark.metrics import summarize
-from overtakezoo.benchmark.policy import load_policy
-from overtakezoo.benchmark.results import PER_SCENARIO, Results
-from overtakezoo.benchmark.runner import run_indices, run_suite
-from overtakezoo.benchmark.rows import file_sha256
-from overtakezoo.benchmark.submission import submit
-from overtakezoo.benchmark.verify import changed_rows, default_base, sample_indices, verify
+from overtakezoo.benchmark.leaderboard.generate import generate
+from overtakezoo.benchmark.results.metrics import summarize
+from overtakezoo.benchmark.results.results import PER_SCENARIO, Results
+from overtakezoo.benchmark.run.runner import run_indices, run_suite
+from overtakezoo.benchmark.leaderboard.submission import submit
+from overtakezoo.benchmark.leaderboard.verify import changed_rows, default_base, sample_indices, verify
 from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
 
 from test_benchmark_results import fake_results

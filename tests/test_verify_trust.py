@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results import Results
-from overtakezoo.benchmark.submission import submissions_lock, submit
-from overtakezoo.benchmark.verify import changed_rows, sample_indices, tree_seed, verify
+from overtakezoo.benchmark.results.results import Results
+from overtakezoo.benchmark.leaderboard.submission import submissions_lock, submit
+from overtakezoo.benchmark.leaderboard.verify import changed_rows, sample_indices, tree_seed, verify
 
 from test_submissions import REPO, one_line_error, shipped
 
@@ -117,7 +117,7 @@ def test_new_and_changed_rows_are_verified_in_full(root, capsys):
     per = {k: v.copy() for k, v in r.per.items()}
     per["outcome"][lie] = 1
     per["completion_time"][lie] = 30.0
-    from overtakezoo.benchmark.metrics import summarize
+    from overtakezoo.benchmark.results.metrics import summarize
 
     forged = Results(r.meta, per, summarize(per, r.meta["seed"]), r.timing)
     forged.save(path)

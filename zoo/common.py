@@ -75,7 +75,7 @@ def reject_reward_keys(hp: dict[str, Any], where: str) -> None:
 
 def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time: np.ndarray) -> dict[str, Any]:
     """The results block of a model card, with 95 % Wilson intervals."""
-    from overtakezoo.benchmark.metrics import wilson
+    from overtakezoo.benchmark.results.metrics import wilson
 
     n = len(outcome)
     succ, crash, tout = (int((outcome == k).sum()) for k in (SUCCESS, CRASH, TIMEOUT))
@@ -93,7 +93,7 @@ def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time
 def evaluate(decider: Any, suite: Any, progress: bool = False, limit: int | None = None) -> tuple[dict[str, Any], Any]:
     """Run ``decider`` on ``suite`` (a name, path or Suite) with the benchmark runner: the card's
     summary and the full Results."""
-    from overtakezoo.benchmark.runner import run_suite
+    from overtakezoo.benchmark.run.runner import run_suite
     from overtakezoo.envs.suites import load_suite
 
     suite = load_suite(suite) if isinstance(suite, (str, Path)) else suite
@@ -101,5 +101,5 @@ def evaluate(decider: Any, suite: Any, progress: bool = False, limit: int | None
     summary = outcome_summary(np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]),
                               np.asarray(res.per["completion_time"], float))
     summary["suite"] = {"name": suite.name, "version": suite.version, "sha256": suite.hash,
-                        "measured_with": "overtakezoo.benchmark.runner.run_suite"}
+                        "measured_with": "overtakezoo.benchmark.run.runner.run_suite"}
     return summary, res

@@ -63,9 +63,9 @@ class Transitions:
 
 
 def load_dataset(name: str) -> Any:
-    """A Minari dataset by name through ``overtakezoo.benchmark.datasets.load`` (imported here: the
+    """A Minari dataset by name through ``overtakezoo.benchmark.datasets.store.load`` (imported here: the
     command layer owns the datasets folder; training is the only caller)."""
-    from overtakezoo.benchmark import datasets
+    from overtakezoo.benchmark.datasets import store as datasets
 
     return datasets.load(name)
 
@@ -104,12 +104,12 @@ def dataset_config(dataset: Any) -> EnvConfig:
 
 def dataset_identity(name: str, dataset: Any, data: Transitions) -> dict[str, Any]:
     """What the model card records about the training data: name, description, and content hashes:
-    ``content_sha256`` is the registry's identity (``overtakezoo.benchmark.datasets.content_sha256``:
+    ``content_sha256`` is the registry's identity (``overtakezoo.benchmark.datasets.store.content_sha256``:
     the episode arrays and fixed metadata, not the HDF5 bytes); ``transitions_sha256`` hashes the
     arrays trained on."""
-    from overtakezoo.benchmark.datasets import content_sha256
+    from overtakezoo.benchmark.datasets.store import content_sha256
 
-    content, kind = content_sha256(dataset), "overtakezoo.benchmark.datasets.content_sha256"
+    content, kind = content_sha256(dataset), "overtakezoo.benchmark.datasets.store.content_sha256"
     meta = dict(getattr(dataset.storage, "metadata", {}) or {})
     h = hashlib.sha256()
     for a in (data.obs, data.action, data.reward, data.next_obs, data.done, data.episode):

@@ -98,7 +98,7 @@ def _bar(total: int, desc: str, progress: bool) -> Any:
 def train(dataset: str, seed: int | None = None, steps: int | None = None, out: str | Path | None = None,
           hyperparams: str | Path | None = None, eval_suite: str | None = "table1", progress: bool = True
           ) -> dict[str, Any]:
-    """Train bc on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets``),
+    """Train bc on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets.store``),
     evaluate on ``eval_suite`` and write ``bc.npz`` + ``bc.json`` into ``out``; returns the card."""
     overrides = {k: v for k, v in {"seed": seed, "steps": steps}.items() if v is not None}
     hp = load_hyperparams(BCHyperparams, hyperparams or HYPERPARAMS / "bc.toml", overrides)

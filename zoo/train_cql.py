@@ -116,7 +116,7 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
 def train(dataset: str, seed: int | None = None, steps: int | None = None, out: str | Path | None = None,
           hyperparams: str | Path | None = None, eval_suite: str | None = "table1", progress: bool = True
           ) -> dict[str, Any]:
-    """Train cql on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets``),
+    """Train cql on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets.store``),
     evaluate on ``eval_suite`` and write ``cql.npz`` + ``cql.json`` into ``out``; returns the card."""
     overrides = {k: v for k, v in {"seed": seed, "steps": steps}.items() if v is not None}
     hp = load_hyperparams(CQLHyperparams, hyperparams or HYPERPARAMS / "cql.toml", overrides)

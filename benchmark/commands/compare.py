@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -20,9 +20,9 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..errors import UserError
-    from ..metrics import crash_same_scenarios, render_table
-    from ..results import Results
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.results.metrics import crash_same_scenarios, render_table
+    from overtakezoo.benchmark.results.results import Results
 
     a, b = Results.load(args.a), Results.load(args.b)
     if a.suite["hash"] != b.suite["hash"]:

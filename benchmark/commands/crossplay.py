@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -32,12 +32,12 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from .. import crossplay
-    from ..errors import UserError
-    from ..io import atomic_write_bytes
-    from ..leaderboard import write
+    from overtakezoo.benchmark.leaderboard import crossplay
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.envs.io import atomic_write_bytes
+    from overtakezoo.benchmark.leaderboard.generate import write
     from overtakezoo.envs.suites import load_suite
-    from ..untrusted import check_tree
+    from overtakezoo.benchmark.leaderboard.untrusted import check_tree
 
     if args.jobs < 1:
         raise UserError(f"--jobs {args.jobs}: must be >= 1")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -55,7 +55,7 @@ def register(subparsers: Any) -> None:
     k.add_argument("--out", required=True, help="output .tar.gz")
     k.set_defaults(handler=run_pack)
     r = add_parser(sub, "regenerate", "rebuild the official datasets and rewrite the registry",
-                   "Build every dataset of the recipe table (benchmark/registry/recipes.toml), pack each archive\n"
+                   "Build every dataset of the recipe table (benchmark/datasets/registry/recipes.toml), pack each archive\n"
                    "for upload, and rewrite the registry with recipes, content hashes and archive hashes (atomically).",
                    ["overtakezoo dataset regenerate",
                     "overtakezoo dataset regenerate --archives dist/datasets --registry my-registry.json"])
@@ -68,15 +68,16 @@ def register(subparsers: Any) -> None:
 
 
 def run_build(args: Any) -> int:
-    from ..cmdutil import load_decider
-    from ..datasets import build_dataset, datasets_dir
-    from ..errors import UserError
+    from overtakezoo.benchmark.run.policy import load_zoo
+    from overtakezoo.benchmark.datasets.record import build_dataset
+    from overtakezoo.benchmark.datasets.store import datasets_dir
+    from overtakezoo.benchmark.errors import UserError
     from overtakezoo.envs.suites import load_suite
 
     if args.chunk_size < 1:
         raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")
     suite = load_suite(args.suite)
-    decider = load_decider(args.decider, suite.config)
+    decider = load_zoo(args.decider, suite.config)
     ds = build_dataset(args.name, suite, decider, epsilon=args.epsilon, count=args.count, seed=args.seed,
                        chunk_size=args.chunk_size, overwrite=args.overwrite)
     print(f"wrote dataset {args.name}: {ds.total_episodes} episodes, {ds.total_steps} steps in "
@@ -85,7 +86,7 @@ def run_build(args: Any) -> int:
 
 
 def run_list(args: Any) -> int:
-    from ..datasets import datasets_dir, list_datasets
+    from overtakezoo.benchmark.datasets.store import datasets_dir, list_datasets
 
     found = list_datasets()
     print(f"datasets in {datasets_dir()}:")
@@ -98,7 +99,7 @@ def run_list(args: Any) -> int:
 
 
 def run_download(args: Any) -> int:
-    from ..datasets import download
+    from overtakezoo.benchmark.datasets.fetch import download
 
     path = download(args.name, progress=not args.no_progress, build=args.build)
     print(f"installed {args.name} in {path}")
@@ -108,7 +109,7 @@ def run_download(args: Any) -> int:
 def run_pack(args: Any) -> int:
     import json
 
-    from ..datasets import pack
+    from overtakezoo.benchmark.datasets.store import pack
 
     out, size, sha = pack(args.name, args.out)
     print(f"wrote {out}; registry entry:")
@@ -120,8 +121,9 @@ def run_regenerate(args: Any) -> int:
     import time
     from pathlib import Path
 
-    from ..dataset_recipes import RECIPES_FILE, regenerate
-    from ..datasets import datasets_dir, registry_path
+    from overtakezoo.benchmark.datasets.recipes import RECIPES_FILE, regenerate
+    from overtakezoo.benchmark.datasets.registry import registry_path
+    from overtakezoo.benchmark.datasets.store import datasets_dir
 
     t0 = time.perf_counter()
     registry = Path(args.registry) if args.registry else registry_path()

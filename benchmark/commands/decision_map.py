@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..cmdutil import add_decider_options, add_parser, check_writable, decider_from_args
+from overtakezoo.benchmark.commands._options import add_decider_options, add_parser, decider_from_args
+from overtakezoo.envs.io import check_writable
 
 
 def register(subparsers: Any) -> None:
@@ -38,9 +39,9 @@ def register(subparsers: Any) -> None:
 def run(args: Any) -> int:
     import numpy as np
 
-    from ..decision_map import decision_map, plot
-    from ..errors import UserError
-    from ..io import atomic_write_bytes
+    from overtakezoo.benchmark.run.decision_map import decision_map, plot
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.envs.io import atomic_write_bytes
     from overtakezoo.envs.suites import load_suite
 
     if not 0 <= args.warmup <= 100:

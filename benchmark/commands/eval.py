@@ -6,7 +6,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..cmdutil import add_decider_options, add_parser, check_writable, decider_from_args
+from overtakezoo.benchmark.commands._options import add_decider_options, add_parser, decider_from_args
+from overtakezoo.envs.io import check_writable
 
 
 def register(subparsers: Any) -> None:
@@ -44,8 +45,8 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..errors import UserError
-    from ..runner import run_suite
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.run.runner import run_suite
     from overtakezoo.envs.suites import load_suite, parse_shard, shard_bounds
 
     suite = load_suite(args.suite)
@@ -61,7 +62,7 @@ def run(args: Any) -> int:
         if shard or args.archive or args.no_safety:
             raise UserError("--ray runs every shard itself: it cannot be combined with --shard, --archive or "
                             "--no-safety")
-        from ..distributed import parse_address, run_suite_ray
+        from overtakezoo.benchmark.run.distributed import parse_address, run_suite_ray
 
         # Each worker loads the decider itself: by registry name, or the policy spec (a file by absolute path).
         spec = args.decider or (str(Path(args.policy).resolve()) if Path(args.policy).is_file() else args.policy)
@@ -75,7 +76,7 @@ def run(args: Any) -> int:
         results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress,
                             safety=not args.no_safety)
         return _report(results, suite, decider, out)
-    from ..archive import recorder_for_run  # MCAP archive of every episode (benchmark/archive.py)
+    from overtakezoo.benchmark.archive.recorder import recorder_for_run  # MCAP archive of every episode (benchmark/archive/recorder.py)
 
     if args.scene_every < 0:
         raise UserError(f"--scene-every {args.scene_every}: must be >= 0")
@@ -95,15 +96,15 @@ def run(args: Any) -> int:
 
 
 def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:
-    from ..metrics import render_table
+    from overtakezoo.benchmark.results.metrics import render_table
 
     results.save(out)
     lo, hi = results.meta["range"]
     print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
           f"decider {decider.name} v{decider.version}")
     if results.num_avs > 1:  # a multi-AV suite: per-agent Table I (pooled over AVs) and the joint outcomes
-        from ..metrics import format_metric
-        from ..multi_metrics import JOINT, MULTI_TABLE
+        from overtakezoo.benchmark.results.metrics import format_metric
+        from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
 
         print(render_table([(f"{decider.name} (per AV)", results.summary)], table=MULTI_TABLE), end="")
         print("joint (per road): " + "; ".join(f"{label} {format_metric(results.summary['joint'][k], kind, unit)}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -45,15 +45,15 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..errors import UserError
-    from ..leaderboard import stale_files, write
-    from ..untrusted import check_tree
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.leaderboard.generate import stale_files, write
+    from overtakezoo.benchmark.leaderboard.untrusted import check_tree
 
     if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
         raise UserError("--sample, --seed, --base and --only go with --verify")
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
-        from ..verify import changed_rows, default_base, verify
+        from overtakezoo.benchmark.leaderboard.verify import changed_rows, default_base, verify
 
         if args.sample is not None and args.sample < 1:
             raise UserError(f"--sample {args.sample}: must be >= 1")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -26,13 +26,13 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..errors import UserError
-    from ..perf import measure, write_report
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.run.perf import measure, write_report
 
     if any(n < 1 for n in args.sizes) or min(args.batch, args.repeats, args.eval_runs) < 1 or args.seconds <= 0:
         raise UserError("--sizes, --batch, --repeats and --eval-runs must be >= 1 and --seconds > 0")
     if args.out:  # fail before measuring, not after
-        from ..io import check_writable
+        from overtakezoo.envs.io import check_writable
 
         check_writable(args.out + ".json")
         check_writable(args.out + ".md")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -31,9 +31,9 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..archive import read_index
-    from ..errors import UserError
-    from ..replay import FOXGLOVE_LAYOUT, replay
+    from overtakezoo.benchmark.archive.reader import read_index
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.archive.replay import FOXGLOVE_LAYOUT, replay
 
     if args.foxglove:
         print(_foxglove_help(args.archive or "run.mcap", FOXGLOVE_LAYOUT))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
@@ -33,8 +33,8 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: Any) -> int:
-    from ..results import Results, merge
-    from ..submission import submit
+    from overtakezoo.benchmark.results.results import Results, merge
+    from overtakezoo.benchmark.leaderboard.submission import submit
 
     parts = [Results.load(p) for p in args.results]
     results = parts[0] if len(parts) == 1 else merge(parts)

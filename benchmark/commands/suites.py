@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..cmdutil import add_parser
+from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:

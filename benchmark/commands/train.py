@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..errors import UserError
-from ..io import check_writable_dir
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs.io import check_writable_dir
 
 ALGORITHMS = ("dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
 OFFLINE = ("bc", "cql")  # trained from a dataset (--dataset), not by interaction

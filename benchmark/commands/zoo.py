@@ -5,8 +5,8 @@ from __future__ import annotations
 import textwrap
 from typing import Any
 
-from ..cmdutil import add_parser
-from ..errors import UserError
+from overtakezoo.benchmark.commands._options import add_parser
+from overtakezoo.benchmark.errors import UserError
 
 
 def register(subparsers: Any) -> None:

@@ -4,6 +4,6 @@ RSS distances (overtakezoo.envs.rss, shared with the shield) and the per-step mo
 
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
-from .monitor import SafetyMonitor
+from overtakezoo.benchmark.safety.monitor import SafetyMonitor
 
 __all__ = ["RSSParams", "SafetyMonitor", "safe_distance_opposite_direction", "safe_distance_same_direction"]

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.config import ABORT, OVERTAKE
 
+from overtakezoo.envs.config import ABORT, OVERTAKE
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
 INF = np.inf

@@ -1,0 +1,322 @@
+"""Reading OvertakeZoo MCAP archives back: the episode index, one episode, or all of them.
+
+Every failure of the mcap reader (a damaged chunk, bad JSON, a file with no whole episode)
+becomes one :class:`~overtakezoo.benchmark.errors.UserError` line. A file without a readable
+summary section (cut by a killed writer, truncated in a copy) is read by a scan of its records: its
+whole episodes are those closed by their ``episode`` metadata record (the writer puts that record
+after the episode's last chunk), and :attr:`ArchiveIndex.note` says in one line what was lost.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from overtakezoo.benchmark.archive.format import INF_FIELDS, STATE_TOPICS
+from overtakezoo.benchmark.errors import UserError
+
+
+@dataclass
+class Episode:
+    """One archived episode: arrays indexed by step (0 = after reset)."""
+
+    index: int
+    scenario: dict[str, Any]
+    summary: dict[str, Any]
+    t: np.ndarray  # (T+1,)
+    ego: dict[str, np.ndarray]  # x, y, psi, v, a, steer: (T+1,)
+    npc_s: np.ndarray  # (T+1, M)
+    npc_v: np.ndarray  # (T+1, M)
+    npc_lane: np.ndarray  # (M,)
+    mode: np.ndarray  # (T,) mode applied during step k+1
+    rollout: np.ndarray  # (T,)
+    offsets: np.ndarray  # (T, R)
+    blocked: np.ndarray  # (T, R)
+    reward: np.ndarray  # (T,)
+
+    @property
+    def outcome(self) -> str:
+        return self.summary["outcome_name"]
+
+    @property
+    def steps(self) -> int:
+        return len(self.reward)
+
+
+@dataclass
+class EpisodeEntry:
+    index: int
+    start_ns: int
+    end_ns: int
+    steps: int
+    outcome: str
+    episode_return: float
+
+
+@dataclass
+class ArchiveIndex:
+    """What :func:`read_index` finds: the whole episodes, the run's metadata, and ``note`` (None
+    for a complete file; one line saying what was recovered and what was lost otherwise)."""
+
+    entries: list[EpisodeEntry]
+    meta: dict[str, str]
+    note: str | None
+
+
+def _restore(key: str, value: Any) -> Any:
+    if value is None:
+        return math.inf if key in INF_FIELDS else math.nan
+    if isinstance(value, list):
+        return [_restore(key, v) for v in value]
+    return value
+
+
+class _JsonDecoderFactory:
+    """mcap ships no JSON decoder: messages with encoding "json" decode to dicts."""
+
+    def decoder_for(self, message_encoding: str, schema: Any):
+        if message_encoding == "json":
+            return lambda data: json.loads(data)
+        return None
+
+
+def _corrupt(path: Path, exc: BaseException) -> UserError:
+    detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return UserError(f"{path}: not a readable MCAP archive (truncated or corrupt: {detail})")
+
+
+class _Archive:
+    """An open archive file; every mcap failure becomes one UserError line."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        from mcap.reader import make_reader
+
+        self.path = Path(path)
+        try:
+            self._f = open(self.path, "rb")
+        except OSError as exc:
+            raise UserError(f"cannot read archive {self.path}: {exc.strerror or exc}") from None
+        self.note: str | None = None
+        self._chunks: list[tuple[int, int, int]] | None = None  # scanned (offset, start, end): no summary
+        try:
+            self.reader = make_reader(self._f, validate_crcs=True, decoder_factories=[_JsonDecoderFactory()])
+            try:
+                summary = self.reader.get_summary()
+            except Exception:  # a cut file: its end is not a footer
+                summary = None
+            if summary is None:
+                meta, entries = self._scan()
+            else:
+                meta, entries = {}, []
+                for rec in self.reader.iter_metadata():
+                    if rec.name == "episode":
+                        entries.append(_entry(rec.metadata))
+                    elif rec.name == "overtakezoo":
+                        meta = dict(rec.metadata)
+        except UserError:
+            self._f.close()
+            raise
+        except Exception as exc:  # mcap raises many types (McapError, EndOfFile, struct.error, zstd errors)
+            self._f.close()
+            raise _corrupt(self.path, exc) from None
+        if "format_version" not in meta:
+            self._f.close()
+            raise UserError(f"{self.path}: not an OvertakeZoo archive (no overtakezoo metadata record)")
+        self.meta = meta
+        self.entries = sorted(entries, key=lambda e: e.index)
+        self.by_index = {e.index: e for e in self.entries}
+
+    def _scan(self) -> tuple[dict[str, str], list[EpisodeEntry]]:
+        """Index a file without a summary section record by record (chunks are skipped, not read)."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Metadata
+        from mcap.stream_reader import read_magic
+
+        f, size = self._f, os.fstat(self._f.fileno()).st_size
+        f.seek(0)
+        read_magic(ReadDataStream(f))
+        meta: dict[str, str] = {}
+        entries: list[EpisodeEntry] = []
+        chunks: list[tuple[int, int, int]] = []
+        complete = False
+        while True:
+            pos = f.tell()
+            head = f.read(9)
+            if len(head) < 9:
+                break
+            opcode, length = struct.unpack("<BQ", head)
+            if pos + 9 + length > size:
+                break  # the record runs past the end: the cut
+            if opcode == Opcode.CHUNK:
+                chunks.append((pos, *struct.unpack("<QQ", f.read(16))))
+                f.seek(pos + 9 + length)
+            elif opcode == Opcode.METADATA:
+                rec = Metadata.read(ReadDataStream(io.BytesIO(f.read(length))))
+                if rec.name == "episode":
+                    entries.append(_entry(rec.metadata))
+                elif rec.name == "overtakezoo":
+                    meta = dict(rec.metadata)
+            elif opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                complete = True
+                break
+            else:
+                f.seek(pos + 9 + length)
+        self._chunks = chunks
+        if not entries:
+            raise UserError(f"{self.path}: archive cut before its first whole episode: nothing to read")
+        last = entries[-1].index  # in file order: the last episode closed before the cut
+        self.note = (f"archive index damaged, rebuilt from the data: {len(entries)} whole episodes, none lost"
+                     if complete else
+                     f"archive cut after episode {last}: {len(entries)} whole episodes, the rest lost")
+        return meta, entries
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "_Archive":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def messages(self, start: int | None = None, end: int | None = None) -> Iterator[tuple[str, dict]]:
+        """Decoded state messages in file order (the writer wrote them in time order)."""
+        loads = json.loads
+        try:
+            if self._chunks is not None:
+                yield from self._scanned_messages(start, end)
+                return
+            for _, channel, msg in self.reader.iter_messages(
+                    topics=list(STATE_TOPICS), starting_at=start, ending_before=end, log_time_order=False):
+                yield channel.topic, loads(msg.data)
+        except UserError:
+            raise
+        except Exception as exc:
+            raise _corrupt(self.path, exc) from None
+
+    def _scanned_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, dict]]:
+        """:meth:`messages` of a scanned file: the chunks overlapping [start, end), CRCs checked."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Channel, Chunk, Message
+        from mcap.stream_reader import breakup_chunk
+
+        lo, hi = (start or 0), (end if end is not None else 1 << 64)
+        topics: dict[int, str] = {}
+        wanted = set(STATE_TOPICS)
+        for k, (pos, first, last) in enumerate(self._chunks):
+            # Channels are defined in the first chunk; later chunks overlapping the range hold the data.
+            if k and (last < lo or first >= hi):
+                continue
+            self._f.seek(pos + 9)
+            for rec in breakup_chunk(Chunk.read(ReadDataStream(self._f)), validate_crc=True):
+                if isinstance(rec, Channel):
+                    topics[rec.id] = rec.topic
+                elif isinstance(rec, Message) and lo <= rec.log_time < hi and topics.get(rec.channel_id) in wanted:
+                    yield topics[rec.channel_id], json.loads(rec.data)
+
+    def episode_range(self, k: int) -> tuple[int, int]:
+        if k not in self.by_index:
+            known = f"{self.entries[0].index}..{self.entries[-1].index}" if self.entries else "none"
+            raise UserError(f"episode {k} is not in {self.path} (episodes: {known}, {len(self.entries)} in all)")
+        e = self.by_index[k]
+        return e.start_ns, e.end_ns + 1
+
+
+class _Builder:
+    def __init__(self, index: int) -> None:
+        self.index = index
+        self.spec: dict | None = None
+        self.summary: dict | None = None
+        self.lists: dict[str, list[dict]] = {t: [] for t in ("/ego", "/npcs", "/decision", "/planner", "/reward")}
+        self.ego, self.npcs, self.dec, self.plan, self.rew = self.lists.values()
+
+    def add(self, topic: str, msg: dict) -> None:
+        if topic == "/episode/spec":
+            self.spec = msg
+        elif topic == "/episode/summary":
+            self.summary = msg
+        else:
+            self.lists[topic].append(msg)
+
+    def build(self, path: Path) -> Episode:
+        if self.spec is None or self.summary is None or not self.ego:
+            raise UserError(f"{path}: episode {self.index} is incomplete (truncated or corrupt archive)")
+        # Per-step floats are finite unless written as null (then NaN); float() keeps them exact.
+        col = lambda rows, key: np.array([r[key] for r in rows], dtype=float)  # noqa: E731
+        scen = {k: _restore(k, v) for k, v in self.spec["scenario"].items()}
+        summary = {k: _restore(k, v) for k, v in self.summary.items()}
+        m = len(scen["npc_s"])
+        r = len(self.plan[0]["offsets"]) if self.plan else 0
+        return Episode(
+            index=self.index, scenario=scen, summary=summary, t=col(self.ego, "t"),
+            ego={k: col(self.ego, k) for k in ("x", "y", "psi", "v", "a", "steer")},
+            npc_s=np.array([n["s"] for n in self.npcs], dtype=float).reshape(-1, m),
+            npc_v=np.array([n["v"] for n in self.npcs], dtype=float).reshape(-1, m),
+            npc_lane=np.array(self.npcs[0]["lane"], dtype=np.int8),
+            mode=np.array([d["mode"] for d in self.dec], dtype=np.int64),
+            rollout=np.array([p["rollout"] for p in self.plan], dtype=np.int64),
+            offsets=np.array([p["offsets"] for p in self.plan], dtype=float).reshape(-1, r),
+            blocked=np.array([p["blocked"] for p in self.plan], dtype=bool).reshape(-1, r),
+            reward=col(self.rew, "reward"),
+        )
+
+
+def _entry(m: dict[str, str]) -> EpisodeEntry:
+    return EpisodeEntry(int(m["episode"]), int(m["start_ns"]), int(m["end_ns"]), int(m["steps"]), m["outcome"],
+                        float(m["episode_return"]))
+
+
+def read_index(path: str | os.PathLike) -> ArchiveIndex:
+    """The whole episodes (index, time range, outcome), the run's metadata, and a note if the file
+    was cut; from the summary section only (or a scan of the record headers of a cut file)."""
+    with _Archive(path) as ar:
+        return ArchiveIndex(list(ar.entries), dict(ar.meta), ar.note)
+
+
+def list_episodes(path: str | os.PathLike) -> list[EpisodeEntry]:
+    """Episode index, time range and outcome of every (whole) episode."""
+    return read_index(path).entries
+
+
+def read_archive_meta(path: str | os.PathLike) -> dict[str, str]:
+    with _Archive(path) as ar:
+        return dict(ar.meta)
+
+
+def read_episode(path: str | os.PathLike, k: int) -> Episode:
+    """Episode ``k`` (its global scenario index), reading only the chunks of its time window."""
+    with _Archive(path) as ar:
+        start, end = ar.episode_range(int(k))
+        b = _Builder(int(k))
+        for topic, msg in ar.messages(start, end):
+            if msg.get("episode") == k:
+                b.add(topic, msg)
+        return b.build(ar.path)
+
+
+def read_archive(path: str | os.PathLike) -> list[Episode]:
+    """Every (whole) episode of the archive, in scenario order."""
+    with _Archive(path) as ar:
+        builders: dict[int, _Builder] = {}
+        for topic, msg in ar.messages():
+            ep = msg["episode"]
+            if ep not in ar.by_index:  # the part of an episode a cut file lost
+                continue
+            if ep not in builders:
+                builders[ep] = _Builder(ep)
+            builders[ep].add(topic, msg)
+        missing = set(ar.by_index) - set(builders)
+        if missing:
+            raise UserError(f"{ar.path}: episodes {sorted(missing)[:5]} listed but have no data (corrupt archive)")
+        return [builders[k].build(ar.path) for k in sorted(builders)]
+
+

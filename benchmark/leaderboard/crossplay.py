@@ -1,0 +1,241 @@
+"""Cross-play: every zoo decider against every other on a two-AV suite (``duel``).
+
+Decider A drives AV 0 (the ego, towards +s) and B drives AV 1 (towards -s) of the suite's first
+``scenarios`` roads (a :class:`~.pairing.Pairing`); each ordered pair (A, B), A = B included, is one
+run. What is measured is written, as counts, to ``leaderboards/crossplay/<suite>.json`` (the
+input, like the submissions; ``overtakezoo crossplay --check`` re-runs it and requires the same
+bytes), and ``overtakezoo leaderboard`` turns it into ``crossplay-<suite>.md`` (matrices of joint
+success and AV-AV crash rate with 95 % Wilson intervals) and ``crossplay-<suite>.png`` (heatmaps).
+
+Privileged deciders (the oracle) are left out: they bind the whole core, and on a road shared with
+another decider their simulated future would need that decider's (runner.py says why).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtakezoo.envs import SIM_VERSION
+
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.results.metrics import format_metric, wilson
+from overtakezoo.benchmark.results.results import config_sha256
+from overtakezoo.envs.suites import Suite, load_suite
+from overtakezoo.benchmark.leaderboard.untrusted import md, md_code, md_image, plot_text
+
+DATA = Path("crossplay")
+# 500 roads per pair: the 11 x 11 matrix of the zoo's non-privileged members takes about 2-3 minutes with
+# --jobs 2 on 2 cores (measured: 128 s wall, 223 s of CPU time), and a rate's 95 % interval is at most
+# +-4.4 points.
+DEFAULT_SCENARIOS = 500
+# (key, label) of the counts kept for each pair; the matrices show the first two.
+MEASURES = [("all_succeed", "joint success (both AVs succeed)"), ("av_crash", "AV-AV crash"),
+            ("any_crash", "any crash"), ("a_success", "A's AV succeeds"), ("b_success", "B's AV succeeds"),
+            ("a_yielded", "A yielded"), ("b_yielded", "B yielded")]
+
+
+def zoo_deciders(config: Any) -> list[str]:
+    """Every registered zoo member that sees observations only (the oracle is privileged)."""
+    from overtakezoo import zoo
+
+    return [name for name in zoo.known_names() if not getattr(zoo.load(name, config), "privileged", False)]
+
+
+def _pair_counts(suite: Suite, a: str, b: str, scenarios: int) -> dict[str, list[int]]:
+    from overtakezoo import zoo
+
+    from overtakezoo.benchmark.run.pairing import Pairing
+    from overtakezoo.benchmark.run.runner import run_suite
+
+    pairing = Pairing([zoo.load(a, suite.config), zoo.load(b, suite.config)], suite.config.decision_interval)
+    s = run_suite(suite, pairing, limit=scenarios, progress=False).summary
+    picked = {**s["joint"], "a_success": s["per_av"][0]["success_rate"], "b_success": s["per_av"][1]["success_rate"],
+              "a_yielded": s["per_av"][0]["yielded"], "b_yielded": s["per_av"][1]["yielded"]}
+    return {key: [picked[key]["k"], picked[key]["n"]] for key, _ in MEASURES}
+
+
+def _row(args: tuple[str, str, list[str], int]) -> list[dict[str, Any]]:
+    suite_name, a, names, scenarios = args
+    suite = load_suite(suite_name)
+    return [{"a": a, "b": b, **_pair_counts(suite, a, b, scenarios)} for b in names]
+
+
+def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAULT_SCENARIOS,
+            jobs: int = 1) -> dict[str, Any]:
+    """Run every ordered pair of ``names`` (default: :func:`zoo_deciders`) on the suite's first
+    ``scenarios`` roads; returns the data document (deterministic: no timing in it)."""
+    from overtakezoo import zoo
+
+    num_avs = suite.num_avs
+    if num_avs != 2:
+        raise UserError(f"suite {suite.name!r} has {num_avs} automated vehicle(s) per scenario; cross-play pairs "
+                        "two deciders on two-AV suites (duel)")
+    if not 1 <= scenarios <= suite.count:
+        raise UserError(f"--limit {scenarios}: must lie in [1, {suite.count}] (the suite's scenarios)")
+    names = zoo_deciders(suite.config) if names is None else list(names)
+    deciders = []
+    for name in names:
+        d = zoo.load(name, suite.config)
+        if getattr(d, "privileged", False):
+            raise UserError(f"{name}: privileged deciders cannot share a road in cross-play")
+        deciders.append({"name": name, "version": str(d.version), "weights_sha256": d.weights_sha256})
+    todo = [(suite.name if suite.builtin else str(suite.path), a, names, scenarios) for a in names]
+    if jobs > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a forked copy of a process that already ran torch's thread pool can hang.
+        with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            rows = list(pool.map(_row, todo))
+    else:
+        rows = [_row(t) for t in todo]
+    return {"generated_by": "overtakezoo crossplay",
+            "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
+            "config_sha256": config_sha256(suite.config), "sim_version": SIM_VERSION, "scenarios": scenarios,
+            "deciders": deciders, "pairs": [p for row in rows for p in row]}
+
+
+def to_bytes(doc: dict[str, Any]) -> bytes:
+    return (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode()
+
+
+def data_path(root: str | Path, suite: str) -> Path:
+    return Path(root) / DATA / f"{suite}.json"
+
+
+def load(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_bytes())
+        names = [d["name"] for d in doc["deciders"]]
+        pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
+        assert sorted(pairs) == sorted((a, b) for a in names for b in names), "pairs do not cover every ordered pair"
+        for p in pairs.values():
+            for key, _ in MEASURES:
+                k, n = p[key]
+                assert isinstance(k, int) and isinstance(n, int) and 0 <= k <= n, f"{key}: bad count {p[key]!r}"
+        assert isinstance(doc["scenarios"], int) and isinstance(doc["suite"]["name"], str)
+    except (OSError, ValueError, KeyError, TypeError, AssertionError) as exc:
+        raise UserError(f"{path}: malformed cross-play file ({type(exc).__name__}: {exc})") from None
+    return doc
+
+
+def _rate(count: list[int]) -> dict[str, Any]:
+    k, n = count
+    lo, hi = wilson(k, n)
+    return {"value": k / n if n else None, "lo": lo, "hi": hi}
+
+
+def _stale(doc: dict[str, Any], suite: Suite | None) -> list[str]:
+    if suite is None:
+        return [f"suite {doc['suite']['name']!r} is not built in (any more)"]
+    out = []
+    if doc["suite"]["hash"] != suite.hash:
+        out.append(f"suite file {doc['suite']['hash'][:12]} (now {suite.hash[:12]})")
+    if doc["config_sha256"] != config_sha256(suite.config):
+        out.append(f"environment config {doc['config_sha256'][:12]}")
+    if doc["sim_version"] != SIM_VERSION:
+        out.append(f"simulator v{doc['sim_version']} (now v{SIM_VERSION})")
+    return out
+
+
+def markdown(doc: dict[str, Any], stale: list[str]) -> str:
+    # Everything from the data file is input: names, versions and hashes are escaped (untrusted.py).
+    name, n, raw = md(doc["suite"]["name"]), doc["scenarios"], doc["suite"]["name"]
+    names = [d["name"] for d in doc["deciders"]]
+    pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
+    out = [f"# Cross-play: {name}", "",
+           "<!-- generated by `overtakezoo leaderboard` from crossplay/"
+           f"{name}.json (measured by `overtakezoo crossplay --suite {name}`); do not edit -->", "",
+           f"Every zoo decider against every other on the first {n} of the {md(doc['suite']['count'])} {md_code(raw)} "
+           f"scenarios (suite v{md(doc['suite']['version'])}, sha256 {md_code(str(doc['suite']['hash'])[:12])}), {len(names)} x "
+           f"{len(names)} ordered pairs ({md_code(f'overtakezoo crossplay --suite {raw} --jobs 2')}; at the default "
+           f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 11 x 11 matrix takes about 2-3 minutes on 2 cores: "
+           "128 s wall, 223 s of CPU time, measured). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
+           "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
+           "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
+           "the other decider's).", ""]
+    if stale:
+        out += [f"**Stale**: measured on {'; '.join(map(md, stale))}: re-run "
+                f"{md_code(f'overtakezoo crossplay --suite {raw}')}.", ""]
+    versions = ", ".join(f"{md(d['name'])} v{md(d['version'])}" + (f" {md_code(str(d['weights_sha256'])[:10])}"
+                                                                   if d["weights_sha256"] else "") for d in doc["deciders"])
+    out += [f"Deciders: {versions}.", ""]
+    for key, label in MEASURES[:2]:
+        out += [f"## {label}", "", "| A (AV 0) \\ B (AV 1) | " + " | ".join(map(md, names)) + " |", "|" + "---|" * (len(names) + 1)]
+        for a in names:
+            cells = [format_metric(_rate(pairs[(a, b)][key]), "rate", "%") for b in names]
+            out.append(f"| **{md(a)}** | " + " | ".join(cells) + " |")
+        out.append("")
+    out += ["## Per decider", "",
+            "Each decider's mean over its partners (both seats, self-play included): joint success, AV-AV crash, "
+            "and how often its own AV yielded (aborted or never pulled out while the other AV passed first). "
+            "Sorted by joint success.", "",
+            "| decider | joint success | AV-AV crash | yielded |", "|---|---|---|---|"]
+    summary = []
+    for d in names:
+        mine = [pairs[(d, b)] for b in names] + [pairs[(a, d)] for a in names]
+        mean = lambda key, rows: float(np.mean([r[key][0] / r[key][1] for r in rows]))  # noqa: E731
+        yielded = float(np.mean([pairs[(d, b)]["a_yielded"][0] / n for b in names]
+                                + [pairs[(a, d)]["b_yielded"][0] / n for a in names]))
+        summary.append((-mean("all_succeed", mine), mean("av_crash", mine), d, yielded))
+    for neg_ok, crash, d, yielded in sorted(summary):
+        out.append(f"| {md(d)} | {-neg_ok * 100:.1f} % | {crash * 100:.1f} % | {yielded * 100:.1f} % |")
+    out += ["", md_image("cross-play heatmaps", f"crossplay-{raw}.png"), ""]
+    return "\n".join(out)
+
+
+def heatmap(doc: dict[str, Any]) -> bytes:
+    """Joint success and AV-AV crash rate as two heatmaps; Agg canvas, no timestamps (as leaderboard._plot)."""
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    names = [d["name"] for d in doc["deciders"]]
+    pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
+    with matplotlib.rc_context({"svg.hashsalt": "overtakezoo", "font.family": "DejaVu Sans", "font.size": 8}):
+        fig = Figure(figsize=(12.0, 5.4), dpi=100)
+        FigureCanvasAgg(fig)
+        for i, ((key, label), cmap) in enumerate(zip(MEASURES[:2], ("Greens", "Reds"))):
+            ax = fig.add_subplot(1, 2, i + 1)
+            m = np.array([[100.0 * pairs[(a, b)][key][0] / pairs[(a, b)][key][1] for b in names] for a in names])
+            im = ax.imshow(m, vmin=0, vmax=100, cmap=cmap)
+            for r in range(len(names)):
+                for c in range(len(names)):
+                    ax.text(c, r, f"{m[r, c]:.0f}", ha="center", va="center", fontsize=7,
+                            color="white" if m[r, c] > 60 else "black")
+            ax.set_xticks(range(len(names)), [plot_text(x) for x in names], rotation=45, ha="right")
+            ax.set_yticks(range(len(names)), [plot_text(x) for x in names])
+            ax.set_xlabel("B (AV 1, towards -s)")
+            ax.set_ylabel("A (AV 0, towards +s)")
+            ax.set_title(f"{label} (%)")
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        fig.suptitle(f"{plot_text(doc['suite']['name'])}: cross-play on {doc['scenarios']} scenarios, measured")
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()
+
+
+def generated(root: str | Path) -> tuple[dict[str, bytes], dict[str, Any]]:
+    """The generated files of every measured matrix under ``root/crossplay/``, and their index entries."""
+    from overtakezoo.envs.suites import suite_names
+
+    files: dict[str, bytes] = {}
+    index: dict[str, Any] = {}
+    for path in sorted((Path(root) / DATA).glob("*.json")):
+        doc = load(path)
+        name = doc["suite"]["name"]
+        if path.stem != name:
+            raise UserError(f"{path}: suite.name {name!r} filed as {path.stem!r}")
+        stale = _stale(doc, load_suite(name) if name in suite_names() else None)
+        files[f"crossplay-{name}.md"] = markdown(doc, stale).encode()
+        files[f"crossplay-{name}.png"] = heatmap(doc)
+        index[name] = {"table": f"crossplay-{name}.md", "plot": f"crossplay-{name}.png",
+                       "data": (DATA / path.name).as_posix(), "scenarios": doc["scenarios"],
+                       "deciders": [d["name"] for d in doc["deciders"]], "stale": stale}
+    return files, index

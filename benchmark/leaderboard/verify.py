@@ -1,0 +1,363 @@
+"""``leaderboard --verify``: every number on the board re-run from what the row stores.
+
+For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
+
+1. **Labels are derived, never trusted.** A built-in row must carry its zoo member's current name,
+   version, weights and ``privileged`` flag; an artifact row's whole ``decider`` block must equal the
+   one derived from its stored artifact (:func:`.rows.artifact_decider`: ``privileged`` is
+   always false, the kind comes from the artifact's content), its name may not be a built-in's,
+   and only the two data formats are stored (``.npz`` + card, ``.onnx``). Provenance fields
+   (``git_commit``, ``package.version``, ``timing``) are held to strict patterns by the results
+   schema.
+2. **The numbers are re-run.** The row's policy (the zoo member in this process; an artifact in
+   the sandbox, :mod:`.sandbox`) runs the row's scenarios and every per-scenario value must equal
+   the recorded one. Which scenarios: every scenario of a row that is new or changed against the
+   git base (``changed``: the row file or an artifact it references differs), and ``sample`` of each
+   other row, drawn from ``seed``: by default the sha256 of the whole submissions tree, so the
+   draw is known only once the tree is final and changes with any edit.
+3. **Stale rows** (measured on another suite, config or simulator) show no numbers anywhere (the
+   board lists them by name), so they are not re-run; a new or changed stale row is refused.
+
+A failure is one line naming the row (and the scenario and step where a policy misbehaved).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.run.sandbox import PolicyFailure
+from overtakezoo.benchmark.leaderboard.rows import ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe, load_submissions, reserved_name, stale_reasons, stored_files
+from overtakezoo.envs.io import file_sha256
+from overtakezoo.envs.suites import Suite, load_suite, suite_names
+
+
+# ------------------------------------------------------------------ what to verify
+def tree_seed(root: str | Path) -> int:
+    """A seed from the content of every file under ``<root>/submissions`` (paths and bytes)."""
+    base = Path(root) / "submissions"
+    h = hashlib.sha256()
+    for path in sorted(p for p in base.rglob("*") if p.is_file() and p.name != ".lock") if base.is_dir() else []:
+        h.update(path.relative_to(base).as_posix().encode() + b"\0" + file_sha256(path).encode())
+    return int.from_bytes(h.digest()[:8], "little")
+
+
+def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.ndarray:
+    """``sample`` scenario indices of a row (sorted; all of them when None), drawn from (seed, row)."""
+    if sample is None or sample >= count:
+        return np.arange(count)
+    rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
+    return np.sort(rng.choice(count, size=sample, replace=False))
+
+
+def default_base(root: str | Path) -> str | None:
+    """The git revision a pull request is compared with: ``$OVERTAKEZOO_VERIFY_BASE``, else the
+    merge base of HEAD with ``origin/$GITHUB_BASE_REF`` or ``origin/HEAD``; None outside git."""
+    wanted = os.environ.get("OVERTAKEZOO_VERIFY_BASE")
+    if wanted:
+        return wanted
+    ref = f"origin/{os.environ['GITHUB_BASE_REF']}" if os.environ.get("GITHUB_BASE_REF") else "origin/HEAD"
+    for candidate in (ref, "HEAD"):
+        out = _git(root, "merge-base", "HEAD", candidate)
+        if out is not None:
+            return out.strip()
+    return None
+
+
+def changed_rows(root: str | Path, base: str) -> set[str]:
+    """Rows (paths relative to ``root``) new or changed in the working tree against ``base``, and
+    rows that reference a stored artifact that is; :class:`UserError` when ``base`` is no revision."""
+    root = Path(root)
+    top = _git(root, "rev-parse", "--show-toplevel")
+    if top is None or _git(root, "rev-parse", "--verify", "--quiet", f"{base}^{{commit}}") is None:
+        raise UserError(f"--base {base}: not a git revision of the repository holding {root}")
+    sub = (root / "submissions").resolve()
+    listed = (_git(root, "diff", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
+             (_git(root, "ls-files", "--others", "--exclude-standard", "--", str(sub)) or "")
+    top_path = Path(top.strip())
+    changed = set()
+    for line in listed.splitlines():
+        path = (top_path / line).resolve()
+        if path.is_relative_to(sub):
+            changed.add(path.relative_to(root.resolve()).as_posix())
+    artifacts = {c.split("/", 2)[2] for c in changed if c.startswith(f"submissions/{ARTIFACTS}/")}
+    if artifacts:
+        for rows in load_submissions(root).values():
+            for row in rows:
+                sub_block = row.results.meta.get("submission") or {}
+                if any(rel.split("/", 1)[1] in artifacts for rel in stored_files(sub_block.get("policy") or {})):
+                    changed.add(row.rel)
+    return changed
+
+
+def _git(root: str | Path, *args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout if out.returncode == 0 else None
+
+
+# ------------------------------------------------------------------ derived labels
+def row_policy(row: Row, root: Path, config: Any) -> Any:
+    """The Decider that re-runs ``row`` (its built-in, or its artifact in the sandbox), once every
+    label of the row equals what is derived from it; :class:`UserError` naming the row otherwise."""
+    sub = row.results.meta.get("submission")
+    if not sub:
+        raise UserError(f"{row.rel}: submission: missing (filed before submissions named their policy): "
+                        "re-file it with `overtakezoo submit`")
+    policy, d = sub["policy"], row.results.decider
+    if "builtin" in policy:
+        from overtakezoo.benchmark.run.policy import load_zoo
+
+        if policy["builtin"] != row.name:
+            raise UserError(f"{row.rel}: submission.policy.builtin: {policy['builtin']!r} filed as the row "
+                            f"{row.name!r}: a built-in member's row carries its own name")
+        member = load_zoo(policy["builtin"], config, hint="")
+        if (str(member.version), member.weights_sha256) != (policy["version"], policy["weights_sha256"]):
+            raise UserError(f"{row.rel}: submission.policy: measured with {policy['builtin']} v{policy['version']} "
+                            f"(weights {str(policy['weights_sha256'])[:12]}), the zoo now has v{member.version} "
+                            f"(weights {str(member.weights_sha256)[:12]}): re-measure the row "
+                            "(scripts/reproduce-leaderboard.sh)")
+        _same(row, d, {"name": member.name, "version": str(member.version), "weights_sha256": member.weights_sha256,
+                       "privileged": bool(member.privileged)}, f"the zoo member {member.name}")
+        return member
+    reserved_name(row.name, f"{row.rel}: submission.name")
+    art = stored_artifact(row, root, policy)
+    _same(row, d, artifact_decider(row.name, art), f"its artifact {policy['artifact']}")
+    from overtakezoo.benchmark.run.policy import boxed
+
+    return boxed(art, config, row.rel)
+
+
+def stored_artifact(row: Row, root: Path, policy: dict[str, Any]) -> Any:
+    """The row's stored artifact, its files' sha256 checked against the row."""
+    from overtakezoo.benchmark.run.artifacts import Artifact
+
+    kind = STORED_KINDS.get(Path(policy["artifact"]).suffix)
+    if kind is None or Path(policy["artifact"]).stem != policy["sha256"] or (kind == "mlp") != ("card_sha256" in policy):
+        raise UserError(f"{row.rel}: submission.policy.artifact: {policy['artifact']} is not a stored format "
+                        "(<sha256>.npz with its model card, or <sha256>.onnx): re-submit it with `overtakezoo submit`")
+    data: dict[str, bytes] = {}
+    for rel, recorded in stored_files(policy).items():  # the policy file, and an npz's model card
+        path = root / "submissions" / rel
+        try:
+            content = path.read_bytes()
+        except OSError as exc:
+            raise UserError(f"{row.rel}: submission.policy.artifact: cannot read {rel}: "
+                            f"{exc.strerror or exc}") from None
+        sha = hashlib.sha256(content).hexdigest()
+        if sha != recorded:
+            raise UserError(f"{row.rel}: submission.policy.artifact: {rel} has sha256 {sha[:12]}..., "
+                            f"the row recorded {recorded[:12]}... (artifact swapped or corrupted)")
+        data[rel] = content
+    card = None
+    if kind == "mlp":
+        try:
+            card = json.loads(data[Path(policy["artifact"]).with_suffix(".json").as_posix()])
+            assert isinstance(card, dict) and isinstance(card.get("architecture"), dict)
+        except (ValueError, AssertionError):
+            raise UserError(f"{row.rel}: submission.policy: its model card is not one `overtakezoo submit` stores") from None
+    return Artifact(kind, data[policy["artifact"]], card)
+
+
+def _same(row: Row, recorded: dict[str, Any], derived: dict[str, Any], source: str) -> None:
+    for key in sorted(set(recorded) | set(derived)):
+        if recorded.get(key) != derived.get(key):
+            raise UserError(f"{row.rel}: decider.{key}: recorded {recorded.get(key)!r}, derived "
+                            f"{derived.get(key)!r} from {source} (labels are derived, never declared)")
+
+
+# ------------------------------------------------------------------ verification
+def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: int | None = None,
+           only: str | None = None, chunk_size: int = 4096, jobs: int = 1, changed: set[str] | None = None,
+           log: Callable[[str], None] = print) -> int:
+    """Re-run every current row (``only``: rows whose ``suite/name`` matches this glob) on every
+    scenario of the rows in ``changed`` and on ``sample`` scenarios of the others (all when None),
+    drawn from ``seed`` (default :func:`tree_seed`); raises a UserError at the first row that does
+    not reproduce (suites in name order). ``jobs`` > 1 verifies suites in that many worker
+    processes. Returns the number of rows verified."""
+    root = Path(root)
+    seed = tree_seed(root) if seed is None else seed
+    base = root / "submissions"
+    suites = sorted(p.name for p in base.iterdir() if p.is_dir() and p.name != ARTIFACTS) if base.is_dir() else []
+    args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ())) for name in suites]
+    if jobs > 1 and len(suites) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a forked copy of a process that already ran torch's thread pool can hang.
+        with ProcessPoolExecutor(min(jobs, len(suites)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            reports = pool.map(_verify_suite_star, args)
+            return sum(_log_all(lines, log) for lines in reports)
+    return sum(_log_all(verify_suite(*a), log) for a in args)
+
+
+def _verify_suite_star(args: tuple) -> list[str]:
+    return verify_suite(*args)
+
+
+def _log_all(lines: list[str], log: Callable[[str], None]) -> int:
+    for line in lines:
+        log(line)
+    return sum(line.startswith("verified ") for line in lines)
+
+
+def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, only: str | None,
+                 chunk_size: int = 4096, changed: frozenset[str] = frozenset()) -> list[str]:
+    """Verify the rows of one suite (see :func:`verify`); returns one report line per row."""
+    suite = load_suite(suite_name) if suite_name in suite_names() else None
+    lines: list[str] = []
+    todo: list[tuple[Row, np.ndarray, Any]] = []
+    try:
+        for row in load_submissions(root, suite_name, only).get(suite_name, []):
+            reasons = stale_reasons(row.results, suite)
+            if reasons:
+                if row.rel in changed:
+                    raise UserError(f"{row.rel}: stale (measured on {describe(reasons)}): a new or changed row must "
+                                    "measure the current benchmark; re-run the evaluation")
+                lines.append(f"stale {row.rel}: listed by name only, not re-run (measured on {describe(reasons)})")
+                continue
+            full = row.rel in changed
+            todo.append((row, sample_indices(suite.count, None if full else sample, seed, row.rel),
+                         row_policy(row, root, suite.config)))
+        for batch in _batches(todo, chunk_size):
+            with torch_single_threaded():
+                _verify_batch(suite, batch, chunk_size)
+            lines += [f"verified {row.rel}: {idx.size} of {suite.count} scenarios reproduce exactly"
+                      + (" (new or changed: every scenario)" if row.rel in changed else "")
+                      for row, idx, _ in batch]
+    finally:
+        for _, _, dec in todo:
+            if hasattr(getattr(dec, "inner", None), "close"):
+                dec.inner.close()
+    return lines
+
+
+def _batches(todo: list, chunk_size: int) -> list[list]:
+    """Rows stepped together in one batch (fewer Python steps). Only deciders that hold their
+    decisions equally long share a batch (the runner holds one batch as one); privileged deciders
+    bind the whole core, so each runs alone."""
+    out: list[list] = []
+    size, key = 0, None
+    for item in sorted(todo, key=lambda it: _batch_key(it[2])):  # stable
+        n, privileged = item[1].size, getattr(item[2], "privileged", False)
+        if not out or size + n > chunk_size or privileged or _batch_key(item[2]) != key:
+            out.append([])
+            size, key = 0, _batch_key(item[2])
+        out[-1].append(item)
+        size += n
+    return out
+
+
+def _batch_key(decider: Any) -> tuple[bool, int]:
+    return bool(getattr(decider, "privileged", False)), int(getattr(decider, "action_repeat", 1))
+
+
+def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
+    from overtakezoo.benchmark.run.runner import RunFailure, run_indices
+
+    indices = np.concatenate([idx for _, idx, _ in batch])
+    e = batch[0][0].results.num_avs  # rows of one suite: the same number of AVs
+    decider = batch[0][2] if len(batch) == 1 else _Stacked([(d, idx.size) for _, idx, d in batch], e)
+    # A stacked batch fits one chunk by construction (the runner resets deciders per chunk).
+    try:
+        got = run_indices(suite, decider, indices, chunk_size=chunk_size if len(batch) == 1 else indices.size)
+    except RunFailure as exc:
+        row = batch[exc.part or 0][0]
+        raise UserError(f"{row.rel}: {exc}") from None
+    lo = 0
+    for row, idx, _ in batch:  # (multi-AV arrays are AV-major: each AV's block holds every row's scenarios)
+        compare(row, idx, {k: v.reshape(e, -1)[:, lo:lo + idx.size].reshape(-1) for k, v in got.items()})
+        lo += idx.size
+
+
+def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
+    """Raise naming the first scenario (then the first field) where a re-run differs from the row.
+    Multi-AV rows compare every AV's value (AV-major arrays, results.py)."""
+    first: tuple[int, str, Any, Any, int] | None = None
+    e = row.results.num_avs
+    for key in row.results.per:  # the keys the row has (older rows have no safety arrays)
+        want, have = row.results.per[key].reshape(e, -1)[:, indices].reshape(-1), got[key]
+        indices_av = np.tile(indices, e)
+        same = (want == have) | (np.isnan(want) & np.isnan(have)) if want.dtype.kind == "f" else want == have
+        bad = np.flatnonzero(~same)
+        if bad.size:
+            bad = bad[np.argsort(indices_av[bad], kind="stable")]  # the first scenario, then the lowest AV
+        if bad.size and (first is None or indices_av[bad[0]] < first[0]):
+            first = (int(indices_av[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item(), int(bad[0]) // indices.size)
+    if first is not None:
+        i, key, want, have, av = first
+        where = f"scenario {i}" + (f", AV {av}" if e > 1 else "")
+        raise UserError(f"{row.rel}: {where}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
+                        "(results edited by hand, or not produced by this policy)")
+
+
+def _show(v: Any) -> str:
+    return "null" if isinstance(v, float) and np.isnan(v) else repr(v)
+
+
+@contextlib.contextmanager
+def torch_single_threaded() -> Iterator[None]:
+    """Sampled rows are small batches: torch's intra-op threads only add synchronisation there (a
+    forward pass took 36 ms instead of 0.7 ms on a busy 2-core machine)."""
+    torch = sys.modules.get("torch")  # imported by the learned policies only
+    if torch is None:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+class _Stacked:
+    """Several deciders on one batch: decider i acts on the next ``n_i`` roads. Roads never interact,
+    so each decider's roads evolve exactly as in a run of its own. On a multi-AV batch (``num_avs``
+    AV-major blocks of rows) decider i gets its roads' rows of every block, AV-major as in its own run.
+    A failing part is named (``PolicyFailure.part``, rows in the whole batch) for the verifier."""
+
+    name, version, privileged, weights_sha256 = "verify", "1", False, None
+
+    def __init__(self, parts: list[tuple[Any, int]], num_avs: int = 1) -> None:
+        bounds = np.cumsum([0] + [n for _, n in parts])
+        self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:])]
+        self.action_repeat = int(getattr(parts[0][0], "action_repeat", 1))  # equal in a batch (_batches)
+        self.num_avs = num_avs
+
+    def _mine(self, a: np.ndarray, rows: slice) -> np.ndarray:
+        e = self.num_avs
+        return a.reshape(e, -1, *a.shape[1:])[:, rows].reshape(-1, *a.shape[1:])
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        for d, rows in self.parts:
+            d.reset(None if mask is None else self._mine(np.asarray(mask), rows))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        from overtakezoo.benchmark.run.sandbox import check_modes
+
+        out = np.empty((self.num_avs, obs.shape[0] // self.num_avs), np.int64)
+        for i, (d, rows) in enumerate(self.parts):
+            mine = self._mine(obs, rows)
+            try:
+                modes = check_modes(d.act(mine), mine.shape[0])
+            except PolicyFailure as exc:
+                n = rows.stop - rows.start
+                bad = None if exc.rows is None else exc.rows % n + rows.start  # (AV-major rows of the part)
+                failure = PolicyFailure(exc.reason, bad)
+                failure.part = i
+                raise failure from None
+            out[:, rows] = modes.reshape(self.num_avs, -1)
+        return out.reshape(-1)

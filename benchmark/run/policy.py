@@ -1,0 +1,201 @@
+"""Any policy as a decider: ``load_policy(spec, config)`` behind ``eval`` / ``decision-map --policy``.
+
+A SPEC is one of:
+
+- a zoo registry name (``rule-fsm``, ``dqn``, ...);
+- ``package.module:factory``: ``factory(config)`` returns a :class:`~overtakezoo.zoo.Decider`, or any
+  object with ``act(obs)`` on a batch (N, D) (and optionally ``reset(mask)``, ``name``,
+  ``action_repeat``). This is code you chose to run, in this process; files below are not;
+- a file, read as data (:mod:`.artifacts`) and acted in a sandboxed child process (:mod:`.sandbox`):
+  - ``<name>.npz`` or ``<name>.pt`` with its model card ``<name>.json`` beside it (or the card
+    itself, or the directory holding one such pair): what ``overtakezoo train dqn | double-dqn |
+    ppo`` writes (sha256 checked against the card, as for the zoo's own weights; a ``.pt`` is read
+    with ``torch.load(weights_only=True)``);
+  - an ONNX file (extra ``[onnx]``), external data inlined from beside the model: a network mapping
+    float32 observations (N, D) to Q-values or logits (N, 3), argmax taken (or to modes (N,) / (N, 1));
+  - a Stable-Baselines3 ``.zip`` (DQN, PPO, A2C ``MlpPolicy``; needs torch): its ``policy.pth``
+    state dict is read with ``weights_only=True`` and the network acts in numpy; the pickled
+    entries of its ``data`` file are never unpickled;
+  - a TorchScript file (``torch.jit.save``, the same contract as ONNX; deprecated by torch): it runs
+    in the sandbox only.
+
+Each decision is held for the policy's ``action_repeat`` (a model card's, a TorchScript module's
+``action_repeat`` attribute, an ONNX metadata entry ``action_repeat``; else 1: one env step of the
+Gymnasium face) combined with the suite's ``decision_interval`` by the runner. A file policy is named
+``<file stem>-<first 8 hex of its sha256>`` (never a zoo name), and its results record the kind and
+the sha256 of what acts (``decider.policy``, ``decider.weights_sha256``; for ONNX with external data,
+of the inlined model). Every expected failure (missing file, corrupted weights, wrong shapes, a
+missing optional dependency, a policy that crashes or hangs) is one :class:`UserError`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from overtakezoo import zoo
+from overtakezoo.envs import ConfigError, EnvConfig, observation_size
+
+from overtakezoo.benchmark.run.artifacts import Artifact, read_policy_file
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.run.sandbox import PolicyFailure, SandboxedPolicy, check_modes
+
+NUM_MODES = 3
+FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+
+
+class PolicyDecider(zoo.Decider):
+    """A decider around a batch function ``(N, D) float32 -> (N,) modes`` (a loaded policy)."""
+
+    def __init__(self, act_batch: Callable[[np.ndarray], np.ndarray], name: str, config: EnvConfig | None,
+                 policy: dict[str, Any], action_repeat: int = 1, version: str = "1",
+                 weights_sha256: str | None = None, inner: Any = None) -> None:
+        super().__init__(config)
+        self._act_batch, self.name, self.version, self.policy = act_batch, name, version, policy
+        self.action_repeat, self.weights_sha256, self.inner = int(action_repeat), weights_sha256, inner
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, np.float32)
+        return check_modes(self._act_batch(obs), obs.shape[0])
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        if hasattr(self.inner, "reset"):
+            self.inner.reset(mask)
+
+    def card(self) -> str:
+        return (f"{self.name}: a {self.policy.get('kind', 'file')} policy loaded from "
+                f"{self.policy.get('spec', self.policy.get('file'))}.")
+
+
+def load_policy(spec: str, config: EnvConfig | None = None) -> zoo.Decider:
+    """The decider for ``spec`` (module docstring) on ``config``; :class:`UserError` when it cannot be."""
+    config = config or EnvConfig()
+    spec = str(spec)
+    path = Path(spec)
+    if path.is_dir() or (path.suffix == ".json" and path.is_file()):
+        path = _trained_weights(path)
+    if path.is_file():
+        return _load_file(path, config)
+    if FACTORY.match(spec):
+        return _load_factory(spec, config)
+    if path.suffix or "/" in spec:
+        raise UserError(f"policy {spec}: no such file")
+    return load_zoo(spec, config, hint="; or give a policy file (.pt, .onnx, .zip) or package.module:factory")
+
+
+def load_zoo(name: str, config: EnvConfig | None = None,
+             hint: str = "; for a policy file or package.module:factory use --policy") -> zoo.Decider:
+    """A zoo member by registry name; :class:`UserError` for an unknown name or unusable weights."""
+    try:
+        return zoo.load(name, config=config)
+    except zoo.UnknownDecider as exc:
+        raise UserError(f"{exc}{hint}") from None
+    except ConfigError as exc:
+        raise UserError(f"decider {name!r}: {exc}") from None
+    except ValueError as exc:  # WeightsError: the zoo's weights are truncated, modified or unreadable
+        raise UserError(str(exc)) from None
+
+
+# ----------------------------------------------------------------------------- module:factory
+def _load_factory(spec: str, config: EnvConfig) -> zoo.Decider:
+    module_name, attr = spec.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise UserError(f"policy {spec}: cannot import {module_name} ({exc})") from None
+    factory = getattr(module, attr, None)
+    if not callable(factory):
+        raise UserError(f"policy {spec}: {module_name} has no callable {attr!r}")
+    try:
+        obj = factory(config)
+    except Exception as exc:  # the author's code: say where it failed, in one line
+        raise UserError(f"policy {spec}: {attr}(config) raised {type(exc).__name__}: {exc}") from None
+    if isinstance(obj, zoo.Decider):
+        obj.policy = {"kind": "module", "spec": spec}
+        return obj
+    if not callable(getattr(obj, "act", None)):
+        raise UserError(f"policy {spec}: {attr}(config) returned {type(obj).__name__}, which has no act(obs)")
+    name = str(getattr(obj, "name", "") or attr)
+    dec = PolicyDecider(obj.act, name, config, {"kind": "module", "spec": spec},
+                        action_repeat=getattr(obj, "action_repeat", 1), version=str(getattr(obj, "version", "1")),
+                        weights_sha256=getattr(obj, "weights_sha256", None), inner=obj)
+    dec.privileged = bool(getattr(obj, "privileged", False))
+    if dec.privileged:
+        dec.bind = obj.bind
+    return dec
+
+
+# ----------------------------------------------------------------------------- files
+def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"policy {path}: cannot read ({exc.strerror or exc})") from None
+    art = read_policy_file(path, data, config)
+    dec = boxed(art, config, str(path), allow_code=True)  # the user's own file, on their request
+    # Named and hashed by the user's file (for ONNX with external data: the inlined model, all that runs).
+    dec.name = f"{_slug(path.stem)}-{art.source_sha256[:8]}"
+    dec.weights_sha256 = art.source_sha256
+    dec.policy = {"kind": art.source_kind, "file": path.name, "sha256": art.source_sha256}
+    return dec
+
+
+def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) -> PolicyDecider:
+    """The decider acting ``art`` in a sandboxed child (:mod:`.sandbox`), probed on this config's
+    observations; :class:`UserError` naming ``who`` when it cannot load or act. ``allow_code``: a
+    TorchScript file (the user's own, for ``eval --policy`` or ``submit``'s conversion) may load."""
+    try:
+        box = SandboxedPolicy(art.kind, art.data, config, art.card_bytes, who, allow_code=allow_code)
+    except PolicyFailure as exc:
+        raise UserError(f"policy {who}: {exc}") from None
+    try:
+        repeat = int(box.info.get("action_repeat", 1))
+        if repeat < 1:
+            raise ValueError
+    except (TypeError, ValueError):
+        box.close()
+        raise UserError(f"policy {who}: action_repeat {box.info.get('action_repeat')!r} is not a positive int") from None
+    dec = PolicyDecider(box.act, who, config, {}, action_repeat=repeat, inner=box)
+    _probe(dec, config, who)
+    return dec
+
+
+def _trained_weights(path: Path) -> Path:
+    """The weights file of a model card, or of the one card with its .npz in a directory."""
+    if path.is_dir():
+        cards = sorted(p for p in path.glob("*.json") if p.with_suffix(".npz").is_file())
+        if len(cards) != 1:
+            raise UserError(f"policy {path}: expected one <name>.npz beside its model card <name>.json in the "
+                            f"directory, found {', '.join(p.stem for p in cards) or 'none'}")
+        return cards[0].with_suffix(".npz")
+    try:
+        weights = json.loads(path.read_text()).get("weights_file")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        weights = None
+    if not isinstance(weights, str):
+        raise UserError(f"policy {path}: not a model card (no weights_file) of `overtakezoo train`")
+    target = path.parent / Path(weights).name
+    if target.with_suffix(".json") != path:
+        raise UserError(f"policy {path}: its weights_file {weights} is not named after the card")
+    if not target.is_file():
+        raise UserError(f"policy {path}: weights {target.name} not found beside the card")
+    return target
+
+
+def _slug(stem: str) -> str:
+    return (re.sub(r"[^A-Za-z0-9._+-]", "-", stem).lstrip("._+-") or "policy")[:48]
+
+
+def _probe(dec: zoo.Decider, config: EnvConfig, who: str) -> None:
+    """Fail at load time, not mid-run, when the policy does not take this suite's observations."""
+    d = observation_size(config)
+    try:
+        dec.act(np.zeros((2, d), np.float32))
+    except PolicyFailure as exc:
+        dec.inner.close()
+        raise UserError(f"policy {who}: does not accept observations of shape (N, {d}): {exc}") from None

@@ -1,0 +1,206 @@
+"""Run a decider on a suite: the whole suite as one batch (in chunks to bound memory).
+
+The runner applies the action hold (``overtakezoo.envs.hold``): the decider acts on the batch's
+observations, and each decision is held for ``hold_steps(decision_interval, decider.action_repeat)``
+core steps; finished rows are frozen by the core, so the loop simply steps until every row is done.
+
+On a multi-AV suite the decider drives every AV (self-play), or a :class:`~.pairing.Pairing` drives
+AV e with its e-th decider (cross-play); the per-scenario arrays then hold one value per AV,
+AV-major (results.py).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from overtakezoo.envs import OvertakeCore
+from overtakezoo.envs.hold import hold, hold_steps
+
+from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.safety import SafetyMonitor
+from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
+from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
+
+
+def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = CHUNK_SIZE,
+              progress: bool = True, recorder: Any = None, limit: int | None = None, safety: bool = True) -> Results:
+    """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
+
+    ``recorder`` (optional) gets ``begin_chunk(core, scenario_index)``, ``record_step(core, modes,
+    step_result)`` after every step and ``end_chunk(core)``; its creator closes it. ``limit`` keeps
+    only the first ``limit`` scenarios of the (shard's) range. ``safety`` (default on) records the
+    safety metrics (benchmark/safety, docs/metrics.md); off, the file has only the older arrays.
+    """
+    start, stop = shard_bounds(suite.count, shard)
+    scenarios = suite.scenarios(shard)
+    _check_multi_av(suite, scenarios, decider, recorder)
+    if limit is not None:
+        stop = min(stop, start + limit)
+        scenarios = scenarios.take(slice(0, stop - start))
+    t0, started = time.perf_counter(), datetime.now(timezone.utc)
+    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder,
+                            safety)
+    timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
+              "started": started.isoformat(timespec="seconds"), "steps": total_steps}
+    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing,
+                          num_avs=scenarios.num_avs)
+
+
+def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE,
+                safety: bool = True) -> dict[str, np.ndarray]:
+    """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
+
+    The whole suite is drawn and the rows taken, and rows never interact, so each value equals the
+    same scenario's value in a full run (what ``leaderboard --verify`` relies on)."""
+    indices = np.asarray(indices, dtype=np.int64)
+    if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
+        raise ValueError(f"scenario indices must lie in [0, {suite.count})")
+    scenarios = suite.scenarios().take(indices)
+    _check_multi_av(suite, scenarios, decider, None)
+    return _run(suite, decider, scenarios, indices, chunk_size, False, None, safety)[0]
+
+
+def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -> None:
+    """What a multi-AV suite cannot run: clear errors instead of wrong rows."""
+    if scenarios.num_avs == 1:
+        return
+    if getattr(decider, "privileged", False):
+        # The oracle simulates clones of its rows assuming nobody else decides; beside another AV it
+        # would have to predict that AV's decider, so it is no upper bound there (README: Multi-agent suites).
+        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: privileged "
+                        f"deciders ({decider.name}) run on single-ego suites only")
+    if recorder is not None:
+        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: archives "
+                        "record single-ego suites only")
+
+
+def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,
+         recorder: Any, safety: bool = True) -> tuple[dict[str, np.ndarray], int]:
+    """Step ``scenarios`` (suite rows ``index``) in chunks; returns (per-scenario arrays, steps)."""
+    if chunk_size < 1:
+        raise ValueError("chunk_size must be >= 1")
+    cfg = suite.config
+    held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
+    # Safety net: the core ends every row at its time limit; more steps than that means a bug.
+    max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10
+    keys = {**per_scenario_keys(scenarios.num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
+    parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
+    total_steps = 0
+    bar = tqdm(total=scenarios.num * scenarios.num_avs, unit="AV", desc=f"{suite.name}/{decider.name}", leave=False,
+               disable=not progress or not sys.stderr.isatty())
+    try:
+        for lo in range(0, scenarios.num, chunk_size):
+            chunk = scenarios.take(slice(lo, lo + chunk_size))
+            core = OvertakeCore(cfg)
+            obs = core.reset(chunk)
+            decider.reset()
+            if getattr(decider, "privileged", False):
+                decider.bind(core)
+            if recorder is not None:
+                recorder.begin_chunk(core, index[lo:lo + chunk.num])
+            monitor = SafetyMonitor() if safety else None
+            if monitor is not None:
+                monitor.begin_chunk(core)
+            record = _on_step(core, recorder, monitor)
+            step = 0
+            while not core.done.all():
+                if step >= max_steps:
+                    raise RuntimeError(f"rows still running after {max_steps} steps (time limit not enforced?)")
+                res = hold(core, _decide(decider, obs, index[lo:lo + chunk.num], step, cfg.dt), held,
+                           on_step=record)
+                obs = res.obs
+                bar.update(int(np.count_nonzero(res.finished)))
+                step += res.steps
+            total_steps += step
+            if recorder is not None:
+                recorder.end_chunk(core)
+            parts.append({**_per_scenario(core), **(monitor.end_chunk(core) if monitor is not None else {})})
+    finally:
+        bar.close()
+    e = scenarios.num_avs  # AV-major: join each AV's part of every chunk
+    per = round_per_scenario({k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
+                              for k in keys})
+    return per, total_steps
+
+
+def _on_step(core: Any, recorder: Any, monitor: Any) -> Any:
+    """The hold's per-step hook: the recorder's and the safety monitor's (None when neither)."""
+    if recorder is None and monitor is None:
+        return None
+    if recorder is None:
+        return lambda modes, res: monitor.record_step(core, modes, res)
+
+    def both(modes: np.ndarray, res: Any) -> None:
+        recorder.record_step(core, modes, res)
+        if monitor is not None:
+            monitor.record_step(core, modes, res)
+    return both
+
+
+class RunFailure(UserError):
+    """A decider failed mid-run: one line naming it, the scenario and the step. ``part``: which
+    decider of a stacked batch (verify's), when it was one."""
+
+    def __init__(self, message: str, part: int | None = None) -> None:
+        super().__init__(message)
+        self.part = part
+
+
+def _decide(decider: Any, obs: np.ndarray, scenarios: np.ndarray, step: int, dt: float) -> np.ndarray:
+    """The decider's modes for ``obs`` (rows of the suite's ``scenarios``, AV-major when several
+    AVs share a road), checked: (N,) integers in {0, 1, 2}; anything else is a :class:`RunFailure`."""
+    try:
+        return check_modes(decider.act(obs), obs.shape[0])
+    except PolicyFailure as exc:
+        rows = np.tile(scenarios, max(1, obs.shape[0] // max(1, scenarios.size)))
+        where = (f"scenario {int(rows[exc.rows[0]])}" if exc.rows is not None and exc.rows.size
+                 else f"scenarios {int(scenarios.min())}-{int(scenarios.max())}" if scenarios.size else "no scenario")
+        raise RunFailure(f"{decider.name}: {where}, step {step} (t = {step * dt:.1f} s): {exc.reason}",
+                         getattr(exc, "part", None)) from None
+
+
+def _per_scenario_empty() -> dict[str, np.ndarray]:
+    return {k: np.zeros(0, dtype) for k, (dtype, _) in {**per_scenario_keys(2), **SAFETY_PER_SCENARIO}.items()}
+
+
+def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
+    info, sc = core.info(), core.scen
+    if core.num_avs > 1:
+        return _per_av(core, info, sc)
+    has_npc2 = sc.num_npcs > 1
+    return {
+        "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
+        "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
+        "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
+        "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
+        # Initial NPC speeds, for the paper's "mean NPC speed in failed scenarios" rows; NPC2 is slot 1.
+        "npc1_speed": np.where(sc.npc_present[:, 0], sc.npc_v[:, 0], np.nan),
+        "npc2_speed": (np.where(sc.npc_present[:, 1] & (sc.npc_lane[:, 1] == 1), sc.npc_v[:, 1], np.nan) if has_npc2
+                       else np.full(sc.num, np.nan)),
+    }
+
+
+def _per_av(core: OvertakeCore, info: dict[str, np.ndarray], sc: Any) -> dict[str, np.ndarray]:
+    """The per-scenario arrays of a multi-AV chunk, one value per AV row (AV-major, as the core)."""
+    e, n = core.num_avs, sc.num
+    # Each AV's own lead (its NPC1): the ego's is slot 0, the others' are av_lead.
+    lead = np.concatenate([np.where(sc.npc_present[:, 0] & (sc.npc_lane[:, 0] == 0), 0, -1)[None],
+                           sc.av_lead.T.astype(np.int64)]).reshape(-1)
+    lead_v = np.take_along_axis(np.tile(sc.npc_v, (e, 1)), np.maximum(lead, 0)[:, None], 1)[:, 0]
+    return {
+        "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
+        "crash_av": info["crash_av"], "lead_npc": lead,
+        "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
+        "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
+        "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
+        "npc1_speed": np.where(lead >= 0, lead_v, np.nan),
+        "npc2_speed": np.full(e * n, np.nan),  # no single "first oncoming car" beside other AVs
+    }
