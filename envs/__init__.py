@@ -1,10 +1,10 @@
 """OvertakeZoo simulation: scenarios, the batched core, the shared planner and the env faces."""
 
-from .config import ABORT, FOLLOW, MODE_NAMES, OVERTAKE, ConfigError, EnvConfig, ModeParams, PlannerConfig
-from .core import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, OvertakeCore, StepResult
-from .observation import observation_layout, observation_size
-from .scenarios import ScenarioDistribution, Scenarios, make_scenario
-from .version import SIM_VERSION
+from overtakezoo.envs.config import ABORT, FOLLOW, MODE_NAMES, OVERTAKE, ConfigError, EnvConfig, ModeParams, PlannerConfig
+from overtakezoo.envs.core import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, OvertakeCore, StepResult
+from overtakezoo.envs.model.observation import observation_layout, observation_size
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios, make_scenario
+from overtakezoo.envs.version import SIM_VERSION
 
 __all__ = [
     "ABORT", "FOLLOW", "OVERTAKE", "MODE_NAMES", "ConfigError", "EnvConfig", "ModeParams", "PlannerConfig",
@@ -15,9 +15,9 @@ __all__ = [
 
 # The env faces (thin adapters over the core). Importing this package registers
 # "overtakezoo/Overtake-v0" with Gymnasium and PettingZoo.
-from .gym_env import OvertakeEnv, register_envs  # noqa: E402
-from .pettingzoo_env import OvertakeParallelEnv, env, parallel_env  # noqa: E402
-from .vector_env import OvertakeVectorEnv, make_vec  # noqa: E402
+from overtakezoo.envs.faces.gym import OvertakeEnv, register_envs  # noqa: E402
+from overtakezoo.envs.faces.pettingzoo import OvertakeParallelEnv, env, parallel_env  # noqa: E402
+from overtakezoo.envs.faces.vector import OvertakeVectorEnv, make_vec  # noqa: E402
 
 register_envs()
 __all__ += ["OvertakeEnv", "OvertakeParallelEnv", "OvertakeVectorEnv", "env", "parallel_env", "make_vec",
@@ -27,7 +27,7 @@ __all__ += ["OvertakeEnv", "OvertakeParallelEnv", "OvertakeVectorEnv", "env", "p
 def __getattr__(name: str):
     # Rendering pulls in matplotlib: load it only when asked for.
     if name in ("Renderer", "draw_frame", "frame_from_core"):
-        from . import render
+        from overtakezoo.envs.faces import render
 
         return getattr(render, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

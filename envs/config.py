@@ -255,7 +255,7 @@ class EnvConfig:
         self.npc.validate()
         self.reward.validate()
         self.observation.validate()
-        from .scenarios import ScenarioDistribution
+        from overtakezoo.envs.scenarios import ScenarioDistribution
 
         dist = ScenarioDistribution.from_dict(self.scenario)  # raises ConfigError naming the key
         steps = dist.time_limit / self.dt

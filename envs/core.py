@@ -31,16 +31,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .backend import make_backend
-from .collisions import av_contacts, lane_contacts
-from .config import ABORT, OVERTAKE, EnvConfig
-from .controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
-from .dynamics import advance_npcs, track
-from .observation import observe, observation_size
-from .outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
-from .planner import ModeTable, Plan, plan, rollout_geometry
-from .reward import step_reward
-from .scenarios import OPPOSITE_LANE, SCRIPTED, Scenarios
+from overtakezoo.envs.backend import make_backend
+from overtakezoo.envs.model.collisions import av_contacts, lane_contacts
+from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
+from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
+from overtakezoo.envs.model.dynamics import advance_npcs, track
+from overtakezoo.envs.model.observation import observe, observation_size
+from overtakezoo.envs.model.outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
+from overtakezoo.envs.model.planner import ModeTable, Plan, plan, rollout_geometry
+from overtakezoo.envs.model.reward import step_reward
+from overtakezoo.envs.scenarios import OPPOSITE_LANE, SCRIPTED, Scenarios
 
 __all__ = ["OvertakeCore", "StepResult", "RUNNING", "SUCCESS", "CRASH", "TIMEOUT", "OFFROAD", "OUTCOME_NAMES"]
 
@@ -55,6 +55,11 @@ class StepResult:
     truncated: np.ndarray  # (B,) bool: time limit this step
     final_obs: np.ndarray | None  # (B, D) the observation before an auto-reset (auto_reset only)
     info: dict[str, np.ndarray]  # per-row arrays (outcome, crash vehicle/lane, episode stats)
+
+    @property
+    def finished(self) -> np.ndarray:
+        """(B,) bool: the rows whose episode ended at this step (a frozen row is not finished again)."""
+        return self.terminated | self.truncated
 
 
 class OvertakeCore:
@@ -428,7 +433,6 @@ class OvertakeCore:
         self.episode_return += reward
         finished = terminated | truncated
         info = self.info()
-        info["_finished"] = finished
         obs = observe(self, geo)
         final_obs = None
         if self.auto_reset and finished.any():

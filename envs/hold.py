@@ -1,5 +1,6 @@
 """The action hold: one decision drives the core for several steps. The one implementation used by
-the benchmark runner, the Gymnasium / PettingZoo faces, the rsl-rl face and the DQN trainer.
+the benchmark runner, the Gymnasium / PettingZoo faces, the rsl-rl face and the trainers;
+:func:`run_to_end` (a batch driven by one decider until every row is done) is built on it.
 
 A decision is held for :func:`hold_steps` core steps: the configuration's ``decision_interval``
 (how often the benchmark lets a decider act) rounded to the multiple of it nearest the decider's own
@@ -25,8 +26,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .config import FOLLOW
-from .core import OvertakeCore, StepResult
+from overtakezoo.envs.config import FOLLOW
+from overtakezoo.envs.core import OvertakeCore, StepResult
 
 
 def hold_steps(decision_interval: int, action_repeat: int = 1) -> int:
@@ -83,13 +84,13 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
             on_step(step_modes, res)
         reward += np.where(active, res.reward, 0.0)
         live_steps += active
-        now = active & res.info["_finished"]
+        now = active & res.finished
         terminated |= now & res.terminated
         truncated |= now & res.truncated
         if core.auto_reset and now.any():
             if final_obs is None:
                 final_obs = np.array(res.obs)
-                final_info = {k: np.array(v) for k, v in res.info.items() if k[0] != "_"}
+                final_info = {k: np.array(v) for k, v in res.info.items()}
             final_obs[now] = res.final_obs[now]
             for k in final_info:
                 final_info[k][now] = res.info[k][now]
@@ -98,3 +99,21 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
         raise ValueError("hold: steps must be >= 1 (and the core reset)")
     return HeldStep(res.obs, reward, terminated, truncated, ended, live_steps, final_obs, final_info, res.info,
                     taken, waiting)
+
+
+def run_to_end(core: OvertakeCore, obs: Any, decide: Callable[[Any, int], Any], steps: int,
+               on_step: Callable[[np.ndarray, StepResult], None] | None = None,
+               on_hold: Callable[[HeldStep], None] | None = None, max_steps: int | None = None) -> int:
+    """Drive every row of ``core`` (reset, without auto-reset) to the end of its episode:
+    ``decide(obs, step)`` gives the modes at core step ``step``, each held ``steps`` core steps;
+    ``on_hold`` sees each :class:`HeldStep`. Returns the core steps taken; more than ``max_steps``
+    is a RuntimeError (the core ends every row at its time limit, so that would be a bug)."""
+    taken = 0
+    while not core.done.all():
+        if max_steps is not None and taken >= max_steps:
+            raise RuntimeError(f"rows still running after {max_steps} steps (time limit not enforced?)")
+        res = hold(core, decide(obs, taken), steps, on_step=on_step)
+        if on_hold is not None:
+            on_hold(res)
+        obs, taken = res.obs, taken + res.steps
+    return taken

@@ -17,10 +17,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .config import EnvConfig
-from .core import OvertakeCore, StepResult
-from .observation import observation_layout
-from .scenarios import Scenarios
+from overtakezoo.envs.config import EnvConfig
+from overtakezoo.envs.core import OvertakeCore, StepResult
+from overtakezoo.envs.model.observation import observation_layout
+from overtakezoo.envs.scenarios import Scenarios
 
 Source = Callable[[int, np.random.Generator], Scenarios]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .backend import NumpyBackend
+from overtakezoo.envs.backend import NumpyBackend
 
 INF = float("inf")
 NP = NumpyBackend()

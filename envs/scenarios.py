@@ -23,9 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from .config import ConfigError, bounded, check_ranges, unknown_key
+from overtakezoo.envs.config import ConfigError, bounded, check_ranges, unknown_key
 
 EGO_LANE, OPPOSITE_LANE = 0, 1
+# The paper's two named vehicles (its Table I) by slot: NPC1, the lead the ego overtakes, is slot 0
+# in the ego's lane; NPC2, the first oncoming vehicle, is slot 1 in the opposite lane.
+NPC1_SLOT, NPC2_SLOT = 0, 1
 # NPC behaviours. IDM (the env's default) is reactive: it brakes for whatever occupies its lane
 # ahead, the ego included once its reaction time has passed. SCRIPTED drives the scenario's speed
 # profile (its desired speed) in its lane, blind to the ego, like the scripted NPCs of an
@@ -456,3 +459,23 @@ def make_scenario(
         oav = (speed, distance, lead_gap, lead_speed, np.array([reaction_time]))
     return _with_avs(single, slice(len(rows) - len(followers), len(rows)), plat[..., 0], plat[..., 1], oav,
                      (L, dist.vehicle_width), BEHAVIOURS[oncoming_behaviour])
+
+
+def npc1_npc2_speeds(sc: Scenarios) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) initial speeds of each road's NPC1 and NPC2 (NaN where the road has none)."""
+    npc1 = np.where(sc.npc_present[:, NPC1_SLOT], sc.npc_v[:, NPC1_SLOT], np.nan)
+    if sc.num_npcs <= NPC2_SLOT:
+        return npc1, np.full(sc.num, np.nan)
+    is_npc2 = sc.npc_present[:, NPC2_SLOT] & (sc.npc_lane[:, NPC2_SLOT] == OPPOSITE_LANE)
+    return npc1, np.where(is_npc2, sc.npc_v[:, NPC2_SLOT], np.nan)
+
+
+def crash_roles(crash_npc: np.ndarray, crash_lane: np.ndarray,
+                lead_npc: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each episode's crash partner was NPC1 and whether it was NPC2. On a multi-AV road
+    (``lead_npc``: each AV's own lead slot) NPC1 is the AV's own lead and NPC2 any NPC in its
+    opposite lane."""
+    if lead_npc is None:
+        return crash_npc == NPC1_SLOT, (crash_npc == NPC2_SLOT) & (crash_lane == OPPOSITE_LANE)
+    npc1 = (crash_npc >= 0) & (crash_npc == lead_npc)
+    return npc1, (crash_npc >= 0) & ~npc1 & (crash_lane == OPPOSITE_LANE)

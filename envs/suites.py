@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .config import ConfigError, EnvConfig, unknown_key
-from .scenarios import ScenarioDistribution, Scenarios
+from overtakezoo.envs.config import ConfigError, EnvConfig, unknown_key
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
 
 

@@ -230,7 +230,7 @@ def test_legitimate_observations_are_always_finite():
     # Refusing NaN / inf is safe: every shipped suite's observation Box is finite (an empty slot is
     # zeros, not an inf "no vehicle" code), and a run's observations lie in it.
     from overtakezoo.envs.suites import list_suites
-    from overtakezoo.envs.spaces import ego_observation_space
+    from overtakezoo.envs.faces.spaces import ego_observation_space
 
     for suite in list_suites():
         box = ego_observation_space(suite.config)

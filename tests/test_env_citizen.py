@@ -18,7 +18,7 @@ from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import (EnvConfig, OvertakeCore, make_scenario, make_vec, observation_layout, observation_size,
                               parallel_env)
 from overtakezoo.envs.config import RewardConfig
-from overtakezoo.envs.spaces import ego_observation_space, npc_observation_space, npc_start_extent
+from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
 
 ENV_ID = "overtakezoo/Overtake-v0"
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "zoo" / "hyperparams"

@@ -31,10 +31,10 @@ from overtakezoo.envs import (  # noqa: E402
     parallel_env,
     register_envs,
 )
-from overtakezoo.envs.pettingzoo_env import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
+from overtakezoo.envs.faces.pettingzoo import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
 
 ENV_ID = "overtakezoo/Overtake-v0"
-# Observation bounds are finite (envs/spaces.py): no checker warning is accepted, but (with NPC
+# Observation bounds are finite (envs/faces/spaces.py): no checker warning is accepted, but (with NPC
 # agents) the one about the two observation sizes.
 INF_WARNINGS = ()
 NPC_WARNINGS = INF_WARNINGS + ("different shapes", "different observation space sizes")

@@ -6,7 +6,7 @@ import pytest
 
 from overtakezoo.envs import EnvConfig
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
-from overtakezoo.envs.controllers import IDM, PLANNER, SCRIPTED_KIND
+from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND
 from overtakezoo.envs.core import CRASH, SUCCESS, TIMEOUT, OvertakeCore
 from overtakezoo.envs.scenarios import Scenarios, make_scenario
 

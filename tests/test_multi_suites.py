@@ -277,7 +277,7 @@ def test_the_multi_train_mixture_steps_one_row_per_av():
 def test_every_av_observation_lies_in_the_observation_space(name):
     from overtakezoo.envs import OvertakeCore
     from overtakezoo.envs.hold import hold
-    from overtakezoo.envs.spaces import ego_observation_space
+    from overtakezoo.envs.faces.spaces import ego_observation_space
 
     suite = load_suite(name)
     box = ego_observation_space(suite.config)

@@ -16,7 +16,7 @@ with warnings.catch_warnings():  # pettingzoo.test imports its own example envs 
 from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.suites import MULTI, load_suite
 from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env
-from overtakezoo.envs.spaces import ego_observation_space
+from overtakezoo.envs.faces.spaces import ego_observation_space
 
 KMH = 1 / 3.6
 # With NPC agents PettingZoo's checker notes that AVs and NPCs observe different sizes.

@@ -14,7 +14,7 @@ pytest.importorskip("rsl_rl")
 from tensordict import TensorDict  # noqa: E402
 
 from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  # noqa: E402
-from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv  # noqa: E402
+from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.categorical import CategoricalDistribution  # noqa: E402
 from overtakezoo.zoo import ppo, train_ppo  # noqa: E402

@@ -10,7 +10,7 @@ from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, CRASH, SUCCESS, EnvConfig, observation_layout
-from overtakezoo.envs.observation import SLOT_FEATURES
+from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
 from overtakezoo.zoo.base import ConstantDecider
 from overtakezoo.zoo.shield import REQUIRED_GAP, Shielded

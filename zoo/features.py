@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from overtakezoo.envs import EnvConfig, observation_layout
-from overtakezoo.envs.observation import SLOT_FEATURES
+from overtakezoo.envs.model.observation import SLOT_FEATURES
 
 FEATURES_VERSION = "speed-relative-v1"
 HORIZON_S = 10.0  # distances in units of 10 s at the speed limit: table1's 60 m sight is ~1.4

@@ -16,7 +16,7 @@ lights, stop signs or intersections, read from hatem-darweesh/common (branch ope
 - ``op_planner/src/TrajectoryEvaluator.cpp``: the blocked flags themselves, which the shared
   planner computes and the observation carries.
 
-Mapping onto the shared planner's modes (``envs/planner.py``): FORWARD and FOLLOW are both our
+Mapping onto the shared planner's modes (``envs/model/planner.py``): FORWARD and FOLLOW are both our
 FOLLOW mode (the centre rollout; the speed planner follows the lead or drives at the cap when
 nothing is near); OBSTACLE_AVOIDANCE + the FORWARD that follows it with swerving enabled is our
 OVERTAKE mode (the evaluator picks the cheapest unblocked rollout). OpenPlanner has no abort
@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
-from overtakezoo.envs.observation import SLOT_FEATURES
+from overtakezoo.envs.model.observation import SLOT_FEATURES
 
 from .base import Decider, register
 

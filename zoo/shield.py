@@ -9,7 +9,7 @@ the nearest visible oncoming vehicle until the ego is back in its lane:
 - an overtake under way is aborted, while the lead it is passing is not yet behind the ego (past
   that, completing is the way out).
 
-The check uses what the shared planner will do (``envs/planner.py``): in OVERTAKE it accelerates at
+The check uses what the shared planner will do (``envs/model/planner.py``): in OVERTAKE it accelerates at
 the overtake mode's ``acceleration`` up to its ``velocity`` (capped by the speed limit) until the ego
 is ``required_gap`` ahead of the lead, then returns in ``RSSParams.lateral_return_time``. Over that
 time the oncoming vehicle keeps its speed, and at the end the gap left must be at least the RSS
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
-from overtakezoo.envs.observation import SLOT_FEATURES
+from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
 
 from .base import Decider

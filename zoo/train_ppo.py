@@ -1,6 +1,6 @@
 """PPO training with rsl-rl-lib's ``OnPolicyRunner`` (the ``ppo`` member; acting is :mod:`.ppo`).
 
-Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.rsl_rl_env.OvertakeRslRlEnv`
+Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.faces.rsl_rl.OvertakeRslRlEnv`
 with our categorical action distribution (:mod:`overtakezoo.zoo.categorical`) plugged in through
 ``actor.distribution_cfg["class_name"]``. The hyperparameters are data (``zoo/hyperparams/ppo.toml``),
 typed by :class:`PPOHyperparams`: ``[train]`` and ``[env]`` are ours; ``[runner]``, ``[algorithm]``,
@@ -231,7 +231,7 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     ``resume`` continues from a checkpoint; ``overrides`` ({"train": {"steps": ...}}) go through the
     same checks as the file. Returns the path of the torch weights file."""
     from overtakezoo.envs.mixture import MixedCore, split_rows
-    from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv, pool_source
+    from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
 
     hp, hp_file = load_hyperparams(hyperparams, overrides)
     steps = int(steps if steps is not None else hp.train.steps)

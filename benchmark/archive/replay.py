@@ -1,6 +1,6 @@
 """Replay an archived episode from the MCAP file alone: frames for the render-mode top view.
 
-Frames are the dicts :class:`overtakezoo.envs.render.TopView` draws (the same view as
+Frames are the dicts :class:`overtakezoo.envs.faces.render.TopView` draws (the same view as
 ``render_mode``), here with an overview of the whole road above it. One figure is drawn per
 frame with its artists moved, not rebuilt; a GIF goes from the Agg buffer through Pillow, an MP4
 through ``ffmpeg`` (needed on PATH), a PNG is the final frame.
@@ -93,7 +93,7 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
     from matplotlib.figure import Figure
     from tqdm import tqdm
 
-    from overtakezoo.envs.render import TopView
+    from overtakezoo.envs.faces.render import TopView
 
     fig = Figure(figsize=(12.0, 3.4), dpi=DPI)
     FigureCanvasAgg(fig)

@@ -18,7 +18,7 @@ ROLLOUT_DRAW_M = 30.0  # rollouts are drawn this far ahead of the ego in the Fox
 
 
 def scene_state(core: Any, rows: np.ndarray) -> dict[str, np.ndarray]:
-    from overtakezoo.envs.planner import lateral_profile
+    from overtakezoo.envs.model.planner import lateral_profile
 
     pc, sc = core.cfg.planner, core.scen
     # Each rollout's lateral profile is piecewise linear (hold, ramp, end offset): its corners

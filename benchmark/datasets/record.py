@@ -52,7 +52,7 @@ class TransitionRecorder:
         self.step_parts: list[tuple[np.ndarray, ...]] = []
 
     def record_step(self, core: Any, modes: np.ndarray, res: Any) -> None:
-        active = np.flatnonzero(~core.done | res.info["_finished"])  # the rows this step advanced
+        active = np.flatnonzero(~core.done | res.finished)  # the rows this step advanced
         self.k += 1
         steps = np.full(active.size, self.k)
         self.obs_parts.append((active, steps, res.obs[active], core.outcome[active].copy(), core.t[active].copy()))

@@ -257,7 +257,7 @@ def _env_spec(config: Any) -> Any:
     try:
         import gymnasium
 
-        from overtakezoo.envs.gym_env import ENV_ID
+        from overtakezoo.envs.faces.gym import ENV_ID
 
         spec = gymnasium.spec(ENV_ID)
         cfg = json.loads(json.dumps(config.to_dict()))  # plain JSON types for Minari's metadata

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import CRASH, OFFROAD, SUCCESS, TIMEOUT
+from overtakezoo.envs.scenarios import OPPOSITE_LANE, crash_roles
 
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 BOOTSTRAP_SAMPLES = 1000
@@ -103,11 +104,7 @@ def summarize(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]
     outcome, npc, lane = per["outcome"], per["crash_npc"], per["crash_lane"]
     success, crash = outcome == SUCCESS, outcome == CRASH
     failed = ~success
-    # NPC1 is slot 0 (the lead); NPC2 is slot 1 when it is the first oncoming car (in the opposite lane).
-    npc1, npc2 = npc == 0, (npc == 1) & (lane == 1)
-    if "lead_npc" in per:  # multi-AV results: NPC1 is each AV's own lead, NPC2 any NPC in its opposite lane
-        npc1 = (npc >= 0) & (npc == per["lead_npc"])
-        npc2 = (npc >= 0) & ~npc1 & (lane == 1)
+    npc1, npc2 = crash_roles(npc, lane, per.get("lead_npc"))
     return {
         "success_rate": _rate(success),
         "completion_time": _mean(per["completion_time"][success], seed, "completion_time"),
@@ -119,7 +116,7 @@ def summarize(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]
         "timeout_rate": _rate(outcome == TIMEOUT),
         "offroad_rate": _rate(outcome == OFFROAD),
         "crash_share_other": _rate(~npc1 & ~npc2, crash),
-        "crash_share_opposite_lane": _rate(lane == 1, crash),
+        "crash_share_opposite_lane": _rate(lane == OPPOSITE_LANE, crash),
         "aborts": _mean(per["aborts"], seed, "aborts"),
         "opposite_time": _mean(per["opposite_time"], seed, "opposite_time"),
         "min_ttc": _mean(per["min_ttc"], seed, "min_ttc"),  # scenarios never on a collision course are inf: left out

@@ -21,7 +21,8 @@ import numpy as np
 from tqdm import tqdm
 
 from overtakezoo.envs import OvertakeCore
-from overtakezoo.envs.hold import hold, hold_steps
+from overtakezoo.envs.hold import hold_steps, run_to_end
+from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
 
 from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
 from overtakezoo.benchmark.errors import UserError
@@ -109,17 +110,10 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             monitor = SafetyMonitor() if safety else None
             if monitor is not None:
                 monitor.begin_chunk(core)
-            record = _on_step(core, recorder, monitor)
-            step = 0
-            while not core.done.all():
-                if step >= max_steps:
-                    raise RuntimeError(f"rows still running after {max_steps} steps (time limit not enforced?)")
-                res = hold(core, _decide(decider, obs, index[lo:lo + chunk.num], step, cfg.dt), held,
-                           on_step=record)
-                obs = res.obs
-                bar.update(int(np.count_nonzero(res.finished)))
-                step += res.steps
-            total_steps += step
+            rows = index[lo:lo + chunk.num]
+            total_steps += run_to_end(core, obs, lambda o, k: _decide(decider, o, rows, k, cfg.dt), held,
+                                      on_step=_on_step(core, recorder, monitor), max_steps=max_steps,
+                                      on_hold=lambda res: bar.update(int(np.count_nonzero(res.finished))))
             if recorder is not None:
                 recorder.end_chunk(core)
             parts.append({**_per_scenario(core), **(monitor.end_chunk(core) if monitor is not None else {})})
@@ -175,24 +169,23 @@ def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
     info, sc = core.info(), core.scen
     if core.num_avs > 1:
         return _per_av(core, info, sc)
-    has_npc2 = sc.num_npcs > 1
+    npc1_speed, npc2_speed = npc1_npc2_speeds(sc)
     return {
         "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
         "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
         "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
         "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
-        # Initial NPC speeds, for the paper's "mean NPC speed in failed scenarios" rows; NPC2 is slot 1.
-        "npc1_speed": np.where(sc.npc_present[:, 0], sc.npc_v[:, 0], np.nan),
-        "npc2_speed": (np.where(sc.npc_present[:, 1] & (sc.npc_lane[:, 1] == 1), sc.npc_v[:, 1], np.nan) if has_npc2
-                       else np.full(sc.num, np.nan)),
+        # Initial NPC speeds, for the paper's "mean NPC speed in failed scenarios" rows.
+        "npc1_speed": npc1_speed, "npc2_speed": npc2_speed,
     }
 
 
 def _per_av(core: OvertakeCore, info: dict[str, np.ndarray], sc: Any) -> dict[str, np.ndarray]:
     """The per-scenario arrays of a multi-AV chunk, one value per AV row (AV-major, as the core)."""
     e, n = core.num_avs, sc.num
-    # Each AV's own lead (its NPC1): the ego's is slot 0, the others' are av_lead.
-    lead = np.concatenate([np.where(sc.npc_present[:, 0] & (sc.npc_lane[:, 0] == 0), 0, -1)[None],
+    # Each AV's own lead (its NPC1): the ego's is NPC1's slot, the others' are av_lead.
+    ego_lead = sc.npc_present[:, NPC1_SLOT] & (sc.npc_lane[:, NPC1_SLOT] == EGO_LANE)
+    lead = np.concatenate([np.where(ego_lead, NPC1_SLOT, -1)[None],
                            sc.av_lead.T.astype(np.int64)]).reshape(-1)
     lead_v = np.take_along_axis(np.tile(sc.npc_v, (e, 1)), np.maximum(lead, 0)[:, None], 1)[:, 0]
     return {

@@ -27,11 +27,11 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import MODE_NAMES, ConfigError, EnvConfig
-from .core import OvertakeCore
-from .pettingzoo_env import as_config, check_actions, single_ego
-from .scenarios import ScenarioDistribution, Scenarios
-from .spaces import ego_observation_space
+from overtakezoo.envs.config import MODE_NAMES, ConfigError, EnvConfig
+from overtakezoo.envs.core import OvertakeCore
+from overtakezoo.envs.faces._common import as_config, check_actions, single_ego
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
+from overtakezoo.envs.faces.spaces import ego_observation_space
 
 
 class OvertakeVectorEnv(VectorEnv):
@@ -62,7 +62,7 @@ class OvertakeVectorEnv(VectorEnv):
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         # SAME_STEP: the core refills finished rows itself; NEXT_STEP: it holds them until the next step.
         self.core = OvertakeCore(self.config, auto_reset=mode == AutoresetMode.SAME_STEP, source=self._draw)
-        self.single_observation_space = ego_observation_space(self.config)  # finite bounds, see envs/spaces.py
+        self.single_observation_space = ego_observation_space(self.config)  # finite bounds, see envs/faces/spaces.py
         self.single_action_space = spaces.Discrete(len(MODE_NAMES))
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -97,7 +97,7 @@ class OvertakeVectorEnv(VectorEnv):
             raise RuntimeError("step() before reset(): call reset() first")
         actions = check_actions(actions, self.num_envs, "actions")
         res = self.core.step(actions)  # NEXT_STEP: rows ended last step are frozen (reward 0, not done)
-        finished = res.info.pop("_finished")
+        finished = res.finished
         if not self.core.auto_reset:
             obs, infos = res.obs, res.info
             if self._autoreset.any():
@@ -122,7 +122,7 @@ class OvertakeVectorEnv(VectorEnv):
 
     def _clip(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only scenarios given through
-        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        # options["scenarios"] outside it can leave the Box (see envs/faces/spaces.py).
         space = self.single_observation_space
         return np.clip(obs, space.low, space.high)
 
@@ -130,7 +130,7 @@ class OvertakeVectorEnv(VectorEnv):
         """``(frame of row 0,)`` in ``rgb_array`` mode."""
         if self.render_mode is None:
             return None
-        from .render import Renderer, frame_from_core
+        from overtakezoo.envs.faces.render import Renderer, frame_from_core
 
         if self._renderer is None:
             self._renderer = Renderer("rgb_array", fps=self.metadata["render_fps"])
@@ -146,8 +146,6 @@ def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> 
     """Gymnasium's vector info layout: every key ``k`` paired with a boolean ``_k`` (rows that have it)."""
     out: dict[str, np.ndarray] = {}
     for key, value in info.items():
-        if key.startswith("_"):
-            continue
         out[key] = value
         out[f"_{key}"] = np.ones(value.shape[0], bool) if mask is None else mask
     return out

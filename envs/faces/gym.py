@@ -16,13 +16,13 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from .config import MODE_NAMES, EnvConfig
-from .core import OvertakeCore
-from .face_render import RendersFirstRow
-from .hold import hold
-from .pettingzoo_env import as_config, check_action, row_info, single_ego
-from .scenarios import ScenarioDistribution, Scenarios
-from .spaces import ego_observation_space
+from overtakezoo.envs.config import MODE_NAMES, EnvConfig
+from overtakezoo.envs.core import OvertakeCore
+from overtakezoo.envs.faces.rendering import RendersFirstRow
+from overtakezoo.envs.hold import hold
+from overtakezoo.envs.faces._common import as_config, check_action, row_info, single_ego
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
+from overtakezoo.envs.faces.spaces import ego_observation_space
 
 ENV_ID = "overtakezoo/Overtake-v0"
 
@@ -43,7 +43,7 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
-        self.observation_space = ego_observation_space(self.config)  # finite bounds, see envs/spaces.py
+        self.observation_space = ego_observation_space(self.config)  # finite bounds, see envs/faces/spaces.py
         self.action_space = spaces.Discrete(len(MODE_NAMES))
         self._renderer = None
         self._first_reset = True
@@ -80,7 +80,7 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
 
     def _clip(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only a scenario given through
-        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        # options["scenarios"] outside it can leave the Box (see envs/faces/spaces.py).
         return np.clip(obs, self.observation_space.low, self.observation_space.high)
 
     def render(self):
@@ -94,14 +94,14 @@ def register_envs() -> None:
     """Register ``overtakezoo/Overtake-v0`` with Gymnasium (single env + vector entry point) and
     with PettingZoo (parallel and AEC). Idempotent; run by ``import overtakezoo.envs``."""
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="overtakezoo.envs.gym_env:OvertakeEnv",
-                           vector_entry_point="overtakezoo.envs.vector_env:make_vec")
+        gymnasium.register(id=ENV_ID, entry_point="overtakezoo.envs.faces.gym:OvertakeEnv",
+                           vector_entry_point="overtakezoo.envs.faces.vector:make_vec")
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but the gym face does not need it
         return
     if hasattr(pettingzoo, "register"):  # the registry exists from PettingZoo 1.27
         if ENV_ID not in pettingzoo.parallel_registry:
-            pettingzoo.register("parallel", ENV_ID, entry_point="overtakezoo.envs.pettingzoo_env:parallel_env")
+            pettingzoo.register("parallel", ENV_ID, entry_point="overtakezoo.envs.faces.pettingzoo:parallel_env")
         if ENV_ID not in pettingzoo.aec_registry:
-            pettingzoo.register("aec", ENV_ID, entry_point="overtakezoo.envs.pettingzoo_env:env")
+            pettingzoo.register("aec", ENV_ID, entry_point="overtakezoo.envs.faces.pettingzoo:env")

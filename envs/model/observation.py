@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .config import EnvConfig
+from overtakezoo.envs.config import EnvConfig
 
 if TYPE_CHECKING:
-    from .core import OvertakeCore
+    from overtakezoo.envs.core import OvertakeCore
 
 EGO_FEATURES = 6
 SLOT_FEATURES = 5

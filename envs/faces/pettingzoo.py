@@ -20,7 +20,7 @@ Agents:
   (formerly ``ego_0``; an action for ``ego_<i>`` raises a KeyError saying so). Every AV has the same
   spaces, so one policy can drive them all (parameter sharing): action ``Discrete(3)`` (0 follow,
   1 overtake, 2 abort), observation the core's vector for that AV, in its own frame
-  (``observation_layout``; a ``Box`` of finite bounds from the config, envs/spaces.py). Reward: the
+  (``observation_layout``; a ``Box`` of finite bounds from the config, envs/faces/spaces.py). Reward: the
   core's, per AV. ``infos[av]`` is the core's per-row info plus ``outcome_name`` and ``crashed_into``
   (``"av_1"``, ``"npc_0"``, or None: whom the AV crashed into; an AV-AV crash names each other).
 - with ``npc_agents=True`` also ``npc_<slot>`` for each NPC slot present on the road (slot 0 is the
@@ -58,7 +58,6 @@ stepped as one array, with ``auto_reset=True`` refilling each road when its last
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -67,95 +66,19 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-from .config import MODE_NAMES, ConfigError, EnvConfig
-from .core import OUTCOME_NAMES, OvertakeCore
-from .face_render import RendersFirstRow
-from .hold import hold
-from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
-from .spaces import ego_observation_space, npc_observation_space, npc_start_extent
+from overtakezoo.envs.config import MODE_NAMES
+from overtakezoo.envs.core import OUTCOME_NAMES, OvertakeCore
+from overtakezoo.envs.faces.rendering import RendersFirstRow
+from overtakezoo.envs.hold import hold
+from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
+from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
+from overtakezoo.envs.faces._common import as_config, check_action, row_info, suite_config
+
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
+
+
 NPC_OBS_SIZE = 6
-
-
-def as_config(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> EnvConfig:
-    """One validated :class:`EnvConfig` from a config object or dict plus keyword overrides
-    (unknown keys raise :class:`ConfigError` naming the key)."""
-    if isinstance(config, EnvConfig):
-        if not overrides:
-            return config
-        config = dataclasses.asdict(config)
-    if config is not None and not isinstance(config, dict):
-        raise ConfigError(f"config: expected an EnvConfig or a dict, got {type(config).__name__}")
-    return EnvConfig.from_dict(config, **overrides)
-
-
-def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str, Any] | None:
-    """The config of a loaded suite (anything with an :class:`EnvConfig` ``config``, passed as
-    ``suite`` or as ``config``; a built-in suite's name or a suite file's path is loaded), else
-    ``config`` unchanged."""
-    if suite is None and (isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)):
-        config, suite = None, config
-    if suite is None:
-        return config
-    if config is not None:
-        raise ConfigError("suite: pass either a config or a suite, not both (override keys as keywords)")
-    if isinstance(suite, str):
-        from .suites import load_suite
-
-        suite = load_suite(suite)
-    if not isinstance(getattr(suite, "config", None), EnvConfig):
-        raise ConfigError(f"suite: expected a loaded suite (with an EnvConfig .config), got {type(suite).__name__}")
-    return suite.config
-
-
-def single_ego(config: EnvConfig, face: str) -> EnvConfig:
-    """The Gymnasium faces drive one AV per scenario and no NPC agents: say so instead of ignoring."""
-    dist = ScenarioDistribution.from_dict(config.scenario)
-    if dist.platoon_size > 1 or dist.oncoming_av:
-        raise ConfigError(f"scenario: {face} drives one automated vehicle per road, this distribution has "
-                          f"{dist.platoon_size + dist.oncoming_av} (platoon_size, oncoming_av); "
-                          "use parallel_env, whose agents are the road's AVs")
-    if config.npc_agents:
-        raise ConfigError(f"npc_agents: {face} has no NPC agents; use parallel_env(npc_agents=True)")
-    return config
-
-
-def check_action(action: Any, n: int, who: str) -> int:
-    """``action`` as an int in ``range(n)``; a ValueError naming ``who`` (the agent) for anything else:
-    a float, a bool, a negative or too large index (NumPy would wrap -1 round to the last choice)."""
-    value = action.item() if isinstance(action, np.ndarray) and action.ndim == 0 else action
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value < n:
-        shown = action.item() if isinstance(action, np.generic) else action
-        raise ValueError(f"{who}: action {shown!r} is not an integer in 0..{n - 1}")
-    return int(value)
-
-
-def check_actions(actions: Any, num: int, who: str, n: int = len(MODE_NAMES)) -> np.ndarray:
-    """A batch of ``num`` actions as int64, each an integer in ``range(n)``; else a ValueError naming
-    the first bad entry ``who[i]``."""
-    arr = np.asarray(actions)
-    if arr.shape != (num,):
-        raise ValueError(f"{who}: expected shape ({num},), got {arr.shape}")
-    if arr.dtype.kind not in "iu":
-        raise ValueError(f"{who}: expected integers in 0..{n - 1}, got dtype {arr.dtype}")
-    bad = np.flatnonzero((arr < 0) | (arr >= n))
-    if len(bad):
-        raise ValueError(f"{who}[{bad[0]}]: action {arr[bad[0]].item()!r} is not an integer in 0..{n - 1}")
-    return arr.astype(np.int64, copy=False)
-
-
-def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
-    """Per-row core info as plain Python values (the per-agent ``infos`` entry). An undefined
-    value (``completion_time`` before a success, NaN in the core) becomes ``None`` so that two equal
-    infos compare equal."""
-    out = {}
-    for key, values in info.items():
-        if key[0] != "_":
-            value = values.item(row)
-            out[key] = None if value != value else value  # value != value: NaN
-    out["outcome_name"] = OUTCOME_NAMES[out["outcome"]]
-    return out
 
 
 def av_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
@@ -184,7 +107,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         self._npcs = [f"npc_{j}" for j in range(self.num_npcs)] if self.config.npc_agents else []
         self.possible_agents = self._avs + self._npcs
         self.agents: list[str] = []
-        # Finite bounds (envs/spaces.py); observations are clipped to them, a no-op for scenarios
+        # Finite bounds (envs/faces/spaces.py); observations are clipped to them, a no-op for scenarios
         # of the config's distribution. With several AVs an NPC's nearest AV may be any of them.
         av_obs = ego_observation_space(self.config)
         extent = npc_start_extent(self.distribution) * (2 if self.num_avs > 1 else 1)
@@ -323,7 +246,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
 
     def _clip_avs(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only scenarios given through
-        # options["scenarios"] outside it can leave the Box (see envs/spaces.py).
+        # options["scenarios"] outside it can leave the Box (see envs/faces/spaces.py).
         space = self.observation_spaces[self._avs[0]]
         return np.clip(obs, space.low, space.high)
 

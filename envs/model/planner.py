@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
-from .controllers import idm
-from .ops import INF, NP, clip, first_argmin
+from overtakezoo.envs.config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
+from overtakezoo.envs.model.controllers import idm
+from overtakezoo.envs.ops import INF, NP, clip, first_argmin
 
 
 @dataclass

@@ -19,8 +19,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .ops import INF, NP, clip, first_argmin
-from .scenarios import SCRIPTED, SPEEDUP_WHEN_PASSED
+from overtakezoo.envs.ops import INF, NP, clip, first_argmin
+from overtakezoo.envs.scenarios import SCRIPTED, SPEEDUP_WHEN_PASSED
 
 PLANNER, IDM, SCRIPTED_KIND, AGENT = 0, 1, 2, 3
 KIND_NAMES = ("planner", "idm", "scripted", "agent")

@@ -1,5 +1,5 @@
 """Finite observation bounds of the env faces, derived from the observation's construction
-(envs/observation.py, the PettingZoo NPC observation) and the config.
+(envs/model/observation.py, the PettingZoo NPC observation) and the config.
 
 Every bound follows from a limit the core enforces on any scenario of the config's ``scenario``
 distribution; none is fitted to data:
@@ -31,9 +31,9 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from .config import EnvConfig
-from .observation import EGO_FEATURES, SLOT_FEATURES, observation_size
-from .scenarios import ScenarioDistribution
+from overtakezoo.envs.config import EnvConfig
+from overtakezoo.envs.model.observation import EGO_FEATURES, SLOT_FEATURES, observation_size
+from overtakezoo.envs.scenarios import ScenarioDistribution
 
 PAD = 1e-4  # in feature units: float rounding of the core's arithmetic, not a modelling margin
 
@@ -79,7 +79,7 @@ def _box(low: list[float], high: list[float]) -> spaces.Box:
 
 
 def ego_observation_space(cfg: EnvConfig, npc_agents: bool | None = None) -> spaces.Box:
-    """The Box of the ego observation (layout in envs/observation.py) under ``cfg``."""
+    """The Box of the ego observation (layout in envs/model/observation.py) under ``cfg``."""
     lim = _Limits(cfg, cfg.npc_agents if npc_agents is None else npc_agents)
     d, oc, pc = lim.d, cfg.observation, cfg.planner
     yaw = lim.v * math.tan(pc.max_steer) / pc.wheelbase

@@ -12,7 +12,7 @@ class RendersFirstRow:
     _renderer: Any = None
 
     def _render_first_row(self) -> Any:
-        from .render import Renderer, frame_from_core
+        from overtakezoo.envs.faces.render import Renderer, frame_from_core
 
         if self._renderer is None:
             self._renderer = Renderer(self.render_mode, fps=self.metadata["render_fps"])

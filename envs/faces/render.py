@@ -14,15 +14,15 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from .config import MODE_NAMES
-from .core import CRASH, OUTCOME_NAMES
-from .planner import lateral_profile
-from .scenarios import OPPOSITE_LANE
+from overtakezoo.envs.config import MODE_NAMES
+from overtakezoo.envs.core import CRASH, OUTCOME_NAMES
+from overtakezoo.envs.model.planner import lateral_profile
+from overtakezoo.envs.scenarios import OPPOSITE_LANE
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from .core import OvertakeCore
+    from overtakezoo.envs.core import OvertakeCore
 
 MODE_COLOURS = ("tab:blue", "tab:orange", "tab:purple")  # follow, overtake, abort
 

@@ -26,10 +26,10 @@ from tensordict import TensorDict
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 from rsl_rl.env import VecEnv  # noqa: E402
 
-from .config import EnvConfig  # noqa: E402
-from .core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
-from .hold import hold  # noqa: E402
-from .scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
+from overtakezoo.envs.config import EnvConfig  # noqa: E402
+from overtakezoo.envs.core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
+from overtakezoo.envs.hold import hold  # noqa: E402
+from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
 
 Source = Callable[[int, np.random.Generator], Scenarios]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .ops import first_true
+from overtakezoo.envs.ops import first_true
 
 RUNNING, SUCCESS, CRASH, TIMEOUT, OFFROAD = 0, 1, 2, 3, 4
 OUTCOME_NAMES = ("running", "success", "crash", "timeout", "offroad")

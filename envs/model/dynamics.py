@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .planner import Plan, clip, lateral_profile
+from overtakezoo.envs.model.planner import Plan, clip, lateral_profile
 
 
 def track(core: Any, p: Plan, dt: Any) -> Any:
