@@ -36,9 +36,10 @@ from overtakezoo.envs.model.collisions import av_contacts, lane_contacts
 from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
 from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
 from overtakezoo.envs.model.dynamics import advance_npcs, track
+from overtakezoo.envs.model.frames import av_constants, av_velocity, avs_world, multi_geometry, other_avs, view_constants, view_terms
 from overtakezoo.envs.model.observation import observe, observation_size
 from overtakezoo.envs.model.outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
-from overtakezoo.envs.model.planner import ModeTable, Plan, plan, rollout_geometry
+from overtakezoo.envs.model.planner import ModeTable, Plan, plan
 from overtakezoo.envs.model.reward import step_reward
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, SCRIPTED, Scenarios
 
@@ -143,7 +144,7 @@ class OvertakeCore:
         if self.num_avs == 1:  # the single-AV road: its view of the NPCs is the NPCs
             self._sc = self._npc
         else:
-            self._npc_view = self._view_constants(self._npc, self._ego)
+            self._npc_view = view_constants(self._npc, self._ego, self.num_avs, self.xp)
 
     def _av_rows(self, roads: Any) -> Any:
         """The AV rows of ``roads`` (all AVs of each)."""
@@ -168,45 +169,14 @@ class OvertakeCore:
         T["lane_mates"] = xp.any(xp.any(T["pair_same_lane"] & others[:, :, None], axis=0), axis=0)  # (N,)
         if e > 1:  # every AV row gets its road's constants, and its own direction, goal and lead
             ego = {k: xp.concatenate([v] * e) for k, v in ego.items()}
-            ego.update(self._av_constants(sc, ego))
+            ego.update(av_constants(sc, xp))
         else:
-            T.update(self._view_terms(T, ego))
+            T.update(view_terms(T, ego, self.cfg.planner, xp))
         ego["half_ego_length"], ego["half_ego_width"] = ego["ego_length"] / 2, ego["ego_width"] / 2
         ego["half_lane_width"] = half_w = ego["lane_width"] / 2
         ego["offroad_low"], ego["offroad_high"] = -half_w - 0.5, 3 * half_w + 0.5
         ego["time_up"] = ego["time_limit"] - 1e-9
         return ego, T
-
-    def _av_constants(self, sc: Scenarios, ego: dict[str, Any]) -> dict[str, Any]:
-        """Per AV row: direction, goal and road end in its own frame, its start, and its lead."""
-        xp, n = self.xp, sc.num
-        direction = np.concatenate([np.ones(n), sc.av_direction.T.reshape(-1).astype(float)])
-        goal = np.concatenate([sc.goal_s, (sc.av_goal_s * sc.av_direction).T.reshape(-1)])
-        beyond = np.concatenate([sc.road_length] * sc.num_avs) - np.concatenate([sc.goal_s] * sc.num_avs)
-        lead = np.concatenate([np.full(n, -1), sc.av_lead.T.reshape(-1).astype(int)])
-        return {"direction": xp.asarray(direction, xp.float), "goal_s": xp.asarray(goal, xp.float),
-                "road_length": xp.asarray(goal + beyond, xp.float), "lead": xp.asarray(lead, xp.int)}
-
-    def _view_terms(self, V: dict[str, Any], ego: dict[str, Any]) -> dict[str, Any]:
-        """What the planner, the outcomes and the observation need of the vehicles an AV row sees,
-        from their ``lane``, ``d``, sizes and flags (all (M', B))."""
-        xp = self.xp
-        out = {"half_len": (ego["ego_length"] + V["length"]) / 2, "half_wid": (ego["ego_width"] + V["width"]) / 2,
-               "reach": xp.minimum(ego["sensor_range"], V["reveal"]), "not_must_pass": ~V["must_pass"]}
-        out.update(rollout_geometry(self.cfg.planner, ego["lane_width"], V["d"], out["half_wid"], out["half_len"], xp))
-        return out
-
-    def _view_constants(self, T: dict[str, Any], ego: dict[str, Any]) -> dict[str, Any]:
-        """The NPCs as each AV row sees them (M, B), mirrored for AVs driving towards -s."""
-        xp, e = self.xp, self.num_avs
-        tile = lambda a: xp.concatenate([a] * e, axis=-1)  # noqa: E731  (M, N) -> (M, B), AV-major
-        flip = ego["direction"] < 0
-        lane = xp.where(flip, 1 - tile(T["lane"]), tile(T["lane"]))
-        slot = xp.arange(T["lane"].shape[0])[:, None]
-        must_pass = xp.where(ego["lead"] >= 0, slot == ego["lead"], tile(T["must_pass"]))
-        return {"lane": lane, "d": lane * ego["lane_width"], "same_dir": lane != OPPOSITE_LANE,
-                "length": tile(T["length"]), "width": tile(T["width"]), "present": tile(T["present"]),
-                "reveal": tile(T["reveal"]), "must_pass": must_pass, "psi": xp.zeros(lane.shape)}
 
     def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
         """Initial state of roads ``rows`` from the scenarios ``fresh`` (one per road)."""
@@ -292,22 +262,20 @@ class OvertakeCore:
     # ------------------------------------------------------------- geometry
     def _avs_world(self) -> dict[str, Any]:
         """The AVs in world coordinates, (E, N) arrays (for the NPCs' controllers and the views)."""
-        xp, e, n, E = self.xp, self.num_avs, self.scen.num, self._ego
-        if e == 1:  # the ego's frame is the world's (velocity: _av_velocity, once the AVs have moved)
+        if self.num_avs == 1:  # the ego's frame is the world's (velocity: _av_velocity, once the AVs have moved)
             return {"s": self.x[None], "d": self.y[None], "psi": self.psi[None], "present": self._all_present}
-        direction = E["direction"]
-        present = ~(self.done & (self.outcome != CRASH))  # a crashed AV stays where it stopped
-        return {"s": (direction * self.x).reshape(e, n),
-                "d": xp.where(direction > 0, self.y, E["lane_width"] - self.y).reshape(e, n),
-                "psi": self.psi.reshape(e, n), "v_along": self._av_velocity(), "present": present.reshape(e, n)}
+        return avs_world(self.x, self.y, self.psi, self.v, self.done, self.outcome, self._ego, self.num_avs, self.xp)
 
     def _av_velocity(self) -> Any:
         """(E, N): each AV's velocity along +s (zero once it is done: it has stopped or left)."""
-        xp = self.xp
         if self.num_avs == 1:
-            return (self.v * xp.cos(self.psi))[None]
-        along = self._ego["direction"] * self.v * xp.cos(self.psi) * ~self.done
-        return along.reshape(self.num_avs, -1)
+            return (self.v * self.xp.cos(self.psi))[None]
+        return av_velocity(self.v, self.psi, self.done, self._ego["direction"], self.num_avs, self.xp)
+
+    @property
+    def _other_av(self) -> Any:
+        """(E - 1, B): for each AV row, the index of each other AV of its road, in order."""
+        return other_avs(self.num, self.scen.num, self.num_avs, self.xp)
 
     def _geometry(self) -> dict[str, Any]:
         """Relative geometry of every vehicle an AV row sees, in its frame, batch-last (M', B); shared
@@ -322,42 +290,9 @@ class OvertakeCore:
                 "half_len": T["half_len"], "half_wid": T["half_wid"],
                 "visible": T["present"] & (self.xp.abs(dx) <= T["reach"]),
             }
-        return self._multi_geometry()
-
-    def _multi_geometry(self) -> dict[str, Any]:
-        """:meth:`_geometry` on a road with several AVs: NPCs then the other AVs, mirrored into each
-        AV's frame. The other AVs move sideways, so their view terms are rebuilt every step."""
-        xp, e, n, E = self.xp, self.num_avs, self.scen.num, self._ego
-        direction, w = E["direction"], E["lane_width"]
-        tile = lambda a: xp.concatenate([a] * e, axis=-1)  # noqa: E731
-        avs = self._avs_world()
-        others = self._other_av  # (E - 1, B): the AV index each column of an AV row's view holds
-        cols = xp.arange(self.num)[None, :] % n
-        o_s, o_d = avs["s"][others, cols], avs["d"][others, cols]
-        o_dir = E["direction"].reshape(e, n)[others, cols]
-        V = dict(self._npc_view)
-        av_lane = xp.astype(xp.where(direction > 0, o_d, w - o_d) > w / 2, xp.int)
-        av_part = {"lane": av_lane, "d": xp.where(direction > 0, o_d, w - o_d), "same_dir": o_dir == direction,
-                   "length": E["ego_length"] + 0 * o_s, "width": E["ego_width"] + 0 * o_s,
-                   "present": avs["present"][others, cols], "reveal": xp.full(o_s.shape, INF),
-                   "must_pass": xp.zeros(o_s.shape, xp.bool), "psi": avs["psi"][others, cols]}
-        V = {k: xp.concatenate([V[k], av_part[k]]) for k in V}
-        V.update(self._view_terms(V, E))
-        V["half_length"], V["half_width"] = V["length"] / 2, V["width"] / 2
-        m = V["lane"].shape[0]
-        V["pair_same_lane"] = (V["lane"][:, None] == V["lane"][None, :]) & V["present"][None, :]
-        mates = xp.arange(m)[:, None] != xp.arange(m)[None, :]
-        V["lane_mates"] = xp.any(xp.any(V["pair_same_lane"] & mates[:, :, None], axis=0), axis=0)
-        V["direction"] = xp.where(V["same_dir"], 1.0, -1.0)
-        self._sc = V
-        s = xp.concatenate([tile(self._npc_s) * direction, direction * o_s])
-        v_along = xp.concatenate([tile(self._npc["direction"] * self._npc_v) * direction,
-                                  direction * avs["v_along"][others, cols]])
-        dx = s - self.x
-        return {"s": s, "dx": dx, "dy": V["d"] - self.y, "d": V["d"], "same_dir": V["same_dir"],
-                "direction": V["direction"], "v_along": v_along, "half_len": V["half_len"],
-                "half_wid": V["half_wid"], "visible": V["present"] & (xp.abs(dx) <= V["reach"]),
-                "psi": V["psi"]}
+        geo, self._sc = multi_geometry(self._avs_world(), self.x, self.y, self._npc_s, self._npc_v, self._npc,
+                                       self._npc_view, self._ego, self.num_avs, self.cfg.planner, self.xp)
+        return geo
 
     def _plan_inputs(self, geo: dict[str, Any]) -> dict[str, Any]:
         T = self._sc
@@ -378,14 +313,6 @@ class OvertakeCore:
 
     def observe(self, geo: dict[str, Any] | None = None) -> Any:
         return observe(self, geo if geo is not None else self._geometry())
-
-    @property
-    def _other_av(self) -> Any:
-        """(E - 1, B): for each AV row, the index of each other AV of its road, in order."""
-        xp, e = self.xp, self.num_avs
-        mine = xp.arange(self.num) // self.scen.num
-        k = xp.arange(e - 1)[:, None]
-        return k + (k >= mine[None, :])
 
     # ----------------------------------------------------------------- step
     def step(self, modes: Any, npc_accel: Any = None) -> StepResult:
