@@ -317,8 +317,8 @@ def test_a_killed_builds_temp_folder_is_swept_by_the_next_build(home):
     import subprocess
     import sys
 
-    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets.store import _staging, datasets_dir\n"
-            f"with _staging(datasets_dir() / {NAME!r}) as staging:\n"
+    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets.store import datasets_dir, staging_root\n"
+            f"with staging_root(datasets_dir() / {NAME!r}) as staging:\n"
             "    (staging / 'half.hdf5').write_bytes(b'x')\n    os.kill(os.getpid(), signal.SIGKILL)\n")
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == -9
     [stale] = _hidden(home)

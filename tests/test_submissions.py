@@ -19,7 +19,8 @@ from overtakezoo.benchmark.results.metrics import summarize
 from overtakezoo.benchmark.results.results import PER_SCENARIO, Results
 from overtakezoo.benchmark.run.runner import run_indices, run_suite
 from overtakezoo.benchmark.leaderboard.submission import submit
-from overtakezoo.benchmark.leaderboard.verify import changed_rows, default_base, sample_indices, verify
+from overtakezoo.benchmark.leaderboard.changes import changed_rows, default_base
+from overtakezoo.benchmark.leaderboard.verify import sample_indices, verify
 from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
 
 from test_benchmark_results import fake_results

@@ -16,7 +16,8 @@ import pytest
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import Results
 from overtakezoo.benchmark.leaderboard.submission import submissions_lock, submit
-from overtakezoo.benchmark.leaderboard.verify import changed_rows, sample_indices, tree_seed, verify
+from overtakezoo.benchmark.leaderboard.changes import changed_rows
+from overtakezoo.benchmark.leaderboard.verify import sample_indices, tree_seed, verify
 
 from test_submissions import REPO, one_line_error, shipped
 

@@ -63,7 +63,6 @@ from overtakezoo.benchmark.archive.scene import flatten_scenes, scene_messages, 
 from overtakezoo.benchmark.archive.sink import MessageSink
 
 
-
 # ---------------------------------------------------------------------------- recorder
 @dataclass
 class _Chunk:
@@ -378,7 +377,6 @@ class ArchiveRecorder:
 
 _ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode  # C-accelerated lists of floats
 _MODE_JSON = [f'"mode":{m},"mode_name":"{name}"}}' for m, name in enumerate(MODE_NAMES)]
-
 
 
 class _Offsets:

@@ -53,7 +53,8 @@ def run(args: Any) -> int:
         raise UserError("--sample, --seed, --base and --only go with --verify")
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
-        from overtakezoo.benchmark.leaderboard.verify import changed_rows, default_base, verify
+        from overtakezoo.benchmark.leaderboard.changes import changed_rows, default_base
+        from overtakezoo.benchmark.leaderboard.verify import verify
 
         if args.sample is not None and args.sample < 1:
             raise UserError(f"--sample {args.sample}: must be >= 1")

@@ -4,7 +4,6 @@ hash matches the registry's."""
 
 from __future__ import annotations
 
-
 import http.client
 import os
 import tarfile
@@ -13,11 +12,10 @@ import urllib.parse
 import urllib.request
 from pathlib import Path, PurePosixPath
 
-
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir, file_sha256
 from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
-from overtakezoo.benchmark.datasets.store import _install, _staging, cache_dir, check_name, datasets_dir
+from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets_dir, install, staging_root
 
 
 def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: float = 30.0,
@@ -130,11 +128,11 @@ def _extract(archive: Path, root: Path, name: str) -> None:
                 parent_dir = m.isdir() and dest in target.parents and root in (dest, *dest.parents)
                 if dest != target and target not in dest.parents and not parent_dir:
                     raise UserError(f"refusing {archive.name}: member {m.name!r} is outside {name}/")
-            with _staging(target) as staging:  # unpacked beside, swapped in whole
+            with staging_root(target) as staging:  # unpacked beside, swapped in whole
                 if hasattr(tarfile, "data_filter"):  # Python >= 3.11.4: the stdlib's own safety net too
                     tar.extractall(staging, members=members, filter="data")
                 else:
                     tar.extractall(staging, members=members)
-                _install(staging, name, target)
+                install(staging, name, target)
     except tarfile.TarError as exc:
         raise UserError(f"{archive}: not a readable .tar.gz dataset archive ({exc})") from None

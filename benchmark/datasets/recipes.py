@@ -205,4 +205,3 @@ def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archi
     atomic_write_json(registry, {"format": REGISTRY_FORMAT, "datasets": entries})
     load_registry(registry)  # what was written reads back
     return entries, archives
-

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-
 from typing import Any
 
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir
-from overtakezoo.benchmark.datasets.store import _minari, check_name, datasets_dir, load, write_dataset
+from overtakezoo.benchmark.datasets.store import minari_module, check_name, datasets_dir, load, write_dataset
 
 
 # ---------------------------------------------------------------------------- build
@@ -97,7 +96,7 @@ def build_dataset(name: str, suite: Any, decider: Any, epsilon: float = 0.1, cou
     check_name(name)
     if not 0.0 <= epsilon <= 1.0:
         raise UserError(f"--epsilon {epsilon}: must be in [0, 1]")
-    _minari()
+    minari_module()
     if count is not None and not 1 <= count <= suite.count:
         raise UserError(f"--count {count}: suite {suite.name} has {suite.count} scenarios")
     target = datasets_dir() / name

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-
 import json
 import os
 from pathlib import Path
 from typing import Any
-
 
 from overtakezoo.benchmark.errors import UserError
 

@@ -88,7 +88,7 @@ def _minari_path(path: Path | None = None) -> Iterator[Path]:
             os.environ["MINARI_DATASETS_PATH"] = old
 
 
-def _minari() -> Any:
+def minari_module() -> Any:
     try:
         import minari
     except ImportError:
@@ -110,7 +110,7 @@ def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any,
     """Store ``episodes`` (as :func:`collect` returns them) as Minari dataset ``name``; returns its
     content hash. With ``expect_content`` the dataset is installed only if its hash equals it."""
     check_name(name)
-    minari = _minari()
+    minari = minari_module()
     from gymnasium import spaces
     from minari.data_collector import EpisodeBuffer
 
@@ -124,7 +124,7 @@ def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any,
                for i, e in enumerate(episodes)]
     spec = _env_spec(config)
     target = datasets_dir() / name
-    with _staging(target) as staging:  # Minari writes a scratch root; the finished folder is swapped in
+    with staging_root(target) as staging:  # Minari writes a scratch root; the finished folder is swapped in
         _check_space(name, staging, episodes)
         with _minari_path(staging), warnings.catch_warnings():  # Minari nags about optional metadata
             warnings.simplefilter("ignore", UserWarning)
@@ -138,7 +138,7 @@ def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any,
         if expect_content is not None and digest != expect_content:
             raise UserError(f"rebuilt {name} has content sha256 {digest[:16]}..., the registry says "
                             f"{expect_content[:16]}...: this installation does not reproduce it; nothing was installed")
-        _install(staging, name, target)
+        install(staging, name, target)
     return digest
 
 
@@ -233,7 +233,7 @@ def content_sha256(dataset: Any) -> str:
 
 
 @contextlib.contextmanager
-def _staging(target: Path) -> Iterator[Path]:
+def staging_root(target: Path) -> Iterator[Path]:
     """A scratch datasets root beside ``target``, removed afterwards (also on Ctrl-C or an error)."""
     try:
         with temp_directory(target, "build") as staging:  # locked: a killed build's folder is swept by the next
@@ -242,7 +242,7 @@ def _staging(target: Path) -> Iterator[Path]:
         raise UserError(f"cannot write dataset {target}: {exc.strerror or exc}") from None
 
 
-def _install(staging: Path, name: str, target: Path) -> None:
+def install(staging: Path, name: str, target: Path) -> None:
     """Swap ``staging/name`` in as ``target`` whole: readers see the old dataset or the new one."""
     if not (staging / name).is_dir():
         raise UserError(f"dataset {name}: nothing was written for it")
@@ -269,7 +269,7 @@ def _env_spec(config: Any) -> Any:
 def load(name: str) -> Any:
     """``minari.load_dataset(name)`` from our datasets folder."""
     check_name(name)
-    minari = _minari()
+    minari = minari_module()
     with _minari_path() as root:
         if not (root / name).is_dir():
             raise UserError(f"no local dataset {name!r} in {root} (see `overtakezoo dataset list`)")
@@ -278,7 +278,7 @@ def load(name: str) -> Any:
 
 def list_datasets() -> dict[str, dict[str, Any]]:
     """Local datasets: name -> metadata (episodes, steps, size)."""
-    minari = _minari()
+    minari = minari_module()
     with _minari_path():
         return dict(minari.list_local_datasets())
 

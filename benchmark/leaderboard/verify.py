@@ -23,33 +23,19 @@ A failure is one line naming the row (and the scenario and step where a policy m
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
-import os
-import subprocess
-import sys
 import zlib
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.run.sandbox import PolicyFailure
 from overtakezoo.benchmark.leaderboard.rows import ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe, load_submissions, reserved_name, stale_reasons, stored_files
-from overtakezoo.envs.io import file_sha256
 from overtakezoo.envs.suites import Suite, load_suite, suite_names
-
-
-# ------------------------------------------------------------------ what to verify
-def tree_seed(root: str | Path) -> int:
-    """A seed from the content of every file under ``<root>/submissions`` (paths and bytes)."""
-    base = Path(root) / "submissions"
-    h = hashlib.sha256()
-    for path in sorted(p for p in base.rglob("*") if p.is_file() and p.name != ".lock") if base.is_dir() else []:
-        h.update(path.relative_to(base).as_posix().encode() + b"\0" + file_sha256(path).encode())
-    return int.from_bytes(h.digest()[:8], "little")
+from overtakezoo.benchmark.leaderboard.batching import Stacked, batches, torch_single_threaded
+from overtakezoo.benchmark.leaderboard.changes import tree_seed
 
 
 def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.ndarray:
@@ -58,54 +44,6 @@ def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.nd
         return np.arange(count)
     rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
     return np.sort(rng.choice(count, size=sample, replace=False))
-
-
-def default_base(root: str | Path) -> str | None:
-    """The git revision a pull request is compared with: ``$OVERTAKEZOO_VERIFY_BASE``, else the
-    merge base of HEAD with ``origin/$GITHUB_BASE_REF`` or ``origin/HEAD``; None outside git."""
-    wanted = os.environ.get("OVERTAKEZOO_VERIFY_BASE")
-    if wanted:
-        return wanted
-    ref = f"origin/{os.environ['GITHUB_BASE_REF']}" if os.environ.get("GITHUB_BASE_REF") else "origin/HEAD"
-    for candidate in (ref, "HEAD"):
-        out = _git(root, "merge-base", "HEAD", candidate)
-        if out is not None:
-            return out.strip()
-    return None
-
-
-def changed_rows(root: str | Path, base: str) -> set[str]:
-    """Rows (paths relative to ``root``) new or changed in the working tree against ``base``, and
-    rows that reference a stored artifact that is; :class:`UserError` when ``base`` is no revision."""
-    root = Path(root)
-    top = _git(root, "rev-parse", "--show-toplevel")
-    if top is None or _git(root, "rev-parse", "--verify", "--quiet", f"{base}^{{commit}}") is None:
-        raise UserError(f"--base {base}: not a git revision of the repository holding {root}")
-    sub = (root / "submissions").resolve()
-    listed = (_git(root, "diff", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
-             (_git(root, "ls-files", "--others", "--exclude-standard", "--", str(sub)) or "")
-    top_path = Path(top.strip())
-    changed = set()
-    for line in listed.splitlines():
-        path = (top_path / line).resolve()
-        if path.is_relative_to(sub):
-            changed.add(path.relative_to(root.resolve()).as_posix())
-    artifacts = {c.split("/", 2)[2] for c in changed if c.startswith(f"submissions/{ARTIFACTS}/")}
-    if artifacts:
-        for rows in load_submissions(root).values():
-            for row in rows:
-                sub_block = row.results.meta.get("submission") or {}
-                if any(rel.split("/", 1)[1] in artifacts for rel in stored_files(sub_block.get("policy") or {})):
-                    changed.add(row.rel)
-    return changed
-
-
-def _git(root: str | Path, *args: str) -> str | None:
-    try:
-        out = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60)
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return out.stdout if out.returncode == 0 else None
 
 
 # ------------------------------------------------------------------ derived labels
@@ -231,7 +169,7 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
             full = row.rel in changed
             todo.append((row, sample_indices(suite.count, None if full else sample, seed, row.rel),
                          row_policy(row, root, suite.config)))
-        for batch in _batches(todo, chunk_size):
+        for batch in batches(todo, chunk_size):
             with torch_single_threaded():
                 _verify_batch(suite, batch, chunk_size)
             lines += [f"verified {row.rel}: {idx.size} of {suite.count} scenarios reproduce exactly"
@@ -244,32 +182,12 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
     return lines
 
 
-def _batches(todo: list, chunk_size: int) -> list[list]:
-    """Rows stepped together in one batch (fewer Python steps). Only deciders that hold their
-    decisions equally long share a batch (the runner holds one batch as one); privileged deciders
-    bind the whole core, so each runs alone."""
-    out: list[list] = []
-    size, key = 0, None
-    for item in sorted(todo, key=lambda it: _batch_key(it[2])):  # stable
-        n, privileged = item[1].size, getattr(item[2], "privileged", False)
-        if not out or size + n > chunk_size or privileged or _batch_key(item[2]) != key:
-            out.append([])
-            size, key = 0, _batch_key(item[2])
-        out[-1].append(item)
-        size += n
-    return out
-
-
-def _batch_key(decider: Any) -> tuple[bool, int]:
-    return bool(getattr(decider, "privileged", False)), int(getattr(decider, "action_repeat", 1))
-
-
 def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
     from overtakezoo.benchmark.run.runner import RunFailure, run_indices
 
     indices = np.concatenate([idx for _, idx, _ in batch])
     e = batch[0][0].results.num_avs  # rows of one suite: the same number of AVs
-    decider = batch[0][2] if len(batch) == 1 else _Stacked([(d, idx.size) for _, idx, d in batch], e)
+    decider = batch[0][2] if len(batch) == 1 else Stacked([(d, idx.size) for _, idx, d in batch], e)
     # A stacked batch fits one chunk by construction (the runner resets deciders per chunk).
     try:
         got = run_indices(suite, decider, indices, chunk_size=chunk_size if len(batch) == 1 else indices.size)
@@ -305,59 +223,3 @@ def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
 
 def _show(v: Any) -> str:
     return "null" if isinstance(v, float) and np.isnan(v) else repr(v)
-
-
-@contextlib.contextmanager
-def torch_single_threaded() -> Iterator[None]:
-    """Sampled rows are small batches: torch's intra-op threads only add synchronisation there (a
-    forward pass took 36 ms instead of 0.7 ms on a busy 2-core machine)."""
-    torch = sys.modules.get("torch")  # imported by the learned policies only
-    if torch is None:
-        yield
-        return
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
-
-
-class _Stacked:
-    """Several deciders on one batch: decider i acts on the next ``n_i`` roads. Roads never interact,
-    so each decider's roads evolve exactly as in a run of its own. On a multi-AV batch (``num_avs``
-    AV-major blocks of rows) decider i gets its roads' rows of every block, AV-major as in its own run.
-    A failing part is named (``PolicyFailure.part``, rows in the whole batch) for the verifier."""
-
-    name, version, privileged, weights_sha256 = "verify", "1", False, None
-
-    def __init__(self, parts: list[tuple[Any, int]], num_avs: int = 1) -> None:
-        bounds = np.cumsum([0] + [n for _, n in parts])
-        self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:])]
-        self.action_repeat = int(getattr(parts[0][0], "action_repeat", 1))  # equal in a batch (_batches)
-        self.num_avs = num_avs
-
-    def _mine(self, a: np.ndarray, rows: slice) -> np.ndarray:
-        e = self.num_avs
-        return a.reshape(e, -1, *a.shape[1:])[:, rows].reshape(-1, *a.shape[1:])
-
-    def reset(self, mask: np.ndarray | None = None) -> None:
-        for d, rows in self.parts:
-            d.reset(None if mask is None else self._mine(np.asarray(mask), rows))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        from overtakezoo.benchmark.run.sandbox import check_modes
-
-        out = np.empty((self.num_avs, obs.shape[0] // self.num_avs), np.int64)
-        for i, (d, rows) in enumerate(self.parts):
-            mine = self._mine(obs, rows)
-            try:
-                modes = check_modes(d.act(mine), mine.shape[0])
-            except PolicyFailure as exc:
-                n = rows.stop - rows.start
-                bad = None if exc.rows is None else exc.rows % n + rows.start  # (AV-major rows of the part)
-                failure = PolicyFailure(exc.reason, bad)
-                failure.part = i
-                raise failure from None
-            out[:, rows] = modes.reshape(self.num_avs, -1)
-        return out.reshape(-1)
