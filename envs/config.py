@@ -3,6 +3,9 @@
 Every number of the model is a setting here. ``EnvConfig.from_dict`` accepts nested dicts (as read
 from a suite's TOML file) and raises :class:`ConfigError` naming the offending key for unknown keys
 or out-of-range values.
+
+Every setting is a dataclass field carrying its range (:func:`bounded`, checked by :func:`check_ranges`);
+the settings are many, hence the length of this module.
 """
 
 from __future__ import annotations

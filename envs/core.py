@@ -22,6 +22,9 @@ elementwise passes (about 10x faster per step at N = 4096). ``npc_s`` etc. are (
 
 Backends: the model is written once against ``self.xp`` (envs/backend.py): numpy by default, or
 torch tensors on a device (``backend="torch"``), e.g. to step very large batches on a GPU.
+
+This module is the batch's state and the step order only: every state array is allocated, reset,
+cloned and advanced here, while the physics lives in ``envs/model/`` as functions of these arrays.
 """
 
 from __future__ import annotations
@@ -35,10 +38,10 @@ from overtakezoo.envs.backend import make_backend
 from overtakezoo.envs.model.collisions import av_contacts, lane_contacts
 from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
 from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
-from overtakezoo.envs.model.dynamics import advance_npcs, track
+from overtakezoo.envs.model.dynamics import AVMotion, advance_npcs, track
 from overtakezoo.envs.model.frames import av_constants, av_velocity, avs_world, multi_geometry, other_avs, view_constants, view_terms
 from overtakezoo.envs.model.observation import observe, observation_size
-from overtakezoo.envs.model.outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, resolve
+from overtakezoo.envs.model.outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, Ending, resolve
 from overtakezoo.envs.model.planner import ModeTable, Plan, plan
 from overtakezoo.envs.model.reward import step_reward
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, SCRIPTED, Scenarios
@@ -236,7 +239,7 @@ class OvertakeCore:
         observations of their AV rows. The batch's Scenarios are rewritten in place: reset the core
         on a private copy."""
         self._replace_rows(rows, fresh)
-        return observe(self, self._geometry(), rows if self.num_avs == 1 else self._av_rows(rows))
+        return self.observe(self._geometry(), rows if self.num_avs == 1 else self._av_rows(rows))
 
     def clone(self, rows: Any = None) -> "OvertakeCore":
         """An independent copy of roads ``rows`` (all when None), e.g. for look-ahead search."""
@@ -311,8 +314,16 @@ class OvertakeCore:
         half_wid, visible."""
         return {key: value.T for key, value in self._geometry().items() if key not in ("s", "psi")}
 
-    def observe(self, geo: dict[str, Any] | None = None) -> Any:
-        return observe(self, geo if geo is not None else self._geometry())
+    def _motion(self) -> AVMotion:
+        return AVMotion(self.x, self.y, self.psi, self.v, self.a, self.steer, self.yaw_rate)
+
+    def observe(self, geo: dict[str, Any] | None = None, cols: Any = None) -> Any:
+        """The observation of every AV row (only rows ``cols`` when given) from ``geo`` (now's when None)."""
+        geo = geo if geo is not None else self._geometry()
+        p = self.last_plan
+        blocked = p.blocked if p is not None and p.blocked.shape[0] == self.num else None
+        motion = self._motion()
+        return observe(self.cfg, motion, self.mode, blocked, self._ego, self._sc, geo, self.xp, cols)
 
     # ----------------------------------------------------------------- step
     def step(self, modes: Any, npc_accel: Any = None) -> StepResult:
@@ -344,9 +355,18 @@ class OvertakeCore:
         road_dt = dt if self.num_avs == 1 else cfg.dt * xp.astype(
             xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
         avs = self._avs_for_npcs(geo)  # where the NPCs see the AVs: before they move, as the planner did
-        jerk = track(self, p, dt)
+        motion, jerk = track(self._motion(), p, dt,
+                             pc, cfg.dt, E, xp)
+        self.x, self.y, self.psi, self.v, self.a, self.steer, self.yaw_rate = motion
         avs["v_along"] = self._av_velocity()  # ... and how fast they now go
-        advance_npcs(self, npc_accelerations(self, avs, road_dt, npc_accel), road_dt)
+        self._npc_a, self._npc_aware, self._npc_boosted, leader = npc_accelerations(
+            self._npc_s, self._npc_v, self._npc, self._npc_aware, self._npc_boosted, avs, road_dt, npc_accel,
+            cfg.npc, self._lane_mates, xp)
+        if leader is not None:
+            self._npc_leader = leader
+        self._npc_s, self._npc_v = advance_npcs(self._npc_s, self._npc_v, self._npc_a, road_dt, self._npc["direction"],
+                                                self._npc["present"], self._npc_crashed if self._npc_crashed_any
+                                                else None, xp)
         self.t = self.t + dt
         self.episode_steps += active
 
@@ -354,13 +374,18 @@ class OvertakeCore:
         self._step_geo = {**geo, "present": self._sc["present"]}  # for step_geometry(): not recomputed
         hit = self._contacts(geo)
         self._npc_collisions(hit)
-        terminated, truncated = resolve(self, geo, hit, active)
+        prev = Ending(self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"],
+                      self.done)
+        terminated, truncated, end = resolve(self.x, self.y, self.t, prev, E, self._sc, geo, hit, active,
+                                             self.num_npcs, self._other_av if self.num_avs > 1 else None, xp)
+        (self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"],
+         self.done) = end
         self._update_stats(geo, active, jerk)
-        reward = step_reward(self, terminated, truncated, switched, active)
+        reward = step_reward(cfg.reward, self.x, self.outcome, E, terminated, truncated, switched, active, xp)
         self.episode_return += reward
         finished = terminated | truncated
         info = self.info()
-        obs = observe(self, geo)
+        obs = self.observe(geo)
         final_obs = None
         if self.auto_reset and finished.any():
             final_obs = obs  # (an AV that finished while its road runs on keeps this observation)

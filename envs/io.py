@@ -16,6 +16,9 @@ target's temps that nobody holds (what SIGKILL or a crash left) are deleted: :fu
 
 This module sits in ``envs``, the lowest layer, so the zoo's trainers and the benchmark share it;
 
+
+One mechanism (a locked temp beside the target, then a rename) in the variants the project needs:
+bytes, text, JSON, a streamed file, a directory.
 """
 
 from __future__ import annotations

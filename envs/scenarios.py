@@ -12,6 +12,9 @@ lane 0 like the ego, -1 towards -s in lane 1), their goal line and the NPC slot 
 succeed (its own slow lead). Every AV shares the row's size, speed limit, sensor range and time limit.
 A distribution's AV order is: the ego's platoon behind it (AV 1, 2, ...; ``av_lead`` 0, the shared
 lead), then the oncoming AV (``av_lead`` its own lead's slot, the last).
+
+The scenario arrays and the distribution that draws them field by field stay together: a field is
+added in both at once.
 """
 
 from __future__ import annotations

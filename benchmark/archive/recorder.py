@@ -36,6 +36,9 @@ batched write path into mcap's Writer.
 
 Non-finite numbers (an infinite reveal distance, ``min_ttc`` without a conflict, ``completion_time``
 of a failure) are written as ``null``; the reader maps them back (inf or NaN by field).
+
+The recorder is one class because capture, chunk serialization and the signal-safe file lifecycle
+share its state; the Foxglove scene is in :mod:`.scene`, the reading side in :mod:`.reader`.
 """
 
 from __future__ import annotations

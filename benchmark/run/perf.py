@@ -11,6 +11,9 @@ step is ``dt`` = 0.1 s; a highway-env step is one decision, 1 / ``policy_frequen
 
 Env-steps/s count scenario-steps (N rows stepped once = N env-steps, the planner included; rows
 are auto-reset so the batch stays full).
+
+Every figure of the report is measured in this one module, so a report is one run of it and like is
+measured next to like.
 """
 
 from __future__ import annotations

@@ -19,6 +19,9 @@ Landlock is a self-restriction any unprivileged process can apply (``landlock(7)
 here with ``ctypes`` (three syscalls) because no maintained Python binding exists on PyPI for the
 versions we support. Without it (an older kernel, or ``OVERTAKEZOO_SANDBOX_LANDLOCK=0``) the child
 keeps the other limits and a file-size limit of 0 bytes, and :func:`landlock_abi` says so.
+
+Both sides of the wire protocol live in this one module (parent and child), so the frame format,
+the limits and the Landlock rules are read and changed in one place.
 """
 
 from __future__ import annotations

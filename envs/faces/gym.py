@@ -5,7 +5,7 @@ overtakezoo.envs`` runs (Gymnasium 1.x no longer loads ``gymnasium.envs`` entry-
 the import is what registers; ``gymnasium.make("overtakezoo.envs:overtakezoo/Overtake-v0")`` imports
 it for you). The same id is registered with PettingZoo's registry (parallel and AEC) and has a
 ``vector_entry_point``, so ``gymnasium.make_vec(id, num_envs=N)`` gives the natively batched
-:class:`~.vector_env.OvertakeVectorEnv`.
+:class:`~.vector.OvertakeVectorEnv`.
 """
 
 from __future__ import annotations

@@ -16,14 +16,11 @@ Only vehicles within sensor range (and their own reveal distance) appear; empty 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from overtakezoo.envs.config import EnvConfig
-
-if TYPE_CHECKING:
-    from overtakezoo.envs.core import OvertakeCore
 
 EGO_FEATURES = 6
 SLOT_FEATURES = 5
@@ -43,40 +40,42 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
             "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES)}
 
 
-def observe(core: "OvertakeCore", geo: dict, cols: Any = None) -> Any:
-    """The (N, D) float32 observation from the core's batch-last geometry (arrays (M, N)); only the
-    rows ``cols`` when given (auto-reset rows). Features are written through a transposed view of
-    the C-contiguous (N, D) result (it fits in cache, so this beats a transpose copy)."""
-    xp, cfg, E = core.xp, core.cfg, core._ego
+def observe(cfg: EnvConfig, m: Any, mode: Any, blocked: Any, ego: dict[str, Any], view: dict[str, Any], geo: dict,
+            xp: Any, cols: Any = None) -> Any:
+    """The (N, D) float32 observation of the AV rows (motion ``m``, an ``AVMotion``; ``mode``; the
+    planner's last ``blocked`` flags or None) from the batch-last geometry of the vehicles in their
+    ``view`` (arrays (M, N)); only the rows ``cols`` when given (auto-reset rows). Features are
+    written through a transposed view of the C-contiguous (N, D) result (it fits in cache, so this
+    beats a transpose copy)."""
     oc = cfg.observation
     sel = slice(None) if cols is None else cols
-    v, psi, y = core.v[sel], core.psi[sel], core.y[sel]
-    lane_width = E["lane_width"][sel]
-    lanes, dx, dy = core._sc["lane"][:, sel], geo["dx"][:, sel], geo["dy"][:, sel]
+    v, psi, y = m.v[sel], m.psi[sel], m.y[sel]
+    lane_width = ego["lane_width"][sel]
+    lanes, dx, dy = view["lane"][:, sel], geo["dx"][:, sel], geo["dy"][:, sel]
     seen, v_along = geo["visible"][:, sel], geo["v_along"][:, sel]
     n, k = v.shape[0], oc.vehicles_per_lane
     rows_out = xp.zeros((n, observation_size(cfg)), np.float32)
     out = rows_out.T  # written feature by feature through the transposed view: no copy at the end
     out[0] = v / oc.speed_scale
-    out[1] = core.yaw_rate[sel]
+    out[1] = m.yaw_rate[sel]
     out[2] = y / lane_width
-    out[3] = (E["goal_s"][sel] - core.x[sel] - E["ego_length"][sel] / 2) / oc.position_scale
-    out[4] = E["speed_limit"][sel] / oc.speed_scale
-    out[5] = E["sensor_range"][sel] / oc.position_scale
-    out[EGO_FEATURES + core.mode[sel], xp.arange(n)] = 1.0
+    out[3] = (ego["goal_s"][sel] - m.x[sel] - ego["ego_length"][sel] / 2) / oc.position_scale
+    out[4] = ego["speed_limit"][sel] / oc.speed_scale
+    out[5] = ego["sensor_range"][sel] / oc.position_scale
+    out[EGO_FEATURES + mode[sel], xp.arange(n)] = 1.0
     r = cfg.planner.num_rollouts + 1
-    if core.last_plan is not None and core.last_plan.blocked.shape[0] == core.num:
-        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = core.last_plan.blocked[sel].T
+    if blocked is not None:
+        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = blocked[sel].T
 
     # Slot of each vehicle: its rank by distance among the perceived vehicles of its lane (ties by
     # slot index, like a stable sort), from pairwise comparisons on (M, M, N) -- no sort, no loop.
     dist = xp.abs(dx)
     m = dist.shape[0]
     if m:
-        if core._sc["lane_mates"][sel].any():
+        if view["lane_mates"][sel].any():
             j = xp.arange(m)
             before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
-            same_lane = core._sc["pair_same_lane"][..., sel]  # lanes equal, the other vehicle present (cached)
+            same_lane = view["pair_same_lane"][..., sel]  # lanes equal, the other vehicle present (cached)
             rank = xp.sum(before & seen[None, :] & same_lane, axis=1)  # (M, N)
         else:  # (at most one vehicle per lane in these rows, e.g. table1: each is first in its lane)
             rank = xp.zeros(dist.shape, xp.int)
