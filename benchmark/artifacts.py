@@ -3,7 +3,7 @@
 Two formats are stored on the leaderboard and run by the verifier, both pure data:
 
 - ``mlp``: the project's ``.npz`` MLP (``np.load(allow_pickle=False)``) with its model card
-  (JSON), acted by numpy (:mod:`overtakezoo.zoo.learned`);
+  (JSON), acted by numpy (:mod:`overtakezoo.zoo.members.learned`);
 - ``onnx``: one self-contained ONNX file (no external data), acted by onnxruntime.
 
 Everything else is converted, without unpickling anything:
@@ -117,7 +117,7 @@ def policy_kind(card: dict[str, Any]) -> str:
 
 # ------------------------------------------------------------------ overtakezoo train output
 def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
-    from overtakezoo.zoo.common import WeightsError, read_card, sha256_bytes
+    from overtakezoo.zoo.members.learned import WeightsError, read_card, sha256_bytes
 
     try:
         card = read_card(card_path, weights.name)
@@ -146,7 +146,7 @@ def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
 # ------------------------------------------------------------------ Stable-Baselines3
 def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
     """A Stable-Baselines3 ``.zip`` as the npz MLP, read as data only (module docstring)."""
-    from overtakezoo.zoo.mlp import NumpyMLP, npz_bytes
+    from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
 
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as z:

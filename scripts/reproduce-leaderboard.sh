@@ -8,7 +8,7 @@ suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded
                                     duel platoon mixed-traffic)
 deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn oracle)
-# The core suites also get every zoo member that overtakes behind the RSS shield (zoo/shield.py).
+# The core suites also get every zoo member that overtakes behind the RSS shield (zoo/members/shield.py).
 shielded=(rule-fsm+shield fuzzy+shield dqn+shield double-dqn+shield ppo+shield bc+shield cql+shield ps-dqn+shield)
 # Multi-agent suites: self-play of every non-privileged zoo member (the oracle cannot share a road).
 multi_deciders=(always-abort always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn)

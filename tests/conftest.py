@@ -35,8 +35,8 @@ def write_random_member(directory: Path, name: str, seed: int = 0, hidden: tuple
     """A learned member with seeded random weights, in the shipped format (``<name>.npz`` + card),
     for the current observation size: protocol tests that do not depend on trained weights."""
     from overtakezoo.envs import EnvConfig, observation_size
-    from overtakezoo.zoo.features import FEATURES_VERSION
-    from overtakezoo.zoo.mlp import NumpyMLP, npz_bytes
+    from overtakezoo.zoo.members.features import FEATURES_VERSION
+    from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
     from overtakezoo.zoo.export import exported_card
 
     rng = np.random.default_rng(seed)

@@ -16,8 +16,8 @@ from overtakezoo import zoo
 from overtakezoo.envs import (ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario,
                               observation_size)
 from overtakezoo.envs.hold import hold, hold_steps
-from overtakezoo.zoo.dqn import DQNDecider, WeightsError, action_mask, load_pretrained
-from overtakezoo.zoo.features import FEATURES_VERSION, speed_relative
+from overtakezoo.zoo.members.learned import MLPDecider, WeightsError, action_mask, load_pretrained
+from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
 from overtakezoo.zoo.train_dqn import QNetwork, td_targets
 
 from conftest import needs_shipped_weights
@@ -159,7 +159,7 @@ def test_load_refuses_truncated_and_modified_weights(tmp_path, learned_dir):
 
 def test_decider_is_stateless_and_declares_its_hold_for_the_runner(learned_dir):
     cfg = EnvConfig()
-    dec = DQNDecider(QNetwork(observation_size(cfg), [8]).to_numpy(), "dqn", cfg, {"action_repeat": 3})
+    dec = MLPDecider(QNetwork(observation_size(cfg), [8]).to_numpy(), "dqn", cfg, {"action_repeat": 3})
     assert dec.action_repeat == 3 and zoo.load("dqn", directory=learned_dir).action_repeat == 10  # the card's
     core = OvertakeCore(cfg)
     obs = core.reset(ScenarioDistribution().sample(4, 2))
@@ -174,7 +174,7 @@ def _rates(net_or_card, algo, suite):
     from overtakezoo.zoo.train_dqn import load_hyperparams
 
     hp, _ = load_hyperparams(algo)
-    dec = DQNDecider(net_or_card.to_numpy(), algo, suite.config,
+    dec = MLPDecider(net_or_card.to_numpy(), algo, suite.config,
                      {"action_repeat": hp.action_repeat, "action_mask": True, "features": FEATURES_VERSION})
     summary = evaluate(dec, suite, limit=200)[0]
     return summary["success_rate"], summary["crash_rate"]

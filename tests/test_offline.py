@@ -16,8 +16,8 @@ pytest.importorskip("minari")
 from overtakezoo import zoo  # noqa: E402
 from overtakezoo.benchmark.cli import main  # noqa: E402
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution  # noqa: E402
-from overtakezoo.zoo.common import WeightsError  # noqa: E402
-from overtakezoo.zoo.learned import action_mask, load_pretrained  # noqa: E402
+from overtakezoo.zoo.members.learned import WeightsError  # noqa: E402
+from overtakezoo.zoo.members.learned import action_mask, load_pretrained  # noqa: E402
 from overtakezoo.zoo.offline_data import load_dataset, load_hyperparams, transitions  # noqa: E402
 from overtakezoo.zoo.testing import check_decider  # noqa: E402
 
@@ -69,7 +69,7 @@ def test_bc_imitates_rule_fsm_and_acts_without_torch(home, bc_run):
 
     # the decider from the written files, in a fresh process: torch never imported
     code = ("import sys, numpy as np\n"
-            "from overtakezoo.zoo.learned import load_pretrained\n"
+            "from overtakezoo.zoo.members.learned import load_pretrained\n"
             "from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution\n"
             f"d = load_pretrained('bc', directory={str(out)!r})\n"
             "core = OvertakeCore(EnvConfig()); obs = core.reset(ScenarioDistribution().sample(16, 0))\n"

@@ -17,8 +17,8 @@ from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  
 from overtakezoo.envs.rsl_rl_env import OvertakeRslRlEnv  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.categorical import CategoricalDistribution  # noqa: E402
-from overtakezoo.zoo import ppo, train_ppo  # noqa: E402
-from overtakezoo.zoo.common import sha256_bytes  # noqa: E402
+from overtakezoo.zoo import train_ppo  # noqa: E402
+from overtakezoo.zoo.members.learned import PRETRAINED, MLPDecider, WeightsError, load_pretrained, sha256_bytes  # noqa: E402
 
 from conftest import needs_shipped_weights  # noqa: E402
 
@@ -107,7 +107,7 @@ def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     blob = train_ppo.weights_blob(policy, env.core.obs_size, hp.actor)
     card, _, net = convert({"name": "ppo", "weights_sha256": sha256_bytes(blob)}, blob, "ppo")
     assert card["architecture"]["activation"] == "elu" and card["trained_weights_sha256"] == sha256_bytes(blob)
-    dec = ppo.PPODecider(net, "ppo", EnvConfig(), card)
+    dec = MLPDecider(net, "ppo", EnvConfig(), card)
     obs = env.get_observations()["policy"].numpy()
     assert np.array_equal(dec.act(obs), actions[:, 0].long().numpy())
 
@@ -126,19 +126,19 @@ def test_pretrained_ppo_loads_and_acts(pool):
 
 def test_truncated_weights_are_refused(tmp_path):
     for name in ("ppo.npz", "ppo.json"):
-        shutil.copy(ppo.PRETRAINED / name, tmp_path / name)
+        shutil.copy(PRETRAINED / name, tmp_path / name)
     data = (tmp_path / "ppo.npz").read_bytes()
     (tmp_path / "ppo.npz").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ppo.WeightsError, match="truncated or modified"):
-        ppo.load_pretrained(directory=tmp_path)
-    assert issubclass(ppo.WeightsError, ValueError)
+    with pytest.raises(WeightsError, match="truncated or modified"):
+        load_pretrained("ppo", directory=tmp_path)
+    assert issubclass(WeightsError, ValueError)
     # A card whose hash matches a file that is not PPO weights: refused in one line too.
     (tmp_path / "ppo.npz").write_bytes(b"not an npz file")
     card = json.loads((tmp_path / "ppo.json").read_text())
     card["weights_sha256"] = sha256_bytes(b"not an npz file")
     (tmp_path / "ppo.json").write_text(json.dumps(card))
-    with pytest.raises(ppo.WeightsError, match="cannot load"):
-        ppo.load_pretrained(directory=tmp_path)
+    with pytest.raises(WeightsError, match="cannot load"):
+        load_pretrained("ppo", directory=tmp_path)
 
 
 def test_train_writes_card_and_resumes(tmp_path):
@@ -163,5 +163,5 @@ def test_train_writes_card_and_resumes(tmp_path):
     assert card["train_suite"]["name"] == "table1-train" and card["selection"]["iteration"] in (1, 2, 3)
     assert card["trained_weights_sha256"] == sha256_bytes(weights.read_bytes())
     assert card["hyperparameters"]["train"]["select_every"] == 1 and card["hyperparameters"]["file"] == "ppo.toml"
-    dec = ppo.load_pretrained(directory=out)  # the .npz the trainer exported, numpy only
+    dec = load_pretrained("ppo", directory=out)  # the .npz the trainer exported, numpy only
     assert dec.weights_sha256 == card["weights_sha256"] == sha256_bytes((out / "ppo.npz").read_bytes())

@@ -3,8 +3,6 @@ hyperparameter files (which never change the env's reward), and the results a mo
 
 from __future__ import annotations
 
-import hashlib
-import json
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -12,39 +10,6 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
-
-
-class WeightsError(ValueError):
-    """Pretrained weights are missing, truncated, modified or do not fit the configuration."""
-
-
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def read_card(path: str | Path, who: str) -> dict[str, Any]:
-    """A model card (JSON); one-line :class:`WeightsError` when missing or unreadable."""
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise WeightsError(f"{who}: model card {path} not found (no pretrained weights for this decider)") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise WeightsError(f"{who}: model card {path}: unreadable ({exc})") from None
-
-
-def read_verified(weights: str | Path, card: dict[str, Any], who: str) -> bytes:
-    """The bytes of ``weights`` once their sha256 equals the model card's; else :class:`WeightsError`."""
-    weights = Path(weights)
-    try:
-        data = weights.read_bytes()
-    except OSError as exc:
-        raise WeightsError(f"{who}: cannot read weights {weights}: {exc.strerror or exc}") from None
-    expected, actual = card.get("weights_sha256"), sha256_bytes(data)
-    if expected != actual:
-        raise WeightsError(f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
-                           f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
-    return data
 
 
 def read_hyperparams(path: str | Path, required: set[str]) -> dict[str, Any]:

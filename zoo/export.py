@@ -19,8 +19,8 @@ from typing import Any
 
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
 
-from .common import WeightsError, read_card, read_verified, sha256_bytes
-from .mlp import NumpyMLP, npz_bytes
+from .members.learned import WeightsError, read_card, read_verified, sha256_bytes
+from .members.mlp import NumpyMLP, npz_bytes
 
 PPO_FORMAT = "overtakezoo-ppo/1"
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from overtakezoo.envs import EnvConfig
 
-from .features import FEATURES_VERSION, speed_relative
+from .members.features import FEATURES_VERSION, speed_relative
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
 T = TypeVar("T")
@@ -123,7 +123,7 @@ def dataset_identity(name: str, dataset: Any, data: Transitions) -> dict[str, An
 def model_card(name: str, algorithm: str, arrays_sha256: str, hidden: list[int], obs_dim: int, hp: Any,
                identity: dict[str, Any], seed: int, wall_time_s: float, extra: dict[str, Any]) -> dict[str, Any]:
     """The model card of an offline-trained decider (``zoo/pretrained/<name>.json``)."""
-    from .learned import MASK_VERSION
+    from .members.learned import MASK_VERSION
 
     return {
         "name": name, "version": "1", "algorithm": algorithm,
@@ -154,7 +154,7 @@ def prepare(name: str, timeout_terminal: bool, out: str | Path | None
 def export(net: Any) -> tuple[bytes, Any]:
     """A trained torch MLP (``nn.Linear`` layers with ReLU between) as ``.npz`` bytes and the
     :class:`NumpyMLP` read back from those bytes, so evaluation here uses exactly what the file holds."""
-    from .mlp import NumpyMLP, npz_bytes, read_npz
+    from .members.mlp import NumpyMLP, npz_bytes, read_npz
 
     data = npz_bytes(NumpyMLP.from_linears([m for m in net.modules() if type(m).__name__ == "Linear"]).arrays())
     return data, NumpyMLP.from_arrays(read_npz(data))
@@ -166,8 +166,9 @@ def finish(name: str, algorithm: str, net: Any, data: Transitions, hp: Any, iden
     ``<name>.json`` and the results file into ``out_dir``; returns the model card."""
     from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
 
-    from .common import evaluate, sha256_bytes
-    from .learned import MLPDecider
+    from .common import evaluate
+    from .members.learned import sha256_bytes
+    from .members.learned import MLPDecider
 
     weights, mlp = export(net)
     wall = float(stats.pop("wall_time_s"))

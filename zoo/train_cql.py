@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .learned import action_mask
+from .members.learned import action_mask
 from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
 from .schema import param
 from .train_bc import _bar

@@ -57,11 +57,12 @@ from overtakezoo.envs.hold import hold
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir
 from overtakezoo.envs.mixture import MixedCore, split_rows
 
-from .common import evaluate, read_card, reject_reward_keys, sha256_bytes
+from .common import evaluate, reject_reward_keys
+from .members.learned import read_card, sha256_bytes
 from .export import convert, dqn_net
-from .features import FEATURES_VERSION, speed_relative
-from .learned import MASK_VERSION, NUM_MODES, MLPDecider, action_mask
-from .mlp import NumpyMLP
+from .members.features import FEATURES_VERSION, speed_relative
+from .members.learned import MASK_VERSION, NUM_MODES, MLPDecider, action_mask
+from .members.mlp import NumpyMLP
 from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, merged, param, read_toml
 
 HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
@@ -511,7 +512,7 @@ def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path 
     """Re-measure a published decider on ``suite`` (e.g. after a suite or code change); with
     ``write`` the model card's ``results[suite]`` is replaced (the weights, and so their sha256,
     stay as they are)."""
-    from .learned import PRETRAINED, load_pretrained
+    from .members.learned import PRETRAINED, load_pretrained
 
     directory = Path(directory) if directory else PRETRAINED
     data = load_suite(suite)

@@ -35,10 +35,11 @@ from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observatio
 from overtakezoo.envs.io import atomic_path, atomic_write_bytes, atomic_write_json, check_writable_dir
 
 from .base import Decider
-from .common import evaluate, reject_reward_keys, sha256_bytes
+from .common import evaluate, reject_reward_keys
+from .members.learned import sha256_bytes
 from .export import export
-from .features import FEATURES_VERSION, speed_relative
-from .learned import load_pretrained
+from .members.features import FEATURES_VERSION, speed_relative
+from .members.learned import load_pretrained
 from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, param, read_toml, unknown_key
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary

@@ -29,7 +29,7 @@ import numpy as np
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.observation import SLOT_FEATURES
 
-from .base import Decider, register
+from ..base import Decider, register
 from .rule_fsm import lead_from_obs
 
 INF = np.inf
