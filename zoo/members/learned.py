@@ -162,16 +162,17 @@ class MLPDecider(Decider):
 
 
 def describe(name: str, c: dict[str, Any]) -> str:
-    """The model card in a few lines."""
+    """The model card (``zoo/train/card.schema.json``) in a few lines."""
     if not c:
         return f"{name}: an untrained network."
     a, hp = c.get("architecture", {}), c.get("hyperparameters", {})
-    hidden = a.get("hidden", a.get("hidden_dims"))
-    if a.get("kind") == "policy" or name == "ppo":
-        what = (f"{name} ({c.get('algorithm', 'PPO')}, {c.get('library', 'rsl-rl-lib')} "
-                f"{c.get('library_version', '')}): MLP {hidden} {a.get('activation')} actor over the "
-                f"{a.get('obs_dim')}-feature input, categorical over the 3 modes (argmax at test time)")
-    elif a.get("output") == "logits":  # bc: a classifier of the recorded modes
+    hidden = a.get("hidden")
+    if a.get("kind") == "policy":
+        version = (c.get("versions") or {}).get("rsl-rl-lib")
+        what = (f"{name} ({c.get('algorithm', 'PPO')}{f', rsl-rl-lib {version}' if version else ''}): MLP {hidden} "
+                f"{a.get('activation')} actor over the {a.get('obs_dim')}-feature input, categorical over the 3 "
+                "modes (argmax at test time)")
+    elif a.get("kind") == "classifier":  # bc: a classifier of the recorded modes
         what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden} classifier over the {a.get('obs_dim')}-feature "
                 f"input, the most likely mode among those the action mask allows")
     else:
@@ -180,15 +181,15 @@ def describe(name: str, c: dict[str, Any]) -> str:
                 f"Q-network over the {a.get('obs_dim')}-feature input"
                 + (f"; mode-transition mask v{version} (abort only from overtake, follow only from follow or "
                    f"in lane{', aborts carried through' if version >= 3 else ''})" if c.get("action_mask") else ""))
-    suite = c.get("train_suite", "?")
-    suite = suite.get("name", "?") if isinstance(suite, dict) else suite
+    suite = (c.get("train_suite") or {}).get("name", "?")
     if c.get("dataset"):  # offline members (bc, cql) learn from a recorded dataset, not a suite
         ds = c["dataset"]
         trained = (f"  trained offline on dataset {ds.get('name', '?')} (content sha256 "
-                   f"{str(ds.get('content_sha256'))[:12]}), seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
+                   f"{str(ds.get('content_sha256'))[:12]}), {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, "
+                   f"seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
     else:
-        trained = (f"  trained on {suite}, {c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, "
-                   f"{c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
+        trained = (f"  trained on {suite}, {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, seed "
+                   f"{c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
     lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
