@@ -21,6 +21,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from overtakezoo import zoo
+
 from .errors import UserError
 from .io import atomic_write_bytes
 from . import crossplay, headline, multi_leaderboard, paper_table, safety_board
@@ -37,7 +39,7 @@ _GENERATED_SUFFIXES = (".md", ".png", ".json")
 _RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
                  ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
                  ("crash_share_npc2", "rate", "%"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
-LEARNED = {"dqn", "double-dqn", "ppo", "bc", "cql"}  # the zoo's learned members (targets in the headline)
+LEARNED = set(zoo.names("learned"))  # the zoo's learned members (targets in the headline): the registry's
 _LABELS = {k: label for k, label, _, _ in TABLE}
 
 
