@@ -35,7 +35,7 @@ import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
 
-from ..base import Decider, names, register
+from ..base import Decider, member, names, register
 from .features import FEATURES_VERSION, speed_relative
 from .mlp import NumpyMLP, read_npz
 
@@ -220,4 +220,5 @@ def _pretrained(name: str) -> Any:
 
 
 for _name in names("learned"):  # the registry lists the learned members; each loads its shipped weights
-    register(_name, _pretrained(_name))
+    if member(_name).module == "learned":  # (a learned decider registered by a plugin keeps its own factory)
+        register(_name, _pretrained(_name))

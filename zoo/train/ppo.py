@@ -13,7 +13,8 @@ env's own, as for every trainer (the suite's ``RewardConfig``, time cost include
 Outputs (:mod:`.contract`): ``ppo.pt`` holds the actor's ``state_dict`` and the rsl-rl model
 settings needed to rebuild it (a plain dict, read with ``torch.load(weights_only=True)``), converted
 to ``ppo.npz`` (:func:`.export.convert`); the model card ``ppo.json`` names both with their sha256.
-Beside them: ``train_log.csv`` and ``checkpoints/``.
+Beside them: ``train_log.csv`` and ``checkpoints/``. (A little over the project's ~300 lines: the
+hyperparameter checks against rsl-rl and the training loop with its model selection are ppo's alone.)
 """
 
 from __future__ import annotations
@@ -200,8 +201,6 @@ def _library_version() -> str:
 def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
     """Restore ``runner`` from a checkpoint ``runner.save`` wrote and return its ``infos``. Read with
     ``weights_only=True`` (rsl-rl's own ``load`` unpickles anything): resuming never runs code."""
-    import torch
-
     try:
         loaded = torch.load(str(path), map_location="cpu", weights_only=True)
         if not isinstance(loaded, dict):
