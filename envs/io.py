@@ -97,6 +97,15 @@ def _claim(fd: int, path: Path) -> bool:
             return False
         except OSError:  # a filesystem without locks: nothing is swept there either
             pass
+        # A sweeper may have locked and deleted the file between our create and our lock, and
+        # released it again: then the name no longer leads to our file, and we make another.
+        try:
+            same = os.path.samestat(os.stat(path, follow_symlinks=False), os.fstat(fd))
+        except OSError:
+            same = False
+        if not same:
+            os.close(fd)
+            return False
     _HELD.add(str(path))
     return True
 

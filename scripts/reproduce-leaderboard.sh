@@ -7,11 +7,14 @@ cd "$(dirname "$0")/.."
 suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(table1 table1-reactive oncoming-2 oncoming-4 oncoming-8 dense urban-50 adversarial occluded
                                     duel platoon mixed-traffic)
-deciders=(always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn oracle)
-# The core suites also get every zoo member that overtakes behind the RSS shield (zoo/shield.py).
-shielded=(rule-fsm+shield fuzzy+shield dqn+shield double-dqn+shield ppo+shield bc+shield cql+shield ps-dqn+shield)
+# The members come from the zoo's registry (zoo/base.py), the one list of them and their kinds.
+members() { python -c "from overtakezoo import zoo; print(*(n for n in zoo.names($1) if $2))"; }
+# Every member (the single-ego suites have no always-abort row).
+read -ra deciders <<< "$(members '' 'n != "always-abort"')"
+# The core suites also get every zoo member that overtakes behind the RSS shield (zoo/members/shield.py).
+read -ra shielded <<< "$(members '"wrapper"' True)"
 # Multi-agent suites: self-play of every non-privileged zoo member (the oracle cannot share a road).
-multi_deciders=(always-abort always-follow always-overtake rule-fsm fuzzy dqn double-dqn ppo bc cql ps-dqn)
+read -ra multi_deciders <<< "$(members '' 'zoo.member(n).kind != "privileged"')"
 for suite in "${suites[@]}"; do
   case "$suite" in duel|platoon|mixed-traffic) run=("${multi_deciders[@]}") ;; *) run=("${deciders[@]}" "${shielded[@]}") ;; esac
   for decider in "${run[@]}"; do

@@ -8,7 +8,7 @@ trainers ``<algo>.npz``). Every seed is run on the training splits of the suites
 (``--train-suite``, default ``core-train``, what the single-agent members train on) and on the core
 suites (or ``--suites``); the outcome counts and CIs go to ``leaderboards/seeds/<MEMBER>.json``,
 which the leaderboard reads to report the member as the mean and spread over seeds. With
-``--ship`` the selected seed is exported (:func:`overtakezoo.zoo.export.export`) into
+``--ship`` the selected seed is exported (:func:`overtakezoo.zoo.train.export.export`) into
 ``zoo/pretrained/<MEMBER>.npz`` + ``.json``.
 
 A multi-AV suite (``duel``, ``platoon``, ``mixed-traffic`` and their training splits) is run with
@@ -28,12 +28,12 @@ import json
 import shutil
 from pathlib import Path
 
-from overtakezoo.benchmark.leaderboard.headline import CORE
+from overtakezoo.envs.suites import CORE
 from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.benchmark.run.policy import load_policy
 from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import MIXTURES, load_suite, load_training
-from overtakezoo.zoo.export import export, trained_sha256
+from overtakezoo.zoo.train.export import export, trained_sha256
 
 from multi_rates import rates as multi_rates  # this script's folder is on sys.path
 

@@ -27,7 +27,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-LEARNED = ("dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
+from overtakezoo import zoo  # noqa: E402
+
+LEARNED = tuple(zoo.names("learned"))  # the registry's list: dqn, double-dqn, ps-dqn, ppo, bc, cql
 PRETRAINED = Path(__file__).resolve().parents[1] / "zoo" / "pretrained"
 
 
@@ -35,9 +37,9 @@ def write_random_member(directory: Path, name: str, seed: int = 0, hidden: tuple
     """A learned member with seeded random weights, in the shipped format (``<name>.npz`` + card),
     for the current observation size: protocol tests that do not depend on trained weights."""
     from overtakezoo.envs import EnvConfig, observation_size
-    from overtakezoo.zoo.features import FEATURES_VERSION
-    from overtakezoo.zoo.mlp import NumpyMLP, npz_bytes
-    from overtakezoo.zoo.export import exported_card
+    from overtakezoo.zoo.members.features import FEATURES_VERSION
+    from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
+    from overtakezoo.zoo.train.export import exported_card
 
     rng = np.random.default_rng(seed)
     ppo = name == "ppo"

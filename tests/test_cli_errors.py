@@ -76,12 +76,14 @@ def test_integer_settings_take_integers_only():
 
 
 def test_unwritable_train_out_fails_before_training(tmp_path, capsys, monkeypatch):
-    from overtakezoo.zoo import train_dqn
+    from overtakezoo.benchmark.run import training
+    from overtakezoo.envs.suites import load_training
+    from overtakezoo.zoo.train import dqn
 
     def must_not_run(*args, **kwargs):
         raise AssertionError("training started although --out cannot be written")
 
-    monkeypatch.setattr(train_dqn, "train", must_not_run)
+    monkeypatch.setattr(training, "train", must_not_run)
     blocker = tmp_path / "file"
     blocker.write_text("x")
     for algo in ("dqn", "ppo"):
@@ -92,7 +94,7 @@ def test_unwritable_train_out_fails_before_training(tmp_path, capsys, monkeypatc
 
     monkeypatch.undo()
     with pytest.raises(WriteError, match="cannot write"):
-        train_dqn.train("dqn", steps=10, out=blocker / "run", eval_suite=None, progress=False)
+        dqn.train(load_training("table1-train"), steps=10, out=blocker / "run", progress=False)
 
 
 @pytest.fixture(scope="module")

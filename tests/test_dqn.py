@@ -10,15 +10,17 @@ import numpy as np
 import pytest
 import torch
 
-from overtakezoo.envs.suites import load_suite
+from overtakezoo.envs.suites import load_suite, load_training
 
 from overtakezoo import zoo
 from overtakezoo.envs import (ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario,
                               observation_size)
 from overtakezoo.envs.hold import hold, hold_steps
-from overtakezoo.zoo.dqn import DQNDecider, WeightsError, action_mask, load_pretrained
-from overtakezoo.zoo.features import FEATURES_VERSION, speed_relative
-from overtakezoo.zoo.train_dqn import QNetwork, td_targets
+from overtakezoo.zoo.members.learned import MLPDecider, WeightsError, action_mask, load_pretrained
+from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
+from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams
+from overtakezoo.zoo.train.dqn import DQNHyperparams, train
+from overtakezoo.zoo.train.qlearning import QNetwork, td_targets
 
 from conftest import needs_shipped_weights
 
@@ -82,7 +84,7 @@ def _copy_member(source, tmp_path, name="dqn"):
 
 
 def test_the_numpy_export_computes_what_the_torch_network_computes():
-    from overtakezoo.zoo.export import convert
+    from overtakezoo.zoo.train.export import convert
 
     torch.manual_seed(0)
     net = QNetwork(observation_size(EnvConfig()), [32, 16], dueling=True)
@@ -159,7 +161,7 @@ def test_load_refuses_truncated_and_modified_weights(tmp_path, learned_dir):
 
 def test_decider_is_stateless_and_declares_its_hold_for_the_runner(learned_dir):
     cfg = EnvConfig()
-    dec = DQNDecider(QNetwork(observation_size(cfg), [8]).to_numpy(), "dqn", cfg, {"action_repeat": 3})
+    dec = MLPDecider(QNetwork(observation_size(cfg), [8]).to_numpy(), "dqn", cfg, {"action_repeat": 3})
     assert dec.action_repeat == 3 and zoo.load("dqn", directory=learned_dir).action_repeat == 10  # the card's
     core = OvertakeCore(cfg)
     obs = core.reset(ScenarioDistribution().sample(4, 2))
@@ -170,21 +172,18 @@ def test_decider_is_stateless_and_declares_its_hold_for_the_runner(learned_dir):
 
 def _rates(net_or_card, algo, suite):
     """(success rate, crash rate) on table1's first 200 scenarios."""
-    from overtakezoo.zoo.common import evaluate
-    from overtakezoo.zoo.train_dqn import load_hyperparams
+    from overtakezoo.benchmark.run.training import evaluate
 
-    hp, _ = load_hyperparams(algo)
-    dec = DQNDecider(net_or_card.to_numpy(), algo, suite.config,
+    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file(algo))
+    dec = MLPDecider(net_or_card.to_numpy(), algo, suite.config,
                      {"action_repeat": hp.action_repeat, "action_mask": True, "features": FEATURES_VERSION})
     summary = evaluate(dec, suite, limit=200)[0]
     return summary["success_rate"], summary["crash_rate"]
 
 
 def test_short_training_beats_an_untrained_network(tmp_path):
-    from overtakezoo.zoo.train_dqn import load_hyperparams, train
-
     torch.manual_seed(0)
-    hp, _ = load_hyperparams("dqn")
+    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
     untrained = QNetwork(observation_size(EnvConfig()), hp.hidden, hp.dueling)
     scen = load_suite("table1")
     s0, c0 = _rates(untrained, "dqn", scen)
@@ -192,10 +191,10 @@ def test_short_training_beats_an_untrained_network(tmp_path):
     # 40k steps on table1-train the net passes ~15 % of table1's first 200 and crashes in none. Short
     # runs are not monotone in their length (60k steps waits behind the lead again), so this checks
     # that learning started -- safe passes appear -- not how far it gets (the slow test does).
-    card = train("dqn", steps=40000, seed=0, out=tmp_path, eval_suite=None, progress=False,
-                 overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 10000,
-                            "log_every": 5000})
-    s1, c1 = _rates(card["_net"], "dqn", scen)
+    trained = train(load_training("table1-train"), member="dqn", steps=40000, seed=0, out=tmp_path, progress=False,
+                    overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 10000,
+                               "log_every": 5000})
+    s1, c1 = _rates(trained.module, "dqn", scen)
     assert s1 >= 0.1 and c1 <= 0.05 and s1 - 2 * c1 > s0 - 2 * c0 + 0.1, ((s0, c0), (s1, c1))
     log = (tmp_path / "log.csv").read_text().splitlines()
     assert log[0].startswith("steps,episodes,success_rate,crash_rate,loss,epsilon")
@@ -203,14 +202,14 @@ def test_short_training_beats_an_untrained_network(tmp_path):
 
 
 def test_resume_continues_from_a_checkpoint(tmp_path):
-    from overtakezoo.zoo.train_dqn import train
-
     ov = {"num_envs": 64, "learning_starts": 300, "checkpoint_every": 1500, "log_every": 500}
-    first = train("double-dqn", steps=1500, seed=1, out=tmp_path, eval_suite=None, progress=False, overrides=ov)
-    card = train("double-dqn", steps=3000, seed=1, out=tmp_path, resume=tmp_path / "checkpoint.pt",
-                 eval_suite=None, progress=False, overrides=ov)
+    suites = load_training("table1-train")
+    first = train(suites, member="double-dqn", steps=1500, seed=1, out=tmp_path, progress=False, overrides=ov).card
+    card = train(suites, member="double-dqn", steps=3000, seed=1, out=tmp_path, resume=tmp_path / "checkpoint.pt",
+                 progress=False, overrides=ov).card
     assert first["steps"] < 3000 <= card["steps"]
-    assert card["gradient_updates"] > first["gradient_updates"] and card["episodes"] >= first["episodes"]
+    done, before = card["training"], first["training"]
+    assert done["gradient_updates"] > before["gradient_updates"] and done["episodes"] >= before["episodes"]
     rows = (tmp_path / "log.csv").read_text().splitlines()
     steps = [int(r.split(",")[0]) for r in rows[1:]]
     assert len(steps) >= 5 and steps == sorted(steps)  # one log, continued
@@ -218,9 +217,9 @@ def test_resume_continues_from_a_checkpoint(tmp_path):
 
 @pytest.mark.slow
 def test_training_from_scratch_reaches_the_paper_figure(tmp_path):
-    from overtakezoo.zoo.train_dqn import train
+    from overtakezoo.benchmark.run import training
 
-    card = train("dqn", suite="core-train", out=tmp_path, progress=False)  # the shipped recipe, one seed
+    card = training.train("dqn", suite="core-train", out=tmp_path, progress=False).card  # the shipped recipe
     assert card["results"]["table1"]["success_rate"] >= 0.922  # the paper's DQN figure
     assert card["wall_time_s"] < 900
 
@@ -232,7 +231,7 @@ def test_train_command_writes_log_weights_and_card(tmp_path, capsys):
     assert main(["train", "dqn", "--steps", "3000", "--seed", "2", "--out", str(out), "--eval-suite", "none",
                  "--no-progress"]) == 0
     card = json.loads((out / "dqn.json").read_text())
-    assert card["steps"] >= 3000 and card["seed"] == 2 and card["train_suite"] == "table1-train"
+    assert card["steps"] >= 3000 and card["seed"] == 2 and card["train_suite"]["name"] == "table1-train"
     sha = __import__("hashlib").sha256
     assert card["trained_weights_sha256"] == sha((out / "dqn.pt").read_bytes()).hexdigest()
     assert card["weights_sha256"] == sha((out / "dqn.npz").read_bytes()).hexdigest()

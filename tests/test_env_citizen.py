@@ -53,7 +53,8 @@ def test_time_cost_is_paid_per_running_step():
 
 
 def test_trainers_have_no_reward_of_their_own(tmp_path):
-    from overtakezoo.zoo.common import read_hyperparams
+    from overtakezoo.zoo.train.bc import BCHyperparams
+    from overtakezoo.zoo.train.contract import load_hyperparams
 
     for path in HYPERPARAMS.glob("*.toml"):
         hp = tomllib.loads(path.read_text())
@@ -61,15 +62,17 @@ def test_trainers_have_no_reward_of_their_own(tmp_path):
     for extra in ("time_penalty = 0.01\n", "[reward]\nsuccess = 5.0\n"):
         bad = tmp_path / "hp.toml"
         bad.write_text("steps = 10\n" + extra)
-        with pytest.raises(ValueError, match="env's reward"):
-            read_hyperparams(bad, {"steps"})
+        with pytest.raises(ValueError, match="env's reward"):  # the one reader, for every trainer
+            load_hyperparams(BCHyperparams, bad)
 
 
 def test_dqn_trainer_refuses_a_reward_override():
-    from overtakezoo.zoo.train_dqn import TrainError, train
+    from overtakezoo.envs.suites import load_training
+    from overtakezoo.zoo.train.dqn import train
+    from overtakezoo.zoo.train.typed import HyperparameterError
 
-    with pytest.raises(TrainError, match="time_penalty"):
-        train("dqn", steps=1, overrides={"time_penalty": 0.01}, eval_suite=None, progress=False)
+    with pytest.raises(HyperparameterError, match="time_penalty"):
+        train(load_training("table1-train"), steps=1, overrides={"time_penalty": 0.01}, progress=False)
 
 
 def test_results_hash_ignores_the_reward():

@@ -10,7 +10,7 @@ from overtakezoo.envs.suites import CORE, MIXTURES, load_suite, load_training
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, make_scenario, observation_layout
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore, split_rows
-from overtakezoo.zoo.features import speed_relative
+from overtakezoo.zoo.members.features import speed_relative
 
 
 # ------------------------------------------------------------------ splits

@@ -7,7 +7,8 @@ import pytest
 
 from overtakezoo.benchmark.leaderboard import headline
 from overtakezoo.benchmark.leaderboard import paper_table
-from overtakezoo.benchmark.leaderboard.headline import CORE, Counts, score
+from overtakezoo.benchmark.leaderboard.headline import Counts, score
+from overtakezoo.envs.suites import CORE
 
 REFERENCE = Path(__file__).resolve().parents[1] / "leaderboards" / "reference" / "paper.json"
 

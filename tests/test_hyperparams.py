@@ -1,4 +1,4 @@
-"""Typed hyperparameters (zoo/schema.py): a misspelt key, a wrong type or an out-of-range value in a
+"""Typed hyperparameters (zoo/train/typed.py): a misspelt key, a wrong type or an out-of-range value in a
 hyperparameter file or a --set override is one `error:` line naming the file and the key, before
 any training starts."""
 
@@ -9,10 +9,11 @@ import dataclasses
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.zoo.schema import HyperparameterError, as_dict, load_hyperparams, param, parse_overrides
-from overtakezoo.zoo.train_dqn import HYPERPARAMS, DQNHyperparams
+from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams, parse_overrides
+from overtakezoo.zoo.train.dqn import DQNHyperparams
+from overtakezoo.zoo.train.typed import HyperparameterError, as_dict, build, param
 
-DQN_TOML = (HYPERPARAMS / "dqn.toml").read_text()
+DQN_TOML = hyperparams_file("dqn").read_text()
 
 
 def one_line_error(capsys, argv):
@@ -74,9 +75,7 @@ def test_set_overrides_go_through_the_same_checks(tmp_path, capsys):
 ])
 def test_bad_ppo_hyperparameters_are_one_line_naming_section_and_key(tmp_path, capsys, section, old, new, needle):
     pytest.importorskip("rsl_rl")
-    from overtakezoo.zoo.train_ppo import HYPERPARAMS as PPO_TOML
-
-    text = PPO_TOML.read_text()
+    text = hyperparams_file("ppo").read_text()
     assert old in text, old
     path = tmp_path / "ppo.toml"
     path.write_text(text.replace(old, new, 1))
@@ -87,10 +86,10 @@ def test_bad_ppo_hyperparameters_are_one_line_naming_section_and_key(tmp_path, c
 
 
 def test_shipped_hyperparameter_files_load_and_round_trip():
-    for algo in ("dqn", "double-dqn"):
-        hp = load_hyperparams(DQNHyperparams, HYPERPARAMS / f"{algo}.toml")
-        assert hp.double == (algo == "double-dqn") and hp.hidden == (128, 128)
-        assert load_hyperparams(DQNHyperparams, as_dict(hp)) == hp
+    for algo in ("dqn", "double-dqn", "ps-dqn"):
+        hp, name = load_hyperparams(DQNHyperparams, hyperparams_file(algo))
+        assert name == f"{algo}.toml" and hp.double == (algo == "double-dqn") and hp.hidden == (128, 128)
+        assert build(DQNHyperparams, as_dict(hp), "card") == hp
 
 
 def test_schema_helper_for_other_trainers():
@@ -100,8 +99,8 @@ def test_schema_helper_for_other_trainers():
         beta: float = param(0.5, 0.0, 1.0)
         kind: str = param("bc", choices=("bc", "cql"))
 
-    assert load_hyperparams(Tiny, {"epochs": 3}) == Tiny(epochs=3, beta=0.5, kind="bc")
+    assert build(Tiny, {"epochs": 3}, "here") == Tiny(epochs=3, beta=0.5, kind="bc")
     with pytest.raises(HyperparameterError, match=r"^offline.toml: kind: 'x' is not one of 'bc', 'cql'$"):
-        load_hyperparams(Tiny, {"epochs": 3, "kind": "x"}, "offline.toml")
+        build(Tiny, {"epochs": 3, "kind": "x"}, "offline.toml")
     with pytest.raises(HyperparameterError, match="epochs: missing"):
-        load_hyperparams(Tiny, {}, "offline.toml")
+        build(Tiny, {}, "offline.toml")

@@ -14,7 +14,8 @@ from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore
-from overtakezoo.zoo.train_dqn import Trainer, load_hyperparams, row_split, train
+from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams
+from overtakezoo.zoo.train.dqn import DQNHyperparams, Trainer, row_split, train
 
 from conftest import needs_shipped_weights
 
@@ -31,15 +32,18 @@ def test_single_ego_training_is_unchanged_by_multi_av_training():
     # ~3 s of CPU. The digest was computed on the trainer before multi-AV training existed (main
     # 54d0108, the same run), so the waiting-row filter and the row split leave single-ego training
     # bit-identical. Torch is pinned (pyproject), and float32 CPU kernels are deterministic here.
-    card = train("dqn", suite="core-train", steps=1500, seed=3, eval_suite=None, progress=False,
-                 overrides={"num_envs": 64, "learning_starts": 300})
-    assert (card["steps"], card["episodes"], card["gradient_updates"]) == (1536, 16, 200)
-    assert _digest(card["_net"]) == "afbf73efce94bb6a6ddb55ec3666130796ce5be8d476c606ed2aa1fc1d499847"
-    assert "train_rows" not in card and card["algorithm"] == "DQN (Mnih et al. 2015)"
+    trained = train(load_training("core-train"), member="dqn", suite_name="core-train", steps=1500, seed=3,
+                    progress=False, overrides={"num_envs": 64, "learning_starts": 300})
+    card = trained.card
+    assert (card["steps"], card["training"]["episodes"], card["training"]["gradient_updates"]) == (1536, 16, 200)
+    assert _digest(trained.module) == "afbf73efce94bb6a6ddb55ec3666130796ce5be8d476c606ed2aa1fc1d499847"
+    assert "train_rows" not in card["training"]
+    assert card["algorithm"] == "DQN (Mnih et al. 2015) with a dueling head (Wang et al. 2016)"
 
 
 def test_waiting_avs_never_enter_the_buffer():
-    hp, _ = load_hyperparams("ps-dqn", overrides={"num_envs": 24, "learning_starts": 10**9, "steps": 2500})
+    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("ps-dqn"),
+                             {"num_envs": 24, "learning_starts": 10**9, "steps": 2500})
     trainer = Trainer("ps-dqn", hp, load_training("duel-train+platoon-train"), seed=0)
     trainer._start_core()
     assert trainer.row_counts() == {"duel-train": {"roads": 6, "rows": 12}, "platoon-train": {"roads": 4, "rows": 12}}

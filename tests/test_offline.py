@@ -16,9 +16,12 @@ pytest.importorskip("minari")
 from overtakezoo import zoo  # noqa: E402
 from overtakezoo.benchmark.cli import main  # noqa: E402
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution  # noqa: E402
-from overtakezoo.zoo.common import WeightsError  # noqa: E402
-from overtakezoo.zoo.learned import action_mask, load_pretrained  # noqa: E402
-from overtakezoo.zoo.offline_data import load_dataset, load_hyperparams, transitions  # noqa: E402
+from overtakezoo.zoo.members.learned import WeightsError  # noqa: E402
+from overtakezoo.zoo.members.learned import action_mask, load_pretrained  # noqa: E402
+from overtakezoo.benchmark.datasets import store as datasets  # noqa: E402
+from overtakezoo.benchmark.run import training  # noqa: E402
+from overtakezoo.zoo.train.contract import check_card, load_hyperparams  # noqa: E402
+from overtakezoo.zoo.train.offline import transitions  # noqa: E402
 from overtakezoo.zoo.testing import check_decider  # noqa: E402
 
 NAME = "overtakezoo/table1/offline-test-v0"
@@ -39,15 +42,13 @@ def home(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def bc_run(home):
-    from overtakezoo.zoo import train_bc
-
     out = home / "bc"
-    card = train_bc.train(NAME, steps=600, out=out, eval_suite=None, progress=False)
+    card = training.train("bc", dataset=NAME, steps=600, out=out, eval_suite=None, progress=False).card
     return card, out
 
 
 def test_transitions_are_the_recorded_steps(home):
-    ds = load_dataset(NAME)
+    ds = datasets.load(NAME)
     data = transitions(ds)
     episodes = list(ds.iterate_episodes())
     assert len(data) == ds.total_steps == sum(len(e.actions) for e in episodes)
@@ -66,10 +67,13 @@ def test_bc_imitates_rule_fsm_and_acts_without_torch(home, bc_run):
     assert card["action_repeat"] == 1 and card["features"] == "speed-relative-v1"
     assert card["dataset"]["name"] == NAME and len(card["dataset"]["content_sha256"]) == 64
     assert card["reproduce"].startswith(f"overtakezoo train bc --dataset {NAME}")
+    assert card["dataset"]["content_sha256"] == datasets.content_sha256(datasets.load(NAME))
+    check_card(card)
+    assert json.loads((out / "bc.json").read_text()) == card and not (out / "bc.pt").exists()
 
     # the decider from the written files, in a fresh process: torch never imported
     code = ("import sys, numpy as np\n"
-            "from overtakezoo.zoo.learned import load_pretrained\n"
+            "from overtakezoo.zoo.members.learned import load_pretrained\n"
             "from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution\n"
             f"d = load_pretrained('bc', directory={str(out)!r})\n"
             "core = OvertakeCore(EnvConfig()); obs = core.reset(ScenarioDistribution().sample(16, 0))\n"
@@ -98,8 +102,6 @@ def test_bc_matches_rule_fsm_decisions_on_its_own_states(home, bc_run):
 
 
 def test_cql_trains_acts_and_refuses_tampered_weights(home):
-    from overtakezoo.zoo import train_cql
-
     out = home / "cql"
     assert main(["train", "cql", "--dataset", NAME, "--steps", "300", "--out", str(out), "--eval-suite", "none",
                  "--no-progress"]) == 0
@@ -112,8 +114,8 @@ def test_cql_trains_acts_and_refuses_tampered_weights(home):
     q = d.scores(obs)
     assert q.shape == (32, 3) and np.isfinite(q).all()
     # the same seed gives the same weights (bytes), a different seed different ones
-    again = train_cql.train(NAME, steps=300, eval_suite=None, progress=False)
-    other = train_cql.train(NAME, steps=300, seed=1, eval_suite=None, progress=False)
+    again = training.train("cql", dataset=NAME, steps=300, eval_suite=None, progress=False).card
+    other = training.train("cql", dataset=NAME, steps=300, seed=1, eval_suite=None, progress=False).card
     assert again["weights_sha256"] == card["weights_sha256"] != other["weights_sha256"]
 
     data = bytearray((out / "cql.npz").read_bytes())
@@ -142,8 +144,8 @@ def test_acting_respects_the_action_mask(home, bc_run):
 
 
 def test_hyperparameter_files_are_typed(tmp_path, home):
-    from overtakezoo.zoo.train_bc import BCHyperparams
-    from overtakezoo.zoo.train_cql import CQLHyperparams
+    from overtakezoo.zoo.train.bc import BCHyperparams
+    from overtakezoo.zoo.train.cql import CQLHyperparams
 
     for cls, text, match in [(CQLHyperparams, "gama = 0.9\n", "gama: unknown key"),
                              (CQLHyperparams, "gamma = 1.5\n", "gamma: 1.5 is out of range"),
@@ -154,6 +156,9 @@ def test_hyperparameter_files_are_typed(tmp_path, home):
         path.write_text(text)
         with pytest.raises(ValueError, match=match):
             load_hyperparams(cls, path)
+    (tmp_path / "hp.toml").write_text("time_penalty = 0.1\n")  # offline trainers learn the env's reward too
+    with pytest.raises(ValueError, match="not a training setting"):
+        load_hyperparams(BCHyperparams, tmp_path / "hp.toml")
     (tmp_path / "hp.toml").write_text("time_penality = 0.1\n")
     assert main(["train", "bc", "--dataset", NAME, "--hyperparams", str(tmp_path / "hp.toml"),
                  "--out", str(tmp_path / "o")]) == 2

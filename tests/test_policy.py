@@ -182,8 +182,8 @@ def test_module_factory(tmp_path, suite, capsys, monkeypatch):
 @pytest.mark.parametrize("name", ["dqn", "ppo"])
 def test_weights_in_the_train_format_evaluate_like_the_zoo_member(tmp_path, suite, capsys, learned_dir,
                                                                     monkeypatch, name):
-    from overtakezoo.zoo import learned
-    from overtakezoo.zoo.common import read_card
+    from overtakezoo.zoo.members import learned
+    from overtakezoo.zoo.members.learned import read_card
 
     for ext in (".npz", ".json"):  # `overtakezoo train` writes <algo>.npz beside the card <algo>.json
         shutil.copy(learned_dir / f"{name}{ext}", tmp_path / f"{name}{ext}")
@@ -221,7 +221,7 @@ def test_corrupted_policy_file_is_one_line(tmp_path, suite, capsys):
     one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "wide.onnx")])
     assert "no such file" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", "missing.pt"])
     # Weights with a model card whose sha256 no longer matches.
-    pre = __import__("overtakezoo.zoo.dqn", fromlist=["PRETRAINED"]).PRETRAINED
+    pre = __import__("overtakezoo.zoo.members.learned", fromlist=["PRETRAINED"]).PRETRAINED
     shutil.copy(pre / "dqn.json", tmp_path / "dqn.json")
     (tmp_path / "dqn.npz").write_bytes((pre / "dqn.npz").read_bytes()[:-10])
     assert "sha256" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "dqn.npz")])
@@ -238,7 +238,7 @@ def test_a_policy_for_other_observations_is_refused_at_load(tmp_path, suite, cap
 
 @pytest.mark.parametrize("command", ["eval", "decision-map"])
 def test_tampered_pretrained_weights_through_decider_are_one_line(tmp_path, suite, capsys, monkeypatch, command):
-    from overtakezoo.zoo import learned
+    from overtakezoo.zoo.members import learned
 
     for ext in (".npz", ".json"):
         shutil.copy(learned.PRETRAINED / f"dqn{ext}", tmp_path / f"dqn{ext}")

@@ -16,9 +16,11 @@ from tensordict import TensorDict  # noqa: E402
 from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  # noqa: E402
 from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
-from overtakezoo.zoo.categorical import CategoricalDistribution  # noqa: E402
-from overtakezoo.zoo import ppo, train_ppo  # noqa: E402
-from overtakezoo.zoo.common import sha256_bytes  # noqa: E402
+from overtakezoo.zoo.train.categorical import CategoricalDistribution  # noqa: E402
+from overtakezoo.envs.suites import SUITES_DIR, load_training  # noqa: E402
+from overtakezoo.zoo.train import ppo  # noqa: E402
+from overtakezoo.zoo.train.contract import check_card, hyperparams_file, load_hyperparams  # noqa: E402
+from overtakezoo.zoo.members.learned import PRETRAINED, MLPDecider, WeightsError, load_pretrained, sha256_bytes  # noqa: E402
 
 from conftest import needs_shipped_weights  # noqa: E402
 
@@ -87,9 +89,9 @@ def test_categorical_matches_torch():
 
 def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     torch.manual_seed(0)
-    hp, _ = train_ppo.load_hyperparams(overrides={"runner": {"num_steps_per_env": 8}})
+    hp, _ = load_hyperparams(ppo.PPOHyperparams, hyperparams_file("ppo"), {"runner": {"num_steps_per_env": 8}})
     env = OvertakeRslRlEnv(16, EnvConfig(), pool, seed=0)
-    runner = train_ppo.make_runner(env, hp)
+    runner = ppo.make_runner(env, hp)
     assert type(runner.alg.get_policy().distribution) is CategoricalDistribution
     before = [p.detach().clone() for p in runner.alg.get_policy().parameters()]
     runner.learn(2)
@@ -102,12 +104,12 @@ def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     jit = torch.jit.load(str(tmp_path / "policy.pt"))
     assert torch.equal(jit(env.get_observations()["policy"]), actions)
     # The numpy decider exported from the saved blob acts like the runner's policy.
-    from overtakezoo.zoo.export import convert
+    from overtakezoo.zoo.train.export import convert
 
-    blob = train_ppo.weights_blob(policy, env.core.obs_size, hp.actor)
+    blob = ppo.weights_blob(policy, env.core.obs_size, hp.actor)
     card, _, net = convert({"name": "ppo", "weights_sha256": sha256_bytes(blob)}, blob, "ppo")
     assert card["architecture"]["activation"] == "elu" and card["trained_weights_sha256"] == sha256_bytes(blob)
-    dec = ppo.PPODecider(net, "ppo", EnvConfig(), card)
+    dec = MLPDecider(net, "ppo", EnvConfig(), card)
     obs = env.get_observations()["policy"].numpy()
     assert np.array_equal(dec.act(obs), actions[:, 0].long().numpy())
 
@@ -126,24 +128,24 @@ def test_pretrained_ppo_loads_and_acts(pool):
 
 def test_truncated_weights_are_refused(tmp_path):
     for name in ("ppo.npz", "ppo.json"):
-        shutil.copy(ppo.PRETRAINED / name, tmp_path / name)
+        shutil.copy(PRETRAINED / name, tmp_path / name)
     data = (tmp_path / "ppo.npz").read_bytes()
     (tmp_path / "ppo.npz").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ppo.WeightsError, match="truncated or modified"):
-        ppo.load_pretrained(directory=tmp_path)
-    assert issubclass(ppo.WeightsError, ValueError)
+    with pytest.raises(WeightsError, match="truncated or modified"):
+        load_pretrained("ppo", directory=tmp_path)
+    assert issubclass(WeightsError, ValueError)
     # A card whose hash matches a file that is not PPO weights: refused in one line too.
     (tmp_path / "ppo.npz").write_bytes(b"not an npz file")
     card = json.loads((tmp_path / "ppo.json").read_text())
     card["weights_sha256"] = sha256_bytes(b"not an npz file")
     (tmp_path / "ppo.json").write_text(json.dumps(card))
-    with pytest.raises(ppo.WeightsError, match="cannot load"):
-        ppo.load_pretrained(directory=tmp_path)
+    with pytest.raises(WeightsError, match="cannot load"):
+        load_pretrained("ppo", directory=tmp_path)
 
 
-def test_train_writes_card_and_resumes(tmp_path):
-    # The real hyperparameter file, shrunk: 16 scenarios x 8 decisions per iteration.
-    text = train_ppo.HYPERPARAMS.read_text()
+def _tiny_ppo_toml(tmp_path):
+    """The real hyperparameter file, shrunk: 16 scenarios x 8 decisions per iteration."""
+    text = hyperparams_file("ppo").read_text()
     for old, new in (("num_envs = 256", "num_envs = 16"), ("num_steps_per_env = 32", "num_steps_per_env = 8"),
                      ("select_every = 20", "select_every = 1"), ("select_scenarios = 500", "select_scenarios = 16"),
                      ("checkpoint_every = 50", "checkpoint_every = 1")):
@@ -151,17 +153,43 @@ def test_train_writes_card_and_resumes(tmp_path):
         text = text.replace(old, new)
     hp = tmp_path / "ppo.toml"
     hp.write_text(text)
+    return hp
+
+
+def test_train_writes_card_and_resumes(tmp_path):
+    hp = _tiny_ppo_toml(tmp_path)
     out = tmp_path / "run"
-    weights = train_ppo.train(steps=2 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False)
-    assert weights == out / "ppo.pt" and (out / "checkpoints" / "ppo_00002.pt").exists()
-    weights = train_ppo.train(steps=3 * 16 * 8, seed=1, out=out, hyperparams=hp, eval_suite=None, progress=False,
-                        resume=out / "checkpoints" / "ppo_00002.pt")
+    suites = load_training("table1-train")
+    trained = ppo.train(suites, steps=2 * 16 * 8, seed=1, out=out, hyperparams=hp, progress=False)
+    assert (out / "ppo.pt").read_bytes() == trained.weights and (out / "checkpoints" / "ppo_00002.pt").exists()
+    ppo.train(suites, steps=3 * 16 * 8, seed=1, out=out, hyperparams=hp, progress=False,
+                    resume=out / "checkpoints" / "ppo_00002.pt")
     rows = (out / "train_log.csv").read_text().splitlines()
     assert rows[0].startswith("iteration,") and [r.split(",")[0] for r in rows[1:]] == ["1", "2", "3"]
     card = json.loads((out / "ppo.json").read_text())
-    assert card["iterations"] == 3 and card["steps"] == 3 * 16 * 8 and card["action_repeat"] == 10
-    assert card["train_suite"]["name"] == "table1-train" and card["selection"]["iteration"] in (1, 2, 3)
-    assert card["trained_weights_sha256"] == sha256_bytes(weights.read_bytes())
+    check_card(card)
+    assert card["training"]["iterations"] == 3 and card["steps"] == 3 * 16 * 8 and card["action_repeat"] == 10
+    assert card["train_suite"]["name"] == "table1-train" and card["training"]["selection"]["iteration"] in (1, 2, 3)
+    assert card["trained_weights_sha256"] == sha256_bytes((out / "ppo.pt").read_bytes())
     assert card["hyperparameters"]["train"]["select_every"] == 1 and card["hyperparameters"]["file"] == "ppo.toml"
-    dec = ppo.load_pretrained(directory=out)  # the .npz the trainer exported, numpy only
+    assert card["versions"]["rsl-rl-lib"].startswith("5.5") and card["action_mask"] is False
+    dec = load_pretrained("ppo", directory=out)  # the .npz the trainer exported, numpy only
     assert dec.weights_sha256 == card["weights_sha256"] == sha256_bytes((out / "ppo.npz").read_bytes())
+
+
+def test_train_command_writes_a_results_file_for_ppo_as_for_every_trainer(tmp_path, capsys):
+    from overtakezoo.benchmark.cli import main
+    from overtakezoo.benchmark.results.results import Results
+
+    suite = tmp_path / "tiny.toml"  # table1's first scenarios, shortened
+    suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 6")
+                     .replace('name = "table1"', 'name = "tiny"').replace("time_limit = 60.0", "time_limit = 20.0"))
+    out = tmp_path / "run"
+    assert main(["train", "ppo", "--hyperparams", str(_tiny_ppo_toml(tmp_path)), "--steps", str(16 * 8),
+                 "--out", str(out), "--eval-suite", str(suite), "--no-progress"]) == 0
+    assert "trained ppo" in capsys.readouterr().out
+    card = json.loads((out / "ppo.json").read_text())
+    results = Results.load(out / "ppo-tiny.results.json")  # the runner's file, ready for `overtakezoo submit`
+    assert results.decider["name"] == "ppo" and results.decider["weights_sha256"] == card["weights_sha256"]
+    assert card["results"]["tiny"]["count"] == 6 == len(results.per["outcome"])
+    assert card["results"]["tiny"]["suite_sha256"] == results.suite["hash"]

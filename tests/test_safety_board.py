@@ -8,7 +8,7 @@ import numpy as np
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.leaderboard import safety_board
-from overtakezoo.benchmark.leaderboard.headline import CORE
+from overtakezoo.envs.suites import CORE
 from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
 from overtakezoo.benchmark.leaderboard.rows import Row
 from overtakezoo.benchmark.run.runner import run_suite

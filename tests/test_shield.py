@@ -13,7 +13,7 @@ from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, CRASH, SUCCESS, EnvConfig,
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
 from overtakezoo.zoo.base import ConstantDecider
-from overtakezoo.zoo.shield import REQUIRED_GAP, Shielded
+from overtakezoo.zoo.members.shield import REQUIRED_GAP, Shielded
 
 CFG = EnvConfig()
 

@@ -75,7 +75,7 @@ def test_fuzzy_aborts_when_a_hidden_oncoming_car_appears_early_in_the_pass():
 
 
 def test_fuzzy_rule_base_is_checked():
-    from overtakezoo.zoo.fuzzy import INPUTS, OUTPUT, MamdaniRules
+    from overtakezoo.zoo.members.fuzzy import INPUTS, OUTPUT, MamdaniRules
 
     with pytest.raises(ValueError, match="lead_gap"):
         MamdaniRules(INPUTS, OUTPUT, [({"lead_gap": "tiny"}, "go")])

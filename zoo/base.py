@@ -1,7 +1,15 @@
-"""The decider interface and the registry every face of the project resolves names through."""
+"""The decider interface and the registry every face of the project resolves names through.
+
+The registry is the one list of the zoo's members: each name with its kind (rule, learned,
+privileged, wrapper; :class:`Member`), the module that provides it and, for a learned member, its
+trainer. The leaderboard, the ``train`` command, the shield and the tests ask it (:func:`names`,
+:func:`member`) rather than keeping lists of their own.
+"""
 
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -135,72 +143,95 @@ class UnknownDecider(KeyError):
         return str(self.args[0])
 
 
+# ----------------------------------------------------------------------------- the registry
+KINDS = ("rule", "learned", "privileged", "wrapper")
+
+
+@dataclass(frozen=True)
+class Member:
+    """A name the registry resolves, and its kind:
+
+    - ``rule``: hand-written rules (the fixed-mode baselines among them);
+    - ``learned``: shipped weights (``zoo/pretrained/<name>.npz`` + model card) acted by
+      :mod:`.members.learned`; ``trainer`` names the module under :mod:`overtakezoo.zoo.train` that
+      trains it;
+    - ``privileged``: sees the simulation core, not only observations (the oracle);
+    - ``wrapper``: the member ``wraps`` behind something (``<name>+shield``: the RSS shield).
+
+    ``module`` is the module under :mod:`overtakezoo.zoo.members` that registers the member when
+    imported (None: registered here); ``shieldable`` members are also listed behind the shield
+    (every non-privileged member that chooses when to overtake)."""
+
+    name: str
+    kind: str
+    module: str | None = None
+    trainer: str | None = None
+    shieldable: bool = False
+    wraps: str | None = None
+
+
+def _builtin() -> dict[str, Member]:
+    learned = {"dqn": "dqn", "double-dqn": "dqn", "ps-dqn": "dqn", "ppo": "ppo", "bc": "bc", "cql": "cql"}
+    own = [Member("always-follow", "rule"), Member("always-overtake", "rule"), Member("always-abort", "rule"),
+           Member("rule-fsm", "rule", "rule_fsm", shieldable=True), Member("fuzzy", "rule", "fuzzy", shieldable=True),
+           Member("oracle", "privileged", "oracle"),
+           # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
+           *(Member(n, "learned", "learned", trainer=t, shieldable=True) for n, t in learned.items())]
+    wrapped = [Member(f"{m.name}+shield", "wrapper", "shield", wraps=m.name) for m in own if m.shieldable]
+    return {m.name: m for m in own + wrapped}
+
+
+# The built-in members (every list of members in the project asks this table) and any registered since.
+_MEMBERS: dict[str, Member] = _builtin()
 _REGISTRY: dict[str, Callable[..., Decider]] = {}
 
 
-def register(name: str, factory: Callable[..., Decider]) -> None:
-    """Register ``factory(config=None, **kwargs) -> Decider`` under ``name``."""
+def register(name: str, factory: Callable[..., Decider], kind: str | None = None) -> None:
+    """Register ``factory(config=None, **kwargs) -> Decider`` under ``name``; ``kind`` (one of
+    :data:`KINDS`) defaults to the built-in member's, else ``rule``."""
+    kind = kind or (_MEMBERS[name].kind if name in _MEMBERS else "rule")
+    if kind not in KINDS:
+        raise ValueError(f"register({name!r}): kind {kind!r} is not one of {', '.join(KINDS)}")
+    if name not in _MEMBERS or _MEMBERS[name].kind != kind:
+        _MEMBERS[name] = Member(name, kind)
     _REGISTRY[name] = factory
 
 
-def names() -> list[str]:
-    return sorted(set(_REGISTRY) | {n for n, mod in _MEMBER_OF.items() if mod not in _UNAVAILABLE})
+def member(name: str) -> Member:
+    """The registry's entry for ``name`` (:class:`UnknownDecider` if there is none)."""
+    if name not in _MEMBERS:
+        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(known_names())})")
+    return _MEMBERS[name]
+
+
+def names(kind: str | None = None) -> list[str]:
+    """The members' names, wrappers left out; with ``kind``, the members of that kind only."""
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"kind {kind!r} is not one of {', '.join(KINDS)}")
+    return sorted(n for n, m in _MEMBERS.items() if (m.kind == kind if kind else m.kind != "wrapper"))
 
 
 def known_names() -> list[str]:
-    """Every built-in name, members whose optional dependency is missing included (all reserved),
-    and each shieldable member behind the RSS shield (``<name>+shield``, :mod:`.shield`)."""
-    return sorted(set(_REGISTRY) | set(_MEMBER_OF) | {f"{m}+shield" for m in SHIELDABLE})
+    """Every name :func:`load` takes from the registry: the members and each shieldable member behind
+    the RSS shield (``<name>+shield``, :mod:`.members.shield`)."""
+    return sorted(_MEMBERS)
 
 
 def load(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Decider:
     """A ready decider by registry name (pretrained weights included, checked by sha256);
-    ``shielded:<name>`` or ``<name>+shield`` puts it behind the RSS shield (:mod:`.shield`)."""
+    ``shielded:<name>`` or ``<name>+shield`` puts it behind the RSS shield (:mod:`.members.shield`).
+    Only the member's own module is imported (numpy only: no member needs torch to act)."""
     if name.startswith("shielded:") or name.endswith("+shield"):
-        from .shield import load_shielded
+        from overtakezoo.zoo.members.shield import load_shielded
 
         return load_shielded(name, config, **kwargs)
-    if name in _MEMBER_OF and name not in _REGISTRY:
-        _import_member(_MEMBER_OF[name])  # import only what is asked for: torch loads only for learned members
+    if name not in _REGISTRY and name in _MEMBERS and _MEMBERS[name].module:
+        importlib.import_module(f"overtakezoo.zoo.members.{_MEMBERS[name].module}")
     if name not in _REGISTRY:
-        _load_members()
-    if name not in _REGISTRY:
-        missing = "".join(f"; {mod} needs {dep!r} (pip install -e '.[train]')" for mod, dep in _UNAVAILABLE.items())
-        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(sorted(_REGISTRY))}{missing})")
+        raise UnknownDecider(f"unknown decider {name!r} (known: {', '.join(names())})")
     return _REGISTRY[name](config=config, **kwargs)
 
 
 register("always-follow", lambda config=None: ConstantDecider(FOLLOW, "always-follow", config))
 register("always-overtake", lambda config=None: ConstantDecider(OVERTAKE, "always-overtake", config))
 register("always-abort", lambda config=None: ConstantDecider(ABORT, "always-abort", config))
-
-# Registry name -> the member module that registers it, so `load` imports one module, not all.
-_MEMBER_OF = {"rule-fsm": "rule_fsm", "fuzzy": "fuzzy", "oracle": "oracle", "dqn": "dqn", "double-dqn": "dqn",
-              "ps-dqn": "dqn", "ppo": "ppo", "bc": "offline", "cql": "offline"}
-_MEMBERS = tuple(dict.fromkeys(_MEMBER_OF.values()))
-# Members the leaderboard shows behind the RSS shield: every non-privileged decider that overtakes.
-SHIELDABLE = ("rule-fsm", "fuzzy", "dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
-_UNAVAILABLE: dict[str, str] = {}  # member module -> the missing dependency (e.g. torch without [train])
-_loaded = False
-
-
-def _load_members() -> None:
-    """Import the zoo members (each registers itself). A member whose optional dependency is not
-    installed (torch for dqn / ppo) is skipped and named in unknown-decider errors."""
-    global _loaded
-    if _loaded:
-        return
-    _loaded = True
-    for mod in _MEMBERS:
-        _import_member(mod)
-
-
-def _import_member(mod: str) -> None:
-    import importlib
-
-    try:
-        importlib.import_module(f"overtakezoo.zoo.{mod}")
-    except ModuleNotFoundError as exc:
-        if (exc.name or "").startswith("overtakezoo"):
-            raise
-        _UNAVAILABLE[mod] = exc.name

@@ -25,7 +25,7 @@ def add_decider_options(p: argparse.ArgumentParser) -> None:
                         "inlined from beside it), a Stable-Baselines3 .zip (DQN/PPO/A2C MlpPolicy; its state dict "
                         "is read with weights_only and its pickled entries are never unpickled) or a TorchScript "
                         "file (deprecated by torch)")
-    p.add_argument("--shield", action="store_true", help="put the decider behind the RSS shield (zoo/shield.py): "
+    p.add_argument("--shield", action="store_true", help="put the decider behind the RSS shield (zoo/members/shield.py): "
                    "an overtake that cannot keep the RSS distance to the oncoming traffic it sees is vetoed or "
                    "aborted (as --decider shielded:NAME)")
 
@@ -40,7 +40,7 @@ def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:
 
         decider = load_zoo(args.decider, config)
     if getattr(args, "shield", False):
-        from overtakezoo.zoo.shield import Shielded
+        from overtakezoo.zoo.members.shield import Shielded
 
         decider = Shielded(decider)
     return decider

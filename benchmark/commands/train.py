@@ -1,18 +1,16 @@
-"""``overtakezoo train``: train a learned decider (dqn, double-dqn, ppo) on a training suite, or an
-offline one (bc, cql) from a recorded dataset."""
+"""``overtakezoo train``: train a learned member (dqn, double-dqn, ps-dqn, ppo) on a training suite,
+or an offline one (bc, cql) from a recorded dataset (:mod:`..training` does the work)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
+from overtakezoo import zoo
+
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir
-
-ALGORITHMS = ("dqn", "double-dqn", "ps-dqn", "ppo", "bc", "cql")
-OFFLINE = ("bc", "cql")  # trained from a dataset (--dataset), not by interaction
 
 EPILOG = """examples:
   overtakezoo train dqn --suite table1-train --out runs/dqn
@@ -24,20 +22,21 @@ EPILOG = """examples:
   overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
   overtakezoo train ppo --out runs/ppo --set train.select_every=10
 
-Writes into --out: log.csv (steps, episodes, success / crash rate, loss, epsilon, wall time),
-checkpoint.pt (resumable), the torch weights <algo>.pt, their numpy export <algo>.npz (what the
-zoo and `eval --policy` load, no torch needed) and the model card <algo>.json with the table1
-evaluation. `python scripts/seed_results.py ALGO RUN... --ship` publishes them into zoo/pretrained/.
-bc / cql (offline, from a dataset of `overtakezoo dataset`) write <algo>.npz and <algo>.json, and
-no log or checkpoint. Hyperparameter files and --set values are checked: an unknown key or an
-out-of-range value is one error naming the key."""
+Writes into --out: the training log (dqn: log.csv; ppo: train_log.csv) and checkpoints (resumable),
+the torch weights <algo>.pt, their numpy export <algo>.npz (what the zoo and `eval --policy` load,
+no torch needed), the model card <algo>.json with the --eval-suite results (schema:
+zoo/train/card.schema.json) and the runner's results file <algo>-<suite>.results.json.
+`python scripts/seed_results.py ALGO RUN... --ship` publishes them into zoo/pretrained/. bc / cql
+(offline, from a dataset of `overtakezoo dataset`) write no torch file, log or checkpoint.
+Hyperparameter files and --set values are checked: an unknown key or an out-of-range value is one
+error naming the key."""
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser("train", help="train dqn / double-dqn / ppo / bc / cql and evaluate on table1",
+    p = subparsers.add_parser("train", help="train a learned member (dqn, ppo, bc, ...) and evaluate it on table1",
                               description=__doc__, epilog=EPILOG,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("algorithm", choices=ALGORITHMS, help="what to train")
+    p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")
     p.add_argument("--suite", default="table1-train", help="training suite (default: table1-train)")
     p.add_argument("--dataset", default=None, metavar="NAME",
                    help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)")
@@ -64,72 +63,22 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--resume: no checkpoint at {args.resume}")
     out = Path(args.out or f"runs/{args.algorithm}")
     check_writable_dir(out)  # an unwritable --out fails now, not after training
-    eval_suite = None if args.eval_suite.lower() == "none" else args.eval_suite
-    if args.algorithm in OFFLINE:
-        return _run_offline(args, out, eval_suite)
-    if args.dataset:
-        raise UserError(f"--dataset is for bc / cql; {args.algorithm} trains on --suite")
-    if args.algorithm == "ppo":
-        return _run_ppo(args, out, eval_suite)
-    from overtakezoo.zoo.train_dqn import TrainError, train
+    from overtakezoo.zoo.train.contract import parse_overrides
 
-    try:
-        card = train(args.algorithm, suite=args.suite, steps=args.steps, seed=args.seed, out=out,
-                     resume=args.resume, hyperparams=args.hyperparams, eval_suite=eval_suite,
-                     progress=not args.no_progress, overrides=_overrides(args))
-    except TrainError as exc:  # bad hyperparameter file or checkpoint (unknown suites raise UserError)
-        raise UserError(str(exc)) from None
-    _report(card, out)
+    from overtakezoo.benchmark.run.training import train
+
+    # Bad hyperparameters, checkpoints or datasets are ConfigErrors: the CLI prints them in one line.
+    trained = train(args.algorithm, suite=args.suite, dataset=args.dataset, steps=args.steps, seed=args.seed,
+                    out=out, resume=args.resume, hyperparams=args.hyperparams,
+                    overrides=parse_overrides(args.overrides),
+                    eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
+                    progress=not args.no_progress)
+    _report(trained.card, out)
     return 0
-
-
-def _run_offline(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
-    if not args.dataset:
-        raise UserError(f"{args.algorithm} learns from a dataset: give --dataset NAME (see `overtakezoo dataset list`)")
-    if args.resume:
-        raise UserError(f"{args.algorithm} keeps no checkpoint (it trains in minutes): run it again without --resume")
-    import importlib
-
-    module = importlib.import_module(f"overtakezoo.zoo.train_{args.algorithm}")
-    try:
-        card = module.train(args.dataset, seed=args.seed, steps=args.steps, out=out, hyperparams=args.hyperparams,
-                            eval_suite=eval_suite, progress=not args.no_progress)
-    except ValueError as exc:  # a bad hyperparameter file or dataset (missing datasets raise UserError)
-        raise UserError(f"{args.algorithm}: {exc}") from None
-    _report(card, out)
-    return 0
-
-
-def _run_ppo(args: argparse.Namespace, out: Path, eval_suite: str | None) -> int:
-    from overtakezoo.zoo import train_ppo
-
-    kwargs: dict[str, Any] = {"suite": args.suite, "steps": args.steps, "out": out, "resume": args.resume,
-                              "eval_suite": eval_suite, "progress": not args.no_progress,
-                              "overrides": _overrides(args)}
-    if args.seed is not None:
-        kwargs["seed"] = args.seed
-    if args.hyperparams:
-        kwargs["hyperparams"] = args.hyperparams
-    try:
-        weights = train_ppo.train(**kwargs)
-    except (ValueError, FileNotFoundError) as exc:  # a bad hyperparameter file or checkpoint: one line
-        raise UserError(f"ppo: {exc}") from None
-    _report(json.loads((weights.parent / "ppo.json").read_text()), out)
-    return 0
-
-
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    from overtakezoo.zoo.schema import HyperparameterError, parse_overrides
-
-    try:
-        return parse_overrides(args.overrides)
-    except HyperparameterError as exc:
-        raise UserError(str(exc)) from None
 
 
 def _report(card: dict[str, Any], out: Path) -> None:
-    steps = card.get("steps", card.get("training", {}).get("gradient_steps", "?"))
-    print(f"trained {card.get('name', '?')}: {steps} steps in {card.get('wall_time_s', 0):.0f} s; "
+    print(f"trained {card['name']}: {card['steps']} {card['steps_unit']} in {card['wall_time_s']:.0f} s; "
           f"files in {out}")
     res = (card.get("results") or {}).get("table1")
     if res:

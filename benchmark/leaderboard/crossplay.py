@@ -40,10 +40,11 @@ MEASURES = [("all_succeed", "joint success (both AVs succeed)"), ("av_crash", "A
 
 
 def zoo_deciders(config: Any) -> list[str]:
-    """Every registered zoo member that sees observations only (the oracle is privileged)."""
+    """The zoo's own members that see observations only: the rule and learned kinds of the registry
+    (not the privileged oracle, nor wrappers such as the shielded ones)."""
     from overtakezoo import zoo
 
-    return [name for name in zoo.known_names() if not getattr(zoo.load(name, config), "privileged", False)]
+    return sorted(zoo.names("rule") + zoo.names("learned"))
 
 
 def _pair_counts(suite: Suite, a: str, b: str, scenarios: int) -> dict[str, list[int]]:

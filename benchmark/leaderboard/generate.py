@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.benchmark.leaderboard import crossplay
@@ -31,7 +32,7 @@ from overtakezoo.benchmark.leaderboard.guide import GUIDE, SECURITY
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
 from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from overtakezoo.benchmark.leaderboard.rows import Row, load_submissions, stale_reasons
-from overtakezoo.envs.suites import MULTI, load_suite, suite_names
+from overtakezoo.envs.suites import CORE, MULTI, load_suite, suite_names
 from overtakezoo.benchmark.leaderboard.untrusted import check_target, check_tree, md, md_code, md_image, md_link, plain_name
 
 REFERENCE = Path("reference") / "paper.json"
@@ -41,7 +42,7 @@ _GENERATED_SUFFIXES = (".md", ".png", ".json")
 _RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
                  ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
                  ("crash_share_npc2", "rate", "%"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
-LEARNED = {"dqn", "double-dqn", "ppo", "bc", "cql"}  # the zoo's learned members (targets in the headline)
+LEARNED = set(zoo.names("learned"))  # the zoo's learned members (targets in the headline): the registry's
 _LABELS = {k: label for k, label, _, _ in TABLE}
 
 
@@ -102,9 +103,9 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
                       for row, why in stale],
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
-    means = safety_board.core_means(live_rows, headline.CORE)  # (the score page's RSS column, the shield section)
+    means = safety_board.core_means(live_rows, CORE)  # (the score page's RSS column, the shield section)
     head_md, index["headline"] = _headline(live_rows, seeds, means)
-    shield_md, shield_png = safety_board.readme_section(means, headline.CORE)
+    shield_md, shield_png = safety_board.readme_section(means, CORE)
     if shield_png is not None:
         files["shield.png"] = shield_png
         head_md += "\n" + "\n".join(shield_md)
@@ -144,7 +145,7 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
     rows: dict[str, dict[str, Any]] = {}
     privileged = set()
     hashes = {}
-    for suite in headline.CORE:
+    for suite in CORE:
         for row in live_rows.get(suite, []):
             rows.setdefault(row.name, {})[suite] = row.results.summary
             hashes[suite] = row.results.suite["hash"]
@@ -156,7 +157,7 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
     safety = safety_board.safety_column(means) if any(m["rss"] == m["rss"] for m in means.values()) else None
     text = (headline.render(table, privileged, safety=safety) + "\n" + headline.generalization(table, learned)
             + "\n" + headline.seed_lines(seeds))
-    return text, {"core": list(headline.CORE), "k": headline.K, "scores": scores}
+    return text, {"core": list(CORE), "k": headline.K, "scores": scores}
 
 
 def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs.suites import CORE  # noqa: F401 (re-exported: the score's suites)
+from overtakezoo.envs.suites import CORE
 from overtakezoo.benchmark.leaderboard.untrusted import md
 
 K = 2.0  # crash weight in the score

@@ -58,7 +58,7 @@ def shield_section(rows: list[Row]) -> list[str]:
             ("late_abort", "rate", "%"))
     head = ["decider", *[f"{lab} (plain / shielded)" for lab in ("success", "crash", "RSS violated", "late abort")]]
     out = ["### Behind the RSS shield", "",
-           "`<name>+shield` is the same decider behind the RSS shield (`zoo/shield.py`, Alshiekh et al. 2018): an "
+           "`<name>+shield` is the same decider behind the RSS shield (`zoo/members/shield.py`, Alshiekh et al. 2018): an "
            "overtake that cannot keep the RSS opposite-direction distance to the oncoming vehicle it sees is "
            "vetoed, or aborted while the lead is not yet passed. A shield that stops a decider from overtaking "
            "shows as lost success.", "",
@@ -91,7 +91,7 @@ def readme_section(means: dict[str, dict[str, float]], suites: tuple[str, ...]) 
     pct = lambda x: "-" if np.isnan(x) else f"{100 * x:.1f}"  # noqa: E731
     out = ["## Safety and the RSS shield", "",
            f"Mean over the `core` suites ({', '.join(f'`{s}`' for s in suites)}) of each rate, in %, for every zoo "
-           "member that overtakes, plain and behind the RSS shield (`<name>+shield`, `zoo/shield.py`). *RSS "
+           "member that overtakes, plain and behind the RSS shield (`<name>+shield`, `zoo/members/shield.py`). *RSS "
            "violated*: share of the scenarios with time in the opposite lane in which the RSS opposite-direction "
            "distance was broken at least once (docs/metrics.md). Each suite's page has the full Safety table. "
            "Learned members here are their shipped seed's rows.", "",

@@ -3,13 +3,13 @@
 Two formats are stored on the leaderboard and run by the verifier, both pure data:
 
 - ``mlp``: the project's ``.npz`` MLP (``np.load(allow_pickle=False)``) with its model card
-  (JSON), acted by numpy (:mod:`overtakezoo.zoo.learned`);
+  (JSON), acted by numpy (:mod:`overtakezoo.zoo.members.learned`);
 - ``onnx``: one self-contained ONNX file (no external data), acted by onnxruntime.
 
 Everything else is converted, without unpickling anything:
 
 - weights ``overtakezoo train`` wrote (``<algo>.pt`` + card): ``torch.load(weights_only=True)``,
-  then the npz MLP (:mod:`overtakezoo.zoo.export`);
+  then the npz MLP (:mod:`overtakezoo.zoo.train.export`);
 - a Stable-Baselines3 ``.zip`` (DQN, PPO, A2C ``MlpPolicy``): ``policy.pth`` read with
   ``weights_only=True``, the architecture from ``data`` read as JSON (the ``:serialized:``
   cloudpickle entries are never decoded), into the npz MLP;
@@ -117,7 +117,7 @@ def policy_kind(card: dict[str, Any]) -> str:
 
 # ------------------------------------------------------------------ overtakezoo train output
 def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
-    from overtakezoo.zoo.common import WeightsError, read_card, sha256_bytes
+    from overtakezoo.zoo.members.learned import WeightsError, read_card, sha256_bytes
 
     try:
         card = read_card(card_path, weights.name)
@@ -129,7 +129,7 @@ def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
                                    f"{str(card.get('weights_sha256'))[:12]}... (file truncated or modified)")
             return Artifact("mlp", data, card, policy_kind(card), sha)
         # The torch file of a training run, converted as `overtakezoo export` does (weights_only load).
-        from overtakezoo.zoo.export import convert, trained_sha256
+        from overtakezoo.zoo.train.export import convert, trained_sha256
 
         if trained_sha256(card) != sha:
             raise WeightsError(f"{weights.name}: weights sha256 {sha[:12]}... does not match the model card's "
@@ -146,7 +146,7 @@ def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
 # ------------------------------------------------------------------ Stable-Baselines3
 def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
     """A Stable-Baselines3 ``.zip`` as the npz MLP, read as data only (module docstring)."""
-    from overtakezoo.zoo.mlp import NumpyMLP, npz_bytes
+    from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
 
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as z:
@@ -171,7 +171,7 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
     if "features_extractor_class" in kwargs and "FlattenExtractor" not in str(kwargs["features_extractor_class"]):
         raise UserError(f"policy {path}: a custom features extractor ({kwargs['features_extractor_class']}) "
                         "cannot be read as data; export the policy to ONNX instead")
-    from overtakezoo.zoo.export import linear_layers
+    from overtakezoo.zoo.train.export import linear_layers
 
     state = _torch_state(path, state_bytes, "policy.pth")
     try:

@@ -330,8 +330,8 @@ def _one_line(exc: BaseException) -> str:
 def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[str, Any]]:
     """(batch function (N, D) float32 -> modes or scores, what the parent is told)."""
     if kind == "mlp":
-        from overtakezoo.zoo.learned import MLPDecider
-        from overtakezoo.zoo.mlp import NumpyMLP, read_npz
+        from overtakezoo.zoo.members.learned import MLPDecider
+        from overtakezoo.zoo.members.mlp import NumpyMLP, read_npz
 
         meta = json.loads(card)
         arch = meta.get("architecture") or {}

@@ -32,7 +32,7 @@ import numpy as np
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 
-from .base import Decider, register
+from overtakezoo.zoo.base import Decider, register
 
 EVIDENCE_TRUST_NUMBER = 3  # OpenPlanner launch default (op_behavior_selector/evidence_trust_number)
 

@@ -1,10 +1,13 @@
-"""Behaviour cloning (the ``bc`` decider): an MLP classifier of a dataset's modes.
+"""Behaviour cloning (the ``bc`` member): an MLP classifier of a recorded dataset's modes.
 
+It acts by the argmax of its logits among the modes the action mask allows (the most frequent mode
+of the data in that state, epsilon noise averaged out), every step (``action_repeat`` = 1).
 Reads top to bottom: the hyperparameters (``zoo/hyperparams/bc.toml``), the network, the loop
 (minibatches of per-step transitions, cross-entropy against the recorded mode, Adam), then the
-export (numpy weights + model card, :func:`overtakezoo.zoo.offline_data.model_card`). The data are
-per-step transitions (the ``offline_data`` module docstring says why); the features are the
-speed-relative ones the other learned members use.
+outputs (numpy weights + model card, :mod:`.contract`). The data are per-step transitions (the
+:mod:`.offline` docstring says why); the features are the speed-relative ones the other learned
+members use. :func:`train` takes the dataset loaded and returns the :class:`~.contract.Trained`
+member; into ``out`` it writes ``bc.npz`` and ``bc.json`` (no torch file, no log, no checkpoint).
 
     overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
 """
@@ -20,9 +23,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
-from .schema import param
-from .train_dqn import QNetwork  # the one torch MLP of the zoo (Linear / ReLU layers)
+from overtakezoo.zoo.train.contract import Trained, TrainError
+from overtakezoo.zoo.train.offline import Transitions, progress_bar, train_offline
+from overtakezoo.zoo.train.qlearning import QNetwork  # the one torch MLP of the zoo (Linear / ReLU layers)
+from overtakezoo.zoo.train.typed import param
+
+LEARNS_FROM = "dataset"  # what train() takes: loaded training suites, or a loaded dataset
+ALGORITHM = "behaviour cloning (cross-entropy on the recorded modes)"
 
 
 @dataclass(frozen=True)
@@ -65,7 +72,7 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     net = QNetwork(data.obs.shape[1], hp.hidden, dueling=False)  # logits over the modes
     optim = torch.optim.Adam(net.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
     t0, cpu0 = time.perf_counter(), time.process_time()
-    bar = _bar(hp.steps, "bc", progress)
+    bar = progress_bar(hp.steps, "bc", progress)
     for step in range(hp.steps):
         idx = torch.from_numpy(rng.integers(0, len(y), hp.batch_size))
         loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
@@ -87,22 +94,14 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     return net, stats
 
 
-def _bar(total: int, desc: str, progress: bool) -> Any:
-    if not progress:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="step", desc=desc, dynamic_ncols=True, mininterval=1.0)
-
-
-def train(dataset: str, seed: int | None = None, steps: int | None = None, out: str | Path | None = None,
-          hyperparams: str | Path | None = None, eval_suite: str | None = "table1", progress: bool = True
-          ) -> dict[str, Any]:
-    """Train bc on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets.store``),
-    evaluate on ``eval_suite`` and write ``bc.npz`` + ``bc.json`` into ``out``; returns the card."""
-    overrides = {k: v for k, v in {"seed": seed, "steps": steps}.items() if v is not None}
-    hp = load_hyperparams(BCHyperparams, hyperparams or HYPERPARAMS / "bc.toml", overrides)
-    data, identity, out_dir = prepare(dataset, hp.timeout_terminal, out)
-    net, stats = fit(data, hp, progress)
-    return finish("bc", "behaviour cloning (cross-entropy on the recorded modes)", net, data, hp, identity,
-                  stats, out_dir, eval_suite, progress)
+def train(dataset: Any, about: dict[str, Any], *, member: str = "bc", steps: int | None = None,
+          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
+          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          progress: bool = True) -> Trained:
+    """Train bc on the loaded Minari ``dataset`` (``about``: its registry name and content hash,
+    :func:`.offline.identity`); ``out`` receives ``bc.npz`` + ``bc.json``. ``seed`` and ``steps``
+    (gradient steps) override the hyperparameter file (default ``zoo/hyperparams/bc.toml``)."""
+    if member != "bc":
+        raise TrainError(f"train/bc.py trains bc, not {member!r}")
+    return train_offline("bc", BCHyperparams, fit, ALGORITHM, "classifier", dataset, about, steps=steps, seed=seed,
+                         out=out, resume=resume, hyperparams=hyperparams, overrides=overrides, progress=progress)

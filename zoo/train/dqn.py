@@ -1,11 +1,14 @@
-"""DQN and Double DQN training, top to bottom: hyperparameters, Q-network, replay buffer, acting,
-TD target, the loop, checkpoints, outputs (in the spirit of CleanRL's single-file ``dqn.py``).
+"""DQN and Double DQN training (dqn, double-dqn, ps-dqn), top to bottom: hyperparameters, acting,
+the loop, checkpoints, the card (in the spirit of CleanRL's single-file ``dqn.py``; the network,
+the replay buffer and the TD target are :mod:`.qlearning`, shared with cql and bc). At ~380 lines
+it is over the project's ~300: the loop and its checkpoints are one state machine (:class:`Trainer`)
+that reads best in one file.
 
 Many scenarios are stepped in parallel in one process: a :class:`~overtakezoo.envs.mixture.MixedCore`
 holds ``num_envs`` auto-reset rows split evenly over the training suites (one suite, or a mixture
 such as ``core-train``: every core suite's training split); a finished row is refilled with a
 scenario drawn from its own suite. The network sees the speed-relative features of
-:mod:`overtakezoo.zoo.features`, the same at evaluation. Every row decides at once and each decision
+:mod:`overtakezoo.zoo.members.features`, the same at evaluation. Every row decides at once and each decision
 is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same hold the benchmark
 runner applies at evaluation). Each decision gives one transition (obs, mode, summed reward, next
 obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs`` of a row whose
@@ -23,16 +26,19 @@ the rows given to multi-AV suites in a mixture (``ps-dqn.toml``: ``core-train+mu
 Learning: epsilon-greedy over the modes the action mask allows (linear decay over the first
 ``eps_fraction`` of the steps), Huber loss, Adam, gradient-norm clipping, a target network copied
 every ``target_update`` gradient steps; the Double DQN target lets the online net pick and the target
-net evaluate. Hyperparameters come from ``zoo/hyperparams/<algo>.toml``, typed by
+net evaluate. The shipped members use a dueling head (``dueling``: value + mean-centred advantages,
+Wang et al. 2016). Hyperparameters come from ``zoo/hyperparams/<algo>.toml``, typed by
 :class:`DQNHyperparams`; ``steps`` counts decision transitions summed over all rows.
 
 Training reward: the env's own (the suite's ``RewardConfig``, which every face and trainer uses;
 the hyperparameter file cannot change it). A timeout ends the episode as a failure
 (``timeout_terminal``): the observation has no clock, and the time limit is part of the task.
 
-Outputs: ``<algo>.pt`` (the Q-network's ``state_dict``), its numpy export ``<algo>.npz`` and the
-model card ``<algo>.json`` naming both (:mod:`overtakezoo.zoo.export`); acting needs only the
-``.npz`` (:mod:`overtakezoo.zoo.learned`).
+:func:`train` takes the training suites loaded (``overtakezoo.envs.suites.load_training``) and
+returns the :class:`~.contract.Trained` member; into ``out`` it writes ``log.csv``,
+``checkpoint.pt`` and the contract's outputs: ``<algo>.pt`` (the Q-network's ``state_dict``), its
+numpy export ``<algo>.npz`` and the model card ``<algo>.json`` (:mod:`.contract`). Acting needs
+only the ``.npz`` (:mod:`overtakezoo.zoo.members.learned`).
 """
 
 from __future__ import annotations
@@ -51,25 +57,26 @@ import numpy as np
 import torch
 from torch import nn
 
-from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
-from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json, check_writable_dir
+from overtakezoo.envs.io import atomic_write_bytes, check_writable_dir
 from overtakezoo.envs.mixture import MixedCore, split_rows
 
-from .common import evaluate, read_card, reject_reward_keys, sha256_bytes
-from .export import convert, dqn_net
-from .features import FEATURES_VERSION, speed_relative
-from .learned import MASK_VERSION, NUM_MODES, MLPDecider, action_mask
-from .mlp import NumpyMLP
-from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, merged, param, read_toml
+from overtakezoo.zoo.base import member as registry_member, names
+from overtakezoo.zoo.members.features import speed_relative
+from overtakezoo.zoo.members.learned import NUM_MODES, action_mask
+from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
+                       suite_source)
+from overtakezoo.zoo.train.qlearning import QNetwork, ReplayBuffer, masked_argmax, td_targets
+from overtakezoo.zoo.train.typed import as_dict, param
 
-HYPERPARAMS = Path(__file__).resolve().parent / "hyperparams"
-ALGORITHMS = ("dqn", "double-dqn", "ps-dqn")
+LEARNS_FROM = "suites"  # what train() takes: loaded training suites, or a loaded dataset
+STEPS_UNIT = "decision transitions, summed over all rows"
 
 
-class TrainError(ValueError):
-    """Bad training input (unknown algorithm, malformed hyperparameters, unusable checkpoint)."""
+def members() -> list[str]:
+    """The members this module trains (the registry's learned members whose trainer is ``dqn``)."""
+    return [n for n in names("learned") if registry_member(n).trainer == "dqn"]
 
 
 # ----------------------------------------------------------------------------- hyperparameters
@@ -82,7 +89,7 @@ class DQNHyperparams:
     steps: int = param(lo=1)  # decision transitions, summed over all rows
     num_envs: int = param(lo=1, hi=1_000_000)  # rows stepped at once
     action_repeat: int = param(lo=1, hi=1000)  # core steps each decision is held
-    action_mask: bool = param()  # the mode-transition mask (zoo/learned.py)
+    action_mask: bool = param()  # the mode-transition mask (zoo/members/learned.py)
     gamma: float = param(lo=0.0, hi=1.0)  # discount per decision
     lr: float = param(lo=1e-12, hi=1.0)
     batch_size: int = param(lo=1)
@@ -107,116 +114,11 @@ class DQNHyperparams:
     multi_av_share: float | None = param(None, 0.0, 1.0)
 
 
-def load_hyperparams(algo: str, path: str | Path | None = None, overrides: dict[str, Any] | None = None
-                     ) -> tuple[DQNHyperparams, str]:
-    """The hyperparameters of ``algo`` (``overrides`` applied through the same checks) and the
-    file's name; :class:`TrainError` naming ``file: key`` for anything unknown, mistyped or out of range."""
-    if algo not in ALGORITHMS:
-        raise TrainError(f"unknown algorithm {algo!r} (expected one of {', '.join(ALGORITHMS)})")
-    path = Path(path or HYPERPARAMS / f"{algo}.toml")
-    try:
-        data = read_toml(path)
-        reject_reward_keys(data, f"hyperparameter file {path}")
-        reject_reward_keys(overrides or {}, "hyperparameter overrides")
-        return load_schema(DQNHyperparams, merged(data, overrides or {}), str(path)), path.name
-    except (HyperparameterError, ValueError) as exc:
-        raise TrainError(str(exc)) from None
-
-
-# ----------------------------------------------------------------------------- Q-network
-class QNetwork(nn.Module):
-    """MLP Q-network; with ``dueling`` the head splits into value + mean-centred advantages."""
-
-    def __init__(self, obs_dim: int, hidden: list[int] | tuple[int, ...] = (128, 128), dueling: bool = True,
-                 num_actions: int = NUM_MODES) -> None:
-        super().__init__()
-        self.obs_dim, self.hidden, self.dueling = obs_dim, list(hidden), dueling
-        layers: list[nn.Module] = []
-        width = obs_dim
-        for h in hidden:
-            layers += [nn.Linear(width, h), nn.ReLU()]
-            width = h
-        self.body = nn.Sequential(*layers)
-        self.head = nn.Linear(width, num_actions + (1 if dueling else 0))
-
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        out = self.head(self.body(obs))
-        if not self.dueling:
-            return out
-        value, adv = out[:, :1], out[:, 1:]
-        return value + adv - adv.mean(dim=1, keepdim=True)
-
-    def to_numpy(self) -> NumpyMLP:
-        """The same network for numpy inference (float64), as exported."""
-        return dqn_net(self.state_dict(), self.dueling)
-
-
-# ----------------------------------------------------------------------------- replay buffer
-class ReplayBuffer:
-    """Fixed-size ring of transitions as numpy arrays; inserts and samples are vectorized."""
-
-    def __init__(self, capacity: int, obs_dim: int) -> None:
-        self.capacity, self.size, self.ptr = int(capacity), 0, 0
-        self.obs = np.zeros((capacity, obs_dim), np.float32)
-        self.next_obs = np.zeros((capacity, obs_dim), np.float32)
-        self.action = np.zeros(capacity, np.int64)
-        self.reward = np.zeros(capacity, np.float32)
-        self.done = np.zeros(capacity, np.float32)
-
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray, next_obs: np.ndarray,
-            done: np.ndarray) -> None:
-        n = len(action)
-        idx = (self.ptr + np.arange(n)) % self.capacity
-        self.obs[idx], self.action[idx], self.reward[idx] = obs, action, reward
-        self.next_obs[idx], self.done[idx] = next_obs, done
-        self.ptr = int((self.ptr + n) % self.capacity)
-        self.size = int(min(self.size + n, self.capacity))
-
-    def sample(self, batch: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        idx = rng.integers(0, self.size, batch)
-        return {"obs": self.obs[idx], "action": self.action[idx], "reward": self.reward[idx],
-                "next_obs": self.next_obs[idx], "done": self.done[idx]}
-
-    def state(self) -> dict[str, Any]:
-        n = self.size
-        return {"size": n, "ptr": self.ptr, "obs": self.obs[:n].copy(), "next_obs": self.next_obs[:n].copy(),
-                "action": self.action[:n].copy(), "reward": self.reward[:n].copy(), "done": self.done[:n].copy()}
-
-    def load(self, state: dict[str, Any]) -> None:
-        n = min(int(state["size"]), self.capacity)
-        for key in ("obs", "next_obs", "action", "reward", "done"):
-            getattr(self, key)[:n] = np.asarray(state[key])[:n]
-        self.size, self.ptr = n, int(state["ptr"]) % self.capacity
-
-
 # ----------------------------------------------------------------------------- acting
-def masked_argmax(q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
-    """Row-wise argmax of ``q`` over the modes ``mask`` allows."""
-    if mask is not None:
-        q = q.masked_fill(~mask, float("-inf"))
-    return q.argmax(dim=1)
-
-
 def linear_epsilon(hp: DQNHyperparams, transitions: int) -> float:
     """Epsilon decays linearly from ``eps_start`` to ``eps_end`` over the first ``eps_fraction`` of the steps."""
     frac = min(1.0, transitions / max(1.0, hp.eps_fraction * hp.steps))
     return hp.eps_start + frac * (hp.eps_end - hp.eps_start)
-
-
-# ----------------------------------------------------------------------------- TD target
-def td_targets(online: nn.Module, target: nn.Module, reward: torch.Tensor, next_obs: torch.Tensor,
-               done: torch.Tensor, gamma: float, double: bool, next_mask: torch.Tensor | None = None) -> torch.Tensor:
-    """TD targets. DQN: ``r + gamma * max_a Q_target(s', a)``; Double DQN (van Hasselt et al. 2016):
-    ``r + gamma * Q_target(s', argmax_a Q_online(s', a))`` -- the online net picks, the target net
-    evaluates, which removes the max operator's overestimation bias. ``done`` rows do not bootstrap."""
-    with torch.no_grad():
-        q_next = target(next_obs)
-        if double:
-            best = masked_argmax(online(next_obs), next_mask)
-        else:
-            best = masked_argmax(q_next, next_mask)
-        boot = q_next.gather(1, best[:, None])[:, 0]
-        return reward + gamma * (1.0 - done.float()) * boot
 
 
 # ----------------------------------------------------------------------------- the training loop
@@ -440,87 +342,44 @@ class _CsvLog:
         self.f.flush()
 
 
-# ----------------------------------------------------------------------------- outputs
-def model_card(trainer: Trainer, weights: bytes, hp_file: str, results: dict[str, Any] | None,
-               eval_suite: Any) -> dict[str, Any]:
-    """The training card of ``weights`` (the ``.pt``); :func:`~.export.convert` adds the ``.npz``."""
-    hp = trainer.hp
-    suite_name = trainer.train_name
-    return {
-        "name": trainer.algo, "version": "1",
-        "algorithm": ("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)") + (
-            ", parameters shared by every automated vehicle (Gupta et al. 2017)" if trainer.multi_av else ""),
-        "architecture": {"obs_dim": trainer.obs_dim, "hidden": list(hp.hidden), "dueling": hp.dueling,
-                         "num_actions": NUM_MODES},
-        "action_repeat": hp.action_repeat, "action_mask": hp.action_mask,
-        "action_mask_version": MASK_VERSION,
-        "hyperparameters": {"file": hp_file, **as_dict(hp)},
-        "training_reward": dataclasses.asdict(trainer.config.reward),
-        "features": FEATURES_VERSION,
-        "train_suite": suite_name, "train_suites": {s.name: s.hash for s in trainer.suites},
-        "steps": trainer.transitions, "core_steps": trainer.core_steps, "gradient_updates": trainer.updates,
-        "episodes": trainer.episodes, "seed": trainer.seed, "wall_time_s": round(trainer.wall, 1),
-        **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {}),
-        "results": {eval_suite.name: results} if results and eval_suite else {},
-        "eval_suite": eval_suite.name if eval_suite else None,
-        "eval_suite_hash": eval_suite.hash if eval_suite else None,
-        "weights_file": f"{trainer.algo}.pt", "weights_sha256": sha256_bytes(weights),
-        "torch": torch.__version__,
-        "reproduce": (f"overtakezoo train {trainer.algo} --suite {suite_name} --steps {hp.steps} "
-                      f"--seed {trainer.seed}"),
-    }
+# ----------------------------------------------------------------------------- the card, train
+def algorithm(hp: DQNHyperparams, multi_av: bool = False) -> str:
+    """The card's ``algorithm``: which DQN, with which head, and parameter sharing when multi-AV."""
+    return (("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)")
+            + (" with a dueling head (Wang et al. 2016)" if hp.dueling else "")
+            + (", parameters shared by every automated vehicle (Gupta et al. 2017)" if multi_av else ""))
 
 
-def train(algo: str = "dqn", suite: str = "table1-train", steps: int | None = None, seed: int | None = None,
-          out: str | Path | None = None, resume: str | Path | None = None, hyperparams: str | Path | None = None,
-          overrides: dict[str, Any] | None = None, eval_suite: str | None = "table1", progress: bool = True
-          ) -> dict[str, Any]:
-    """Train ``algo`` and (unless ``eval_suite`` is None) evaluate it; writes ``log.csv``,
-    ``checkpoint.pt``, ``<algo>.pt``, ``<algo>.npz`` and the model card ``<algo>.json`` into ``out``.
-    ``overrides`` ({"lr": 1e-3}) go through the same checks as the file. Returns the model card (dict)."""
+def card(trainer: Trainer, hp_file: str) -> dict[str, Any]:
+    """The training card of ``trainer``'s network (:func:`.contract.model_card`)."""
+    hp, source = trainer.hp, suite_source(trainer.suites, trainer.train_name)
+    training = {"core_steps": trainer.core_steps, "gradient_updates": trainer.updates, "episodes": trainer.episodes,
+                **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {})}
+    return model_card(trainer.algo, algorithm=algorithm(hp, trainer.multi_av),
+                      architecture={"kind": "q-network", "dueling": hp.dueling}, hp=hp, hp_file=hp_file,
+                      action_repeat=hp.action_repeat, action_mask=hp.action_mask, source=source,
+                      steps=trainer.transitions, steps_unit=STEPS_UNIT, seed=trainer.seed, wall_time_s=trainer.wall,
+                      training=training, reproduce=reproduce(trainer.algo, source, hp.steps, trainer.seed))
+
+
+def train(suites: list[Any], *, member: str = "dqn", suite_name: str | None = None, steps: int | None = None,
+          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
+          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          progress: bool = True) -> Trained:
+    """Train ``member`` (dqn, double-dqn, ps-dqn) on the loaded training ``suites`` (``suite_name``:
+    the spec they came from, for the card); ``out`` receives ``log.csv``, ``checkpoint.pt``,
+    ``<member>.pt``, ``<member>.npz`` and the card ``<member>.json``. ``overrides`` ({"lr": 1e-3})
+    go through the same checks as the file (default ``zoo/hyperparams/<member>.toml``)."""
+    if member not in members():
+        raise TrainError(f"train/dqn.py trains {', '.join(members())}, not {member!r}")
     out_dir = check_writable_dir(out) if out else None  # fail before training, not after it
-    hp, hp_file = load_hyperparams(algo, hyperparams, overrides)
+    hp, hp_file = load_hyperparams(DQNHyperparams, hyperparams or hyperparams_file(member), overrides)
     seed = hp.seed if seed is None else int(seed)
     hp = dataclasses.replace(hp, steps=hp.steps if steps is None else int(steps), seed=seed)
-    trainer = Trainer(algo, hp, load_training(suite), seed, name=suite)
+    trainer = Trainer(member, hp, suites, seed, name=suite_name)
     if resume:
         trainer.restore(resume)
     trainer.run(hp.steps, out_dir, progress)
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
-    weights = buf.getvalue()
-    # The card and the .npz the zoo loads; the evaluation runs what ships: the numpy network.
-    card, npz, net = convert(model_card(trainer, weights, hp_file, None, None), weights, algo)
-    full = None
-    if eval_suite:
-        ev = load_suite(eval_suite)
-        results, full = evaluate(MLPDecider(net, algo, ev.config, card), ev)
-        card.update({"results": {ev.name: results}, "eval_suite": ev.name, "eval_suite_hash": ev.hash})
-    if out_dir:
-        atomic_write_bytes(out_dir / f"{algo}.pt", weights)
-        atomic_write_bytes(out_dir / f"{algo}.npz", npz)
-        atomic_write_json(out_dir / f"{algo}.json", card)
-        if full is not None:  # the runner's results file, ready for `overtakezoo submit`
-            full.save(out_dir / f"{algo}-{eval_suite}.results.json")
-    card["_net"] = trainer.net  # for callers in-process (tests); not serialized
-    return card
-
-
-def evaluate_pretrained(name: str, suite: str = "table1", directory: str | Path | None = None,
-                        write: bool = False) -> dict[str, Any]:
-    """Re-measure a published decider on ``suite`` (e.g. after a suite or code change); with
-    ``write`` the model card's ``results[suite]`` is replaced (the weights, and so their sha256,
-    stay as they are)."""
-    from .learned import PRETRAINED, load_pretrained
-
-    directory = Path(directory) if directory else PRETRAINED
-    data = load_suite(suite)
-    dec = load_pretrained(name, data.config, directory)
-    summary, _ = evaluate(dec, data)
-    if write:
-        card = read_card(directory / f"{name}.json", name)
-        card.setdefault("results", {})[suite] = summary
-        if suite == "table1":
-            card["eval_suite"], card["eval_suite_hash"] = data.name, data.hash
-        atomic_write_json(directory / f"{name}.json", card)
-    return summary
+    return finish(card(trainer, hp_file), weights=buf.getvalue(), module=trainer.net, out=out_dir)

@@ -1,23 +1,25 @@
-"""Typed hyperparameters: a dataclass per algorithm, read from TOML (or a dict) and checked.
+"""Typed dataclasses from plain data: a trainer's hyperparameter schema, checked key by key.
 
 A hyperparameter file is data the trainer trusts, so it is checked as the env's configuration is
-(:mod:`overtakezoo.envs.config`): an unknown key (a misspelt ``gama``) or a value of the wrong type
-or out of range is one :class:`HyperparameterError` naming the file and the key, never a key
-silently ignored or a crash deep in training. A schema is a plain dataclass whose fields carry
-their range through :func:`param`::
+(:mod:`overtakezoo.envs.config`): an unknown key (a misspelt ``gama``, with the nearest known key
+suggested) or a value of the wrong type or out of range is one :class:`HyperparameterError` naming
+the file and the key, never a key silently ignored or a crash deep in training. A schema is a plain
+dataclass whose fields carry their range through :func:`param`::
 
     @dataclass(frozen=True)
     class DQNHyperparams:
         gamma: float = param(0.99, 0.0, 1.0)
         hidden: tuple[int, ...] = param((128, 128), 1, 4096)
 
-    hp = load_hyperparams(DQNHyperparams, "zoo/hyperparams/dqn.toml")
+    hp = build(DQNHyperparams, {"gamma": 0.95}, "where")   # files: contract.load_hyperparams
 
 Supported field types: ``bool``, ``int``, ``float`` (an integer is accepted and converted), ``str``,
 ``tuple[int, ...]`` / ``tuple[float, ...]`` (a TOML array; the range applies to every element), a
 nested schema dataclass (a TOML table, e.g. ppo's ``[train]``), ``dict[str, Any]`` (a free table
 passed on as it is, e.g. the sections rsl-rl reads itself) and ``X | None``. A field without a
-default is required. ``choices`` in :func:`param` limits a value to a set.
+default is required. ``choices`` in :func:`param` limits a value to a set. Nothing here is specific
+to training: it is the most complete of the project's dict-to-dataclass readers (``envs/config.py``
+and ``envs/scenarios.py`` have their own).
 """
 
 from __future__ import annotations
@@ -25,14 +27,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-import tomllib
 import types
 import typing
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any, TypeVar
 
-from overtakezoo.envs.config import ConfigError, unknown_key  # noqa: F401 (unknown_key re-exported)
+from overtakezoo.envs.config import ConfigError, unknown_key
 
 T = TypeVar("T")
 
@@ -51,27 +51,6 @@ def param(default: Any = dataclasses.MISSING, lo: float | None = None, hi: float
         value = default
         return dataclasses.field(default_factory=lambda: type(value)(value), metadata=meta, kw_only=True)
     return dataclasses.field(default=default, metadata=meta, kw_only=True)
-
-
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """A TOML file as a dict; one-line :class:`HyperparameterError` when missing or malformed."""
-    path = Path(path)
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise HyperparameterError(f"hyperparameter file {path} not found") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise HyperparameterError(f"{path}: {exc}") from None
-
-
-def load_hyperparams(cls: type[T], source: str | Path | Mapping[str, Any], where: str | None = None) -> T:
-    """An instance of schema ``cls`` from a TOML file or a mapping; errors read ``where: key: ...``
-    (``where`` defaults to the file's path, or ``hyperparameters`` for a mapping)."""
-    if isinstance(source, Mapping):
-        data, where = dict(source), where or "hyperparameters"
-    else:
-        data, where = read_toml(source), where or str(source)
-    return build(cls, data, where)
 
 
 def build(cls: type[T], data: Any, where: str, prefix: str = "") -> T:
@@ -148,37 +127,3 @@ def as_dict(hp: Any) -> dict[str, Any]:
         return v
     return {f.name: plain(getattr(hp, f.name)) if not dataclasses.is_dataclass(getattr(hp, f.name))
             else as_dict(getattr(hp, f.name)) for f in dataclasses.fields(hp)}
-
-
-def parse_overrides(items: list[str] | tuple[str, ...], where: str = "--set") -> dict[str, Any]:
-    """``["gamma=0.95", "train.steps=1000"]`` -> a nested mapping; each value is read as a TOML value
-    (``0.95``, ``[64, 64]``, ``true``, ``"adaptive"``; a bare word is taken as a string)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise HyperparameterError(f"{where} {item!r}: expected KEY=VALUE")
-        try:
-            value = tomllib.loads(f"v = {text.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text.strip()
-        node = out
-        *parents, last = key.split(".")
-        for p in parents:
-            node = node.setdefault(p, {})
-            if not isinstance(node, dict):
-                raise HyperparameterError(f"{where} {item!r}: {p} is set both as a value and as a table")
-        node[last] = value
-    return out
-
-
-def merged(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` with ``overrides`` applied (tables merged key by key, not replaced)."""
-    out = dict(base)
-    for key, value in overrides.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = merged(out[key], value)
-        else:
-            out[key] = value
-    return out

@@ -6,7 +6,7 @@ rsl-rl builds an actor's output distribution from ``actor.distribution_cfg``: it
 So this class plugs in with::
 
     "actor": {"class_name": "MLPModel", ...,
-              "distribution_cfg": {"class_name": "overtakezoo.zoo.categorical:CategoricalDistribution",
+              "distribution_cfg": {"class_name": "overtakezoo.zoo.train.categorical:CategoricalDistribution",
                                    "num_categories": 3}}
 
 The MLP emits ``num_categories`` logits; an action is the sampled category index as a float

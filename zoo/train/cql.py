@@ -12,9 +12,12 @@ Hasselt et al. 2016): the online net picks the next mode among those the action 
 target net (a copy every ``target_update`` gradient steps) evaluates it; ``done`` rows do not
 bootstrap. Huber loss, Adam, gradient-norm clipping.
 
-Reads top to bottom: the hyperparameters (``zoo/hyperparams/cql.toml``), the loss, the loop, the
-export (shared with bc in :mod:`overtakezoo.zoo.offline_data`). Transitions are per simulator step
-(0.1 s), so ``gamma`` is per step (see ``offline_data``'s docstring for why).
+It acts by the argmax of its Q-values among the modes the action mask allows, every step
+(``action_repeat`` = 1). Reads top to bottom: the hyperparameters (``zoo/hyperparams/cql.toml``),
+the loss, the loop, the outputs (the card shared with bc in :mod:`.offline`, the files of
+:mod:`.contract`: ``cql.npz`` + ``cql.json``). Transitions are per simulator step (0.1 s), so
+``gamma`` is per step (see :mod:`.offline`'s docstring for why). :func:`train` takes the dataset
+loaded and returns the :class:`~.contract.Trained` member.
 
     overtakezoo train cql --dataset overtakezoo/table1/rule-fsm-v0 --out runs/cql
 """
@@ -31,11 +34,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from .learned import action_mask
-from .offline_data import HYPERPARAMS, Transitions, finish, load_hyperparams, prepare
-from .schema import param
-from .train_bc import _bar
-from .train_dqn import QNetwork
+from overtakezoo.zoo.members.learned import action_mask
+from overtakezoo.zoo.train.contract import Trained, TrainError
+from overtakezoo.zoo.train.offline import Transitions, progress_bar, train_offline
+from overtakezoo.zoo.train.qlearning import QNetwork, td_targets
+from overtakezoo.zoo.train.typed import param
+
+LEARNS_FROM = "dataset"  # what train() takes: loaded training suites, or a loaded dataset
+ALGORITHM = "discrete CQL (Kumar et al. 2020) on double DQN"
 
 
 @dataclass(frozen=True)
@@ -60,13 +66,7 @@ def cql_loss(net: nn.Module, target: nn.Module, b: dict[str, torch.Tensor], hp: 
     """(total, TD, conservative) losses on a minibatch ``b``."""
     q = net(b["obs"])
     q_data = q.gather(1, b["action"][:, None])[:, 0]
-    with torch.no_grad():
-        pick = net(b["next_obs"])
-        if b.get("next_mask") is not None:
-            pick = pick.masked_fill(~b["next_mask"], float("-inf"))
-        best = pick.argmax(1, keepdim=True)
-        boot = target(b["next_obs"]).gather(1, best)[:, 0]
-        y = b["reward"] + hp.gamma * (1.0 - b["done"]) * boot
+    y = td_targets(net, target, b["reward"], b["next_obs"], b["done"], hp.gamma, True, b.get("next_mask"))
     td = nn.functional.huber_loss(q_data, y, delta=hp.huber_delta)
     conservative = (torch.logsumexp(q, dim=1) - q_data).mean()
     return td + hp.alpha * conservative, td, conservative
@@ -86,7 +86,7 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
     target = copy.deepcopy(net)
     optim = torch.optim.Adam(net.parameters(), lr=hp.lr)
     t0, cpu0 = time.perf_counter(), time.process_time()
-    bar = _bar(hp.steps, "cql", progress)
+    bar = progress_bar(hp.steps, "cql", progress)
     td = conservative = torch.zeros(())
     for step in range(1, hp.steps + 1):
         idx = torch.from_numpy(rng.integers(0, len(data), hp.batch_size))
@@ -113,14 +113,14 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
     return net, stats
 
 
-def train(dataset: str, seed: int | None = None, steps: int | None = None, out: str | Path | None = None,
-          hyperparams: str | Path | None = None, eval_suite: str | None = "table1", progress: bool = True
-          ) -> dict[str, Any]:
-    """Train cql on dataset ``dataset`` (a name loaded through ``overtakezoo.benchmark.datasets.store``),
-    evaluate on ``eval_suite`` and write ``cql.npz`` + ``cql.json`` into ``out``; returns the card."""
-    overrides = {k: v for k, v in {"seed": seed, "steps": steps}.items() if v is not None}
-    hp = load_hyperparams(CQLHyperparams, hyperparams or HYPERPARAMS / "cql.toml", overrides)
-    data, identity, out_dir = prepare(dataset, hp.timeout_terminal, out)
-    net, stats = fit(data, hp, progress)
-    return finish("cql", "discrete CQL (Kumar et al. 2020) on double DQN", net, data, hp, identity, stats,
-                  out_dir, eval_suite, progress)
+def train(dataset: Any, about: dict[str, Any], *, member: str = "cql", steps: int | None = None,
+          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
+          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          progress: bool = True) -> Trained:
+    """Train cql on the loaded Minari ``dataset`` (``about``: its registry name and content hash,
+    :func:`.offline.identity`); ``out`` receives ``cql.npz`` + ``cql.json``. ``seed`` and ``steps``
+    (gradient steps) override the hyperparameter file (default ``zoo/hyperparams/cql.toml``)."""
+    if member != "cql":
+        raise TrainError(f"train/cql.py trains cql, not {member!r}")
+    return train_offline("cql", CQLHyperparams, fit, ALGORITHM, "q-network", dataset, about, steps=steps, seed=seed,
+                         out=out, resume=resume, hyperparams=hyperparams, overrides=overrides, progress=progress)

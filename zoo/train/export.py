@@ -1,13 +1,14 @@
-"""Training output -> the inference format: ``<name>.npz`` + model card ``<name>.json``.
+"""Torch weights -> the inference format: ``<name>.npz`` + model card ``<name>.json``.
 
-The trainers save torch weights (dqn / double-dqn: ``<algo>.pt``, the Q-network's ``state_dict``;
-ppo: ``ppo.pt``, rsl-rl's actor with its settings) beside a model card ``<algo>.json``.
-:func:`export` turns such a pair into what the zoo loads without torch (:mod:`.learned`): the
-layers as a content-deterministic ``.npz`` (:func:`.mlp.npz_bytes`) and the card, copied, with
-``weights_file`` / ``weights_sha256`` now naming the ``.npz`` and the torch file kept as provenance
-(``trained_weights_file``, ``trained_weights_sha256``). The trainers call it on their own output,
-``scripts/seed_results.py --ship`` to publish into ``zoo/pretrained``. Torch is imported here only
-to read the ``.pt``.
+The torch trainers hold torch weights (dqn / double-dqn / ps-dqn: ``<algo>.pt``, the Q-network's
+``state_dict``; ppo: ``ppo.pt``, rsl-rl's actor with its settings) with a model card.
+:func:`convert` turns such a pair into what the zoo loads without torch (:mod:`..members.learned`):
+the layers as a content-deterministic ``.npz`` (:func:`..members.mlp.npz_bytes`) and the card,
+copied, with ``weights_file`` / ``weights_sha256`` now naming the ``.npz`` and the torch file kept
+as provenance (``trained_weights_file``, ``trained_weights_sha256``). The trainers call it through
+:func:`.contract.finish`, ``overtakezoo eval --policy run/dqn.pt`` on a run's output, and
+:func:`export` (``scripts/seed_results.py --ship``) on a run directory to publish it into
+``zoo/pretrained``. Torch is imported here only to read the ``.pt``.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from typing import Any
 
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
 
-from .common import WeightsError, read_card, read_verified, sha256_bytes
-from .mlp import NumpyMLP, npz_bytes
+from overtakezoo.zoo.members.learned import WeightsError, read_card, read_verified, sha256_bytes
+from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
 
 PPO_FORMAT = "overtakezoo-ppo/1"
 
@@ -58,7 +59,7 @@ def _arrays(layers: list[tuple[Any, Any]]) -> tuple[tuple[Any, Any], ...]:
 
 
 def dqn_net(state: dict[str, Any], dueling: bool) -> NumpyMLP:
-    """A ``train_dqn.QNetwork`` state_dict: body = [Linear, ReLU]*, head = Linear (value +
+    """A ``qlearning.QNetwork`` state_dict: body = [Linear, ReLU]*, head = Linear (value +
     advantages when dueling)."""
     layers = linear_layers(state, "body.") + [(state["head.weight"], state["head.bias"])]
     return NumpyMLP(_arrays(layers), "relu", bool(dueling))
@@ -75,18 +76,25 @@ def _ppo_net(blob: dict[str, Any]) -> NumpyMLP:
     return NumpyMLP(_arrays(linear_layers(blob["state_dict"], "mlp.")), str(cfg.get("activation", "elu")), False)
 
 
-def exported_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) -> dict[str, Any]:
-    """``card`` (a training card) with its weights fields naming the ``.npz``."""
+def npz_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) -> dict[str, Any]:
+    """``card`` with the architecture read from ``net`` and its weights fields naming the ``.npz``."""
     out = copy.deepcopy(card)
+    arch = out.setdefault("architecture", {})
+    arch.setdefault("kind", "policy" if name == "ppo" or card.get("name") == "ppo" else "q-network")
+    arch.update({"obs_dim": net.in_features, "num_actions": net.out_features, "activation": net.activation,
+                 "dueling": net.dueling, "layers": [list(w.shape) for w, _ in net.layers]})
+    arch.setdefault("hidden", [int(w.shape[0]) for w, _ in net.layers[:-1]])
+    out.update({"weights_file": f"{name}.npz", "weights_format": "npz (overtakezoo.zoo.members.mlp, float64)",
+                "weights_sha256": sha256_bytes(npz), "weights_bytes": len(npz)})
+    return out
+
+
+def exported_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) -> dict[str, Any]:
+    """``card`` (a training card, naming the torch weights) with its weights fields naming the
+    ``.npz`` and the torch file's kept as ``trained_weights_file`` / ``trained_weights_sha256``."""
+    out = npz_card(card, net, npz, name)
     out.setdefault("trained_weights_file", card.get("weights_file") or f"{name}.pt")
     out.setdefault("trained_weights_sha256", card.get("weights_sha256"))
-    arch = out.setdefault("architecture", {})
-    arch.update({"obs_dim": net.in_features, "num_actions": net.out_features, "activation": net.activation,
-                 "dueling": net.dueling, "layers": [list(w.shape) for w, _ in net.layers],
-                 "kind": "policy" if name == "ppo" or card.get("name") == "ppo" else "q-network"})
-    arch.setdefault("hidden", [int(w.shape[0]) for w, _ in net.layers[:-1]])
-    out.update({"weights_file": f"{name}.npz", "weights_format": "npz (overtakezoo.zoo.mlp, float64)",
-                "weights_sha256": sha256_bytes(npz), "weights_bytes": len(npz)})
     return out
 
 

@@ -28,7 +28,7 @@ from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistrib
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
 
-from .base import Decider
+from overtakezoo.zoo.base import Decider
 
 REQUIRED_GAP = 5.0  # m the ego's rear clears the lead's front before it merges back (Glennon's g, as fuzzy)
 
@@ -119,7 +119,7 @@ class Shielded(Decider):
 
 def load_shielded(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Shielded:
     """``shielded:<name>`` or ``<name>+shield``: the zoo member ``<name>`` behind the shield."""
-    from .base import load
+    from overtakezoo.zoo.base import load
 
     inner = name.split(":", 1)[1] if name.startswith("shielded:") else name[: -len("+shield")]
     return Shielded(load(inner, config, **kwargs))

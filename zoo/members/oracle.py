@@ -24,7 +24,7 @@ import numpy as np
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_size
 from overtakezoo.envs.core import CRASH, SUCCESS
 
-from .base import Decider, ObservationError, register
+from overtakezoo.zoo.base import Decider, ObservationError, register
 
 CAND_OVERTAKE, CAND_RETREAT = 0, 1
 

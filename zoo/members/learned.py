@@ -1,13 +1,19 @@
-"""The learned members at inference (dqn, double-dqn, ppo): a numpy MLP over the observation.
+"""The learned members at inference (dqn, double-dqn, ps-dqn, ppo, bc, cql): a numpy MLP over the observation.
 
-One decider for every learned member: the network's scores (Q-values for dqn / double-dqn, policy
-logits for ppo) over follow / overtake / abort, argmax over the modes the action mask allows. No
-torch here (it is for training only, :mod:`.train_dqn`, :mod:`.train_ppo`): the weights are a
-``.npz`` (:mod:`.mlp`) beside a model card ``<name>.json`` that holds the architecture, the input
-features, the action repeat and mask, the provenance and the sha256 of the ``.npz``; loading
-refuses a file whose hash differs (truncated, modified) with :class:`WeightsError`. Inference is in
-float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
+One decider for every learned member: the network's scores (Q-values for dqn / double-dqn / ps-dqn
+/ cql, policy logits for ppo, class logits for bc) over follow / overtake / abort, argmax over the
+modes the action mask allows. No torch here (it is for training only, :mod:`overtakezoo.zoo.train`):
+the weights are a ``.npz`` (:mod:`.mlp`) beside a model card ``<name>.json`` that holds the
+architecture, the input features, the action repeat and mask, the provenance and the sha256 of the
+``.npz`` (the card's schema: ``zoo/train/card.schema.json``); loading refuses a file whose hash
+differs (truncated, modified) with :class:`WeightsError`. Loading reads local files only. Inference
+is in float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
 argmax; in float64 a result does not depend on how rows happen to be batched.
+
+Each decision is held ``action_repeat`` core steps (the card's: 10 for dqn, double-dqn, ps-dqn and
+ppo, 1 for bc and cql, whose datasets hold one transition per step); the decider only declares it,
+whoever steps the core applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the
+trainers), combined with the configuration's ``decision_interval``.
 
 **Action mask** (a mode-transition rule of the DQN members, the same in training and evaluation):
 ABORT is only offered while the current mode is OVERTAKE or ABORT (from follow there is nothing to
@@ -20,6 +26,8 @@ its lane the ego may not resume the overtake (abort / overtake flip-flops were t
 
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 from typing import Any
 
@@ -27,16 +35,48 @@ import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
 
-from .base import Decider
-from .common import WeightsError, read_card, read_verified
-from .features import FEATURES_VERSION, speed_relative
-from .mlp import NumpyMLP, read_npz
+from overtakezoo.zoo.base import Decider, member, names, register
+from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
+from overtakezoo.zoo.members.mlp import NumpyMLP, read_npz
 
-PRETRAINED = Path(__file__).resolve().parent / "pretrained"
+PRETRAINED = Path(__file__).resolve().parents[1] / "pretrained"
 NUM_MODES = 3
 # The ego is inside its own lane while |y| / lane width is below this (car 1.82 m in a 3.5 m lane).
 IN_LANE = 0.25
 MASK_VERSION = 3
+
+
+class WeightsError(ValueError):
+    """Pretrained weights are missing, truncated, modified or do not fit the configuration."""
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def read_card(path: str | Path, who: str) -> dict[str, Any]:
+    """A model card (JSON); one-line :class:`WeightsError` when missing or unreadable."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise WeightsError(f"{who}: model card {path} not found (no pretrained weights for this decider)") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise WeightsError(f"{who}: model card {path}: unreadable ({exc})") from None
+
+
+def read_verified(weights: str | Path, card: dict[str, Any], who: str) -> bytes:
+    """The bytes of ``weights`` once their sha256 equals the model card's; else :class:`WeightsError`."""
+    weights = Path(weights)
+    try:
+        data = weights.read_bytes()
+    except OSError as exc:
+        raise WeightsError(f"{who}: cannot read weights {weights}: {exc.strerror or exc}") from None
+    expected, actual = card.get("weights_sha256"), sha256_bytes(data)
+    if expected != actual:
+        raise WeightsError(f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
+                           f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
+    return data
 
 
 def action_mask(obs: np.ndarray, config: EnvConfig, version: int = MASK_VERSION) -> np.ndarray:
@@ -122,16 +162,17 @@ class MLPDecider(Decider):
 
 
 def describe(name: str, c: dict[str, Any]) -> str:
-    """The model card in a few lines."""
+    """The model card (``zoo/train/card.schema.json``) in a few lines."""
     if not c:
         return f"{name}: an untrained network."
     a, hp = c.get("architecture", {}), c.get("hyperparameters", {})
-    hidden = a.get("hidden", a.get("hidden_dims"))
-    if a.get("kind") == "policy" or name == "ppo":
-        what = (f"{name} ({c.get('algorithm', 'PPO')}, {c.get('library', 'rsl-rl-lib')} "
-                f"{c.get('library_version', '')}): MLP {hidden} {a.get('activation')} actor over the "
-                f"{a.get('obs_dim')}-feature input, categorical over the 3 modes (argmax at test time)")
-    elif a.get("output") == "logits":  # bc: a classifier of the recorded modes
+    hidden = a.get("hidden")
+    if a.get("kind") == "policy":
+        version = (c.get("versions") or {}).get("rsl-rl-lib")
+        what = (f"{name} ({c.get('algorithm', 'PPO')}{f', rsl-rl-lib {version}' if version else ''}): MLP {hidden} "
+                f"{a.get('activation')} actor over the {a.get('obs_dim')}-feature input, categorical over the 3 "
+                "modes (argmax at test time)")
+    elif a.get("kind") == "classifier":  # bc: a classifier of the recorded modes
         what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden} classifier over the {a.get('obs_dim')}-feature "
                 f"input, the most likely mode among those the action mask allows")
     else:
@@ -140,15 +181,15 @@ def describe(name: str, c: dict[str, Any]) -> str:
                 f"Q-network over the {a.get('obs_dim')}-feature input"
                 + (f"; mode-transition mask v{version} (abort only from overtake, follow only from follow or "
                    f"in lane{', aborts carried through' if version >= 3 else ''})" if c.get("action_mask") else ""))
-    suite = c.get("train_suite", "?")
-    suite = suite.get("name", "?") if isinstance(suite, dict) else suite
+    suite = (c.get("train_suite") or {}).get("name", "?")
     if c.get("dataset"):  # offline members (bc, cql) learn from a recorded dataset, not a suite
         ds = c["dataset"]
         trained = (f"  trained offline on dataset {ds.get('name', '?')} (content sha256 "
-                   f"{str(ds.get('content_sha256'))[:12]}), seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
+                   f"{str(ds.get('content_sha256'))[:12]}), {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, "
+                   f"seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
     else:
-        trained = (f"  trained on {suite}, {c.get('steps', '?')} transitions, seed {c.get('seed', '?')}, "
-                   f"{c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
+        trained = (f"  trained on {suite}, {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, seed "
+                   f"{c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
     lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
@@ -172,3 +213,12 @@ def load_pretrained(name: str, config: EnvConfig | None = None, directory: str |
     directory = Path(directory) if directory else PRETRAINED
     card = read_card(directory / f"{name}.json", name)
     return from_card(name, card, directory / Path(card.get("weights_file") or f"{name}.npz").name, config)
+
+
+def _pretrained(name: str) -> Any:
+    return lambda config=None, **kw: load_pretrained(name, config, **kw)
+
+
+for _name in names("learned"):  # the registry lists the learned members; each loads its shipped weights
+    if member(_name).module == "learned":  # (a learned decider registered by a plugin keeps its own factory)
+        register(_name, _pretrained(_name))

@@ -1,14 +1,20 @@
-"""PPO training with rsl-rl-lib's ``OnPolicyRunner`` (the ``ppo`` member; acting is :mod:`.ppo`).
+"""PPO training with rsl-rl-lib's ``OnPolicyRunner`` (the ``ppo`` member; acting is
+:mod:`overtakezoo.zoo.members.learned`, numpy only, as for every learned member).
 
-Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.faces.rsl_rl.OvertakeRslRlEnv`
-with our categorical action distribution (:mod:`overtakezoo.zoo.categorical`) plugged in through
+Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.rsl_rl_env.OvertakeRslRlEnv`
+with our categorical action distribution (:mod:`.categorical`) plugged in through
 ``actor.distribution_cfg["class_name"]``. The hyperparameters are data (``zoo/hyperparams/ppo.toml``),
 typed by :class:`PPOHyperparams`: ``[train]`` and ``[env]`` are ours; ``[runner]``, ``[algorithm]``,
 ``[actor]``, ``[critic]`` go to rsl-rl as they are, their keys checked against what rsl-rl reads.
+Each decision is held ``action_repeat`` core steps (10 in ``ppo.toml``). The training reward is the
+env's own, as for every trainer (the suite's ``RewardConfig``, time cost included).
 
-Outputs: ``ppo.pt`` holds the actor's ``state_dict`` and the rsl-rl model settings needed to rebuild
-it (a plain dict, read with ``torch.load(weights_only=True)``); :func:`overtakezoo.zoo.export.export`
-turns it into ``ppo.npz``, and the model card ``ppo.json`` names both with their sha256.
+:func:`train` takes the training suites loaded and returns the :class:`~.contract.Trained` member.
+Outputs (:mod:`.contract`): ``ppo.pt`` holds the actor's ``state_dict`` and the rsl-rl model
+settings needed to rebuild it (a plain dict, read with ``torch.load(weights_only=True)``), converted
+to ``ppo.npz`` (:func:`.export.convert`); the model card ``ppo.json`` names both with their sha256.
+Beside them: ``train_log.csv`` and ``checkpoints/``. (A little over the project's ~300 lines: the
+hyperparameter checks against rsl-rl and the training loop with its model selection are ppo's alone.)
 """
 
 from __future__ import annotations
@@ -16,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import csv
-import dataclasses
 import inspect
 import io
 import math
@@ -30,23 +35,21 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from overtakezoo.envs.suites import load_training
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
-from overtakezoo.envs.io import atomic_path, atomic_write_bytes, atomic_write_json, check_writable_dir
+from overtakezoo.envs.config import unknown_key
+from overtakezoo.envs.io import atomic_path, check_writable_dir
 
-from .base import Decider
-from .common import evaluate, reject_reward_keys, sha256_bytes
-from .export import export
-from .features import FEATURES_VERSION, speed_relative
-from .learned import load_pretrained
-from .schema import HyperparameterError, as_dict, load_hyperparams as load_schema, param, read_toml, unknown_key
+from overtakezoo.zoo.base import Decider
+from overtakezoo.zoo.members.features import speed_relative
+from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
+                       suite_source)
+from overtakezoo.zoo.train.export import PPO_FORMAT
+from overtakezoo.zoo.train.typed import HyperparameterError, param
 
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
-HERE = Path(__file__).resolve().parent
-HYPERPARAMS = HERE / "hyperparams" / "ppo.toml"
-WEIGHTS_FORMAT = "overtakezoo-ppo/1"
-NUM_MODES = 3
+LEARNS_FROM = "suites"  # what train() takes: loaded training suites, or a loaded dataset
+STEPS_UNIT = "decisions (env steps)"
 
 
 # ----------------------------------------------------------------------------- hyperparameters
@@ -75,6 +78,10 @@ class PPOHyperparams:
     actor: dict[str, Any] = param()
     critic: dict[str, Any] = param()
 
+    @classmethod
+    def check(cls, hp: "PPOHyperparams", where: str) -> None:  # called by contract.load_hyperparams
+        check_rsl_rl_keys(hp, where)
+
 
 # [runner] keys rsl-rl-lib 5.5's OnPolicyRunner and its logger read (it ignores any other key).
 RUNNER_KEYS = ("num_steps_per_env", "save_interval", "obs_groups", "check_for_nan", "logger", "wandb_project",
@@ -82,20 +89,6 @@ RUNNER_KEYS = ("num_steps_per_env", "save_interval", "obs_groups", "check_for_na
 # Constructor arguments rsl-rl fills itself (not settings of a hyperparameter file).
 _SUPPLIED = {"self", "actor", "critic", "storage", "device", "multi_gpu_cfg", "obs", "obs_groups", "obs_set",
              "output_dim"}
-
-
-def load_hyperparams(path: str | Path | None = None, overrides: dict[str, Any] | None = None
-                     ) -> tuple[PPOHyperparams, str]:
-    """The hyperparameters (``overrides`` applied, tables merged) and the file's name; one
-    :class:`HyperparameterError` naming ``file: section.key`` for anything unknown or out of range."""
-    from .schema import merged
-
-    path = Path(path or HYPERPARAMS)
-    data = merged(read_toml(path), overrides or {})
-    reject_reward_keys(data, f"hyperparameter file {path}")
-    hp = load_schema(PPOHyperparams, data, str(path))
-    check_rsl_rl_keys(hp, str(path))
-    return hp, path.name
 
 
 def check_rsl_rl_keys(hp: PPOHyperparams, where: str) -> None:
@@ -144,7 +137,7 @@ def build_actor(obs_dim: int, actor_cfg: dict[str, Any]) -> torch.nn.Module:
 
 def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]) -> bytes:
     buf = io.BytesIO()
-    torch.save({"format": WEIGHTS_FORMAT, "obs_dim": obs_dim, "actor_cfg": actor_cfg,
+    torch.save({"format": PPO_FORMAT, "obs_dim": obs_dim, "actor_cfg": actor_cfg,
                 "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()}}, buf)
     return buf.getvalue()
 
@@ -165,18 +158,16 @@ class TorchPolicy(Decider):
             return self.actor.mlp(x).numpy().argmax(axis=1).astype(np.int64)
 
 
-# ----------------------------------------------------------------------------- evaluation
+# ----------------------------------------------------------------------------- model selection
 def rollout(decider: Decider, config: EnvConfig, scenarios: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every scenario run to its end under ``decider`` (one batch, each decision held as the runner
     holds it): outcome, crash lane, completion time."""
-    from overtakezoo.envs.hold import hold, hold_steps
+    from overtakezoo.envs.hold import hold_steps, run_to_end
 
     core = OvertakeCore(config)
     obs = core.reset(scenarios)
     decider.reset()
-    steps = hold_steps(config.decision_interval, decider.action_repeat)
-    while not core.done.all():
-        obs = hold(core, decider.act(obs), steps).obs
+    run_to_end(core, obs, lambda o, _: decider.act(o), hold_steps(config.decision_interval, decider.action_repeat))
     return core.outcome, core.crash_lane, core.stats["completion_time"]
 
 
@@ -208,8 +199,6 @@ def _library_version() -> str:
 def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
     """Restore ``runner`` from a checkpoint ``runner.save`` wrote and return its ``infos``. Read with
     ``weights_only=True`` (rsl-rl's own ``load`` unpickles anything): resuming never runs code."""
-    import torch
-
     try:
         loaded = torch.load(str(path), map_location="cpu", weights_only=True)
         if not isinstance(loaded, dict):
@@ -218,31 +207,36 @@ def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
             runner.current_learning_iteration = loaded["iter"]
     except Exception as exc:  # a foreign, truncated or pickled-object file: one line
         why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
-        raise ValueError(f"cannot read checkpoint {path}: {why}") from None
+        raise TrainError(f"cannot read checkpoint {path}: {why}") from None
     return loaded.get("infos") or {}
 
 
-def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, out: str | Path | None = None,
-          resume: str | Path | None = None, progress: bool = True, hyperparams: str | Path | None = None,
-          eval_suite: str | None = "table1", overrides: dict[str, Any] | None = None) -> Path:
-    """Train PPO on ``suite`` (one suite, ``a+b``, or a mixture such as ``core-train``) for ``steps``
-    transitions (decisions); write ``out/ppo.pt``, its export ``out/ppo.npz`` and the model card
-    ``out/ppo.json`` (with ``eval_suite`` results), ``out/train_log.csv`` and ``out/checkpoints/``.
-    ``resume`` continues from a checkpoint; ``overrides`` ({"train": {"steps": ...}}) go through the
-    same checks as the file. Returns the path of the torch weights file."""
+def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = None, steps: int | None = None,
+          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
+          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          progress: bool = True) -> Trained:
+    """Train PPO on the loaded training ``suites`` (one suite or a mixture such as ``core-train``;
+    ``suite_name``: the spec they came from, for the card) for ``steps`` transitions (decisions),
+    seed ``seed`` (default 0); write into ``out`` (default ``runs/ppo-seed<seed>``) ``train_log.csv``,
+    ``checkpoints/`` and the outputs ``ppo.pt``, ``ppo.npz``, ``ppo.json``. ``resume`` continues
+    from a checkpoint; ``overrides`` ({"train": {"steps": ...}}) go through the same checks as the
+    file (default ``zoo/hyperparams/ppo.toml``)."""
+    if member != "ppo":
+        raise TrainError(f"train/ppo.py trains ppo, not {member!r}")
     from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
 
-    hp, hp_file = load_hyperparams(hyperparams, overrides)
+    hp, hp_file = load_hyperparams(PPOHyperparams, hyperparams or hyperparams_file("ppo"), overrides)
     steps = int(steps if steps is not None else hp.train.steps)
+    seed = 0 if seed is None else int(seed)
     out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
     check_writable_dir(out / "checkpoints")  # fail before training, not after it
     torch.set_num_threads(hp.train.threads)
     torch.manual_seed(seed)
-    suites = load_training(suite)
+    source = suite_source(suites, suite_name)
+    meta = source["train_suite"]  # recorded in every checkpoint too
     config = suites[0].config  # the observation layout, shared by every training suite
     pools = [s.scenarios() for s in suites]
-    meta = {"name": suite, "suites": {s.name: s.hash for s in suites}}
     num_envs = hp.env.num_envs
     repeat = hp.env.action_repeat
     core = MixedCore([s.config for s in suites], [pool_source(p) for p in pools], split_rows(num_envs, len(pools)),
@@ -314,32 +308,16 @@ def train(suite: str = "table1-train", steps: int | None = None, seed: int = 0, 
     if best["state"] is not None:
         actor.load_state_dict(best["state"])
     blob = weights_blob(actor, observation_size(config), hp.actor)
-    card = {
-        "name": "ppo", "version": "1", "algorithm": "PPO (clipped surrogate, GAE, adaptive KL learning rate)",
-        "library": "rsl-rl-lib OnPolicyRunner", "library_version": _library_version(),
-        "torch_version": torch.__version__,
-        "features": FEATURES_VERSION,
-        "architecture": {"obs_dim": observation_size(config), "hidden_dims": hp.actor["hidden_dims"],
-                         "activation": hp.actor["activation"], "num_modes": NUM_MODES,
-                         "distribution": hp.actor["distribution_cfg"]["class_name"]},
-        "hyperparameters": {"file": hp_file, **as_dict(hp)},
-        "action_repeat": repeat, "training_reward": dataclasses.asdict(env.cfg.reward),
-        "train_suite": meta, "steps": iterations * per_iter, "steps_unit": "decisions (env steps)",
-        "iterations": iterations, "seed": seed,
-        "selection": {"rule": "greedy success rate minus crash rate on the first training scenarios",
-                      "scenarios": selected, "every": select_every, "iteration": best["iteration"],
-                      "score": None if best["state"] is None else round(best["score"], 4)},
-        "wall_time_s": round(wall, 1), "weights_sha256": sha256_bytes(blob), "weights_bytes": len(blob),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "results": {},
-        "reproduce": f"overtakezoo train ppo --suite {suite} --steps {steps} --seed {seed}",
-    }
-    weights = out / "ppo.pt"
-    atomic_write_bytes(weights, blob)
-    atomic_write_json(out / "ppo.json", card)
-    export(out, out, "ppo")  # ppo.npz, and the card naming it: what the zoo and `eval --policy` load
-    if eval_suite:  # measured with what ships: the numpy actor
-        decider = load_pretrained("ppo", config, out)
-        card = decider.model_card
-        card["results"][eval_suite] = evaluate(decider, eval_suite, progress=progress)[0]
-        atomic_write_json(out / "ppo.json", card)
-    return weights
+    selection = {"rule": "greedy success rate minus crash rate on the first training scenarios",
+                 "scenarios": selected, "every": select_every, "iteration": best["iteration"],
+                 "score": None if best["state"] is None else round(best["score"], 4)}
+    card = model_card("ppo", algorithm=ALGORITHM, architecture={"kind": "policy"}, hp=hp, hp_file=hp_file,
+                      action_repeat=repeat, action_mask=False, source=source, steps=iterations * per_iter,
+                      steps_unit=STEPS_UNIT, seed=seed, wall_time_s=wall,
+                      training={"iterations": iterations, "selection": selection},
+                      reproduce=reproduce("ppo", source, steps, seed), versions={"rsl-rl-lib": _library_version()})
+    return finish(card, weights=blob, module=actor, out=out)
+
+
+ALGORITHM = ("PPO (Schulman et al. 2017: clipped surrogate, GAE, adaptive KL learning rate) through rsl-rl-lib's "
+             "OnPolicyRunner")

@@ -29,8 +29,8 @@ import numpy as np
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 
-from .base import Decider, register
-from .rule_fsm import lead_from_obs
+from overtakezoo.zoo.base import Decider, register
+from overtakezoo.zoo.members.rule_fsm import lead_from_obs
 
 INF = np.inf
 

@@ -1,0 +1,108 @@
+"""Training, orchestrated: what ``overtakezoo train`` does around a zoo trainer.
+
+The trainers (``overtakezoo.zoo.train``: dqn, ppo, bc, cql) take what they learn from already
+loaded and return the trained member (a ``Trained``: model card, weights, the numpy network that
+ships); they know nothing of the benchmark. Here, for every trainer alike, :func:`train`
+
+1. asks the zoo's registry which trainer trains the member, and the trainer what it learns from;
+2. loads it: the training suites (``overtakezoo.envs.suites.load_training``) or a dataset of the
+   benchmark's registry (:mod:`.datasets`, with its content hash);
+3. calls the trainer (which writes its log, checkpoints and outputs into ``out``);
+4. evaluates what ships, the numpy network, on ``eval_suite`` with the benchmark runner, records
+   the outcome in the card (``results[<suite>]``), writes the card again and the runner's results
+   file ``<member>-<suite>.results.json`` beside it, ready for ``overtakezoo submit``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from overtakezoo import zoo
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
+from overtakezoo.envs.suites import Suite, load_suite, load_training
+
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.results.metrics import wilson
+from overtakezoo.benchmark.run.runner import run_suite
+
+
+def trainer(member: str) -> Any:
+    """The module under ``overtakezoo.zoo.train`` that trains ``member`` (the registry says which)."""
+    try:
+        entry = zoo.member(member)
+    except zoo.UnknownDecider as exc:
+        raise UserError(str(exc)) from None
+    if entry.kind != "learned" or not entry.trainer:
+        raise UserError(f"{member} is a {entry.kind} member, not trained (learned members: "
+                        f"{', '.join(zoo.names('learned'))})")
+    try:
+        return importlib.import_module(f"overtakezoo.zoo.train.{entry.trainer}")
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").startswith("overtakezoo"):
+            raise
+        raise UserError(f"training {member} needs {exc.name} (pip install -e '.[train]')") from None
+
+
+def train(member: str, *, suite: str = "table1-train", dataset: str | None = None, steps: int | None = None,
+          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
+          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          eval_suite: str | None = "table1", progress: bool = True) -> Any:
+    """Train ``member`` on ``suite`` (dqn, double-dqn, ps-dqn, ppo) or ``dataset`` (bc, cql), then
+    (unless ``eval_suite`` is None) evaluate it; returns the trainer's ``Trained``, its card with
+    the results. Files go into ``out`` (the module docstring)."""
+    module = trainer(member)
+    common: dict[str, Any] = {"member": member, "steps": steps, "seed": seed, "out": out, "resume": resume,
+                              "hyperparams": hyperparams, "overrides": overrides, "progress": progress}
+    if module.LEARNS_FROM == "dataset":
+        if not dataset:
+            raise UserError(f"{member} learns from a dataset: give --dataset NAME (see `overtakezoo dataset list`)")
+        from overtakezoo.benchmark.datasets import store as datasets
+
+        data = datasets.load(dataset)
+        about = {"name": dataset, "content_sha256": datasets.content_sha256(data),
+                 "content_hash": f"{datasets.content_sha256.__module__}.{datasets.content_sha256.__qualname__}"}
+        trained = module.train(data, about, **common)
+    else:
+        if dataset:
+            raise UserError(f"--dataset is for the members trained offline; {member} trains on --suite")
+        trained = module.train(load_training(suite), suite_name=suite, **common)
+    if eval_suite:
+        from overtakezoo.zoo.train.contract import write_outputs
+
+        ev = load_suite(eval_suite)
+        summary, results = evaluate(trained.decider(ev.config), ev, progress=progress)
+        trained.card["results"][ev.name] = summary
+        if out is not None:
+            write_outputs(out, trained)
+            results.save(Path(out) / f"{member}-{ev.name}.results.json")
+    return trained
+
+
+def evaluate(decider: Any, suite: Suite, progress: bool = False, limit: int | None = None
+             ) -> tuple[dict[str, Any], Any]:
+    """Run ``decider`` on ``suite`` with the benchmark runner: the card's summary and the Results."""
+    res = run_suite(suite, decider, progress=progress, limit=limit)
+    summary = outcome_summary(np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]),
+                              np.asarray(res.per["completion_time"], float))
+    summary.update({"suite_version": suite.version, "suite_sha256": suite.hash,
+                    "measured_with": f"{run_suite.__module__}.{run_suite.__qualname__}"})
+    return summary, res
+
+
+def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time: np.ndarray) -> dict[str, Any]:
+    """The results block of a model card, with 95 % Wilson intervals."""
+    n = len(outcome)
+    succ, crash, tout = (int((outcome == k).sum()) for k in (SUCCESS, CRASH, TIMEOUT))
+    return {
+        "count": n, "success": succ, "crash": crash, "timeout": tout, "offroad": n - succ - crash - tout,
+        "success_rate": succ / n, "success_ci": list(wilson(succ, n)),
+        "crash_rate": crash / n, "crash_ci": list(wilson(crash, n)), "timeout_rate": tout / n,
+        # Lane 0 is the ego's lane (the lead, NPC1, in table1); lane 1 the opposite lane.
+        "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
+        "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
+        "mean_completion_time_s": float(np.nanmean(completion_time)) if succ else None,
+    }
