@@ -121,7 +121,7 @@ def stale_section(stale: list) -> list[str]:
 
 def plot(name: str, ranked: list[Row]) -> bytes:
     return rate_plot(name, ranked, [], x_of=lambda s: s["joint"]["all_succeed"], y_of=lambda s: s["joint"]["any_crash"],
-                 labels=("all AVs succeed (%)", "any crash (%)", "joint success vs any crash"))
+                 labels=("all AVs succeed (%)", "any crash (%)", "joint success and any crash"))
 
 
 def readme_section(multi: dict[str, Any], crossplay: dict[str, Any]) -> list[str]:
