@@ -36,7 +36,7 @@ CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "
 MULTI = ("duel", "platoon", "mixed-traffic")
 MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE),
             "multi-train": tuple(f"{name}-train" for name in MULTI)}
-_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base"}
+_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base", "scenarios", "search"}
 
 
 @dataclass(frozen=True)
@@ -218,6 +218,9 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         raise UserError(f"{where}: {section}{exc}") from None
     except (TypeError, ValueError) as exc:  # a value of the wrong type deep in a nested table
         raise UserError(f"{where}: sim: {exc}") from None
+    if "scenarios" in doc or "search" in doc:  # a suite that lists its scenarios (benchmark/failures/explicit.py)
+        from .failures.explicit import explicit_distribution
+        distribution = explicit_distribution(distribution, doc, where)
     return Suite(name=name, version=version, count=count, seed=seed, description=description,
                  hash=digest.hexdigest(), path=path.resolve(), config=config,
                  distribution=distribution)
