@@ -227,7 +227,9 @@ def _table(table: dict[str, Any], path: list[str]) -> list[str]:
     out = [f"{_key(k)} = {_value(v)}" for k, v in table.items() if not _is_table(v) and not _is_tables(v)]
     for k, v in table.items():
         if _is_table(v):
-            out += ["", f"[{'.'.join(map(_key, path + [k]))}]"] + _table(v, path + [k])
+            only_tables = v and all(_is_table(x) or _is_tables(x) for x in v.values())
+            head = [] if only_tables else ["", f"[{'.'.join(map(_key, path + [k]))}]"]  # (implied by its subtables)
+            out += head + _table(v, path + [k])
     for k, v in table.items():
         if _is_tables(v):
             for item in v:

@@ -159,6 +159,11 @@ class Found:
     def rate(self) -> float:
         return self.distinct / self.episodes if self.episodes else 0.0
 
+    def first(self, k: int) -> "Found":
+        """The first ``k`` distinct failures (in the order found); the counts stay the search's."""
+        return dataclasses.replace(self, units=self.units[:k], values={n: v[:k] for n, v in self.values.items()},
+                                   info=self.info[:k])
+
 
 def _info(ev: Evaluation, i: int, episode: int) -> dict[str, Any]:
     def num(x: float) -> float | str:
@@ -209,7 +214,7 @@ class _Island:
             self._start()
 
 
-def _check_budget(budget: Any) -> int:
+def check_budget(budget: Any) -> int:
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise UserError(f"--budget {budget!r}: expected a positive number of episodes")
     if budget > 10_000_000:
@@ -229,7 +234,7 @@ def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: lis
                ttc_limit: float = DEFAULT_TTC, patience: int = 6, sigma0: float = 0.2, progress: bool = True,
                space: Space | None = None, popsize: int | None = None) -> Found:
     """Search ``budget`` episodes for distinct failures of ``decider`` on ``suite`` (module docstring)."""
-    budget = _check_budget(budget)
+    budget = check_budget(budget)
     if target not in TARGETS:
         raise UserError(f"--target {target!r}: expected one of {', '.join(TARGETS)}")
     space = space or space_for(base_distribution(suite), params, f"suite {suite.name!r}")
@@ -284,7 +289,7 @@ def random_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: 
                   ttc_limit: float = DEFAULT_TTC, progress: bool = True, space: Space | None = None) -> Found:
     """The baseline: ``budget`` scenarios drawn by the suite's own sampler with ``seed`` (when
     ``params`` widen the box: uniformly in it), the same evaluation and deduplication."""
-    budget = _check_budget(budget)
+    budget = check_budget(budget)
     space = space or space_for(base_distribution(suite), params, f"suite {suite.name!r}")
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     archive = Archive(space.size, distinct)

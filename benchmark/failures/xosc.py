@@ -368,16 +368,13 @@ def _stop_values(scenario: Any) -> tuple[float, float]:
 
 
 def _event_speed(scenario: Any, action_name: str, default: float) -> float:
+    """The target speed of the story's action ``action_name`` (``default`` when there is none)."""
     for story in scenario.storyboard.stories:
         for act in story.acts:
             for mg in act.maneuvergroup:
                 for man in mg.maneuvers:
                     for ev in man.events:
-                        for name, action in zip(ev.action_names if hasattr(ev, "action_names") else [],
-                                                ev.action):
-                            if name == action_name:
-                                return float(action.speed)
-                        for action in ev.action:
-                            if getattr(action, "name", None) == action_name:
-                                return float(action.action.speed)
+                        for named in ev.action:  # scenariogeneration's _Action: .name, .action
+                            if named.name == action_name:
+                                return float(named.action.speed)
     return default
