@@ -106,7 +106,8 @@ def _drive_job(args: tuple[str, bytes, str, list[str]]) -> dict[str, Any]:
     return {"row": row, "cells": cells}
 
 
-def map_points(suite: Any, seed: int = 0) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
+def map_points(suite: Any, seed: int = 0, resolution: int = MAP_RESOLUTION,
+               draws: int = MAP_DRAWS) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
     """The map's grid: (space, unit points (R*R*K, D), x centres, y centres) over :data:`MAP_AXES`."""
     from .explicit import base_distribution
     from .space import space_for
@@ -114,7 +115,7 @@ def map_points(suite: Any, seed: int = 0) -> tuple[Any, np.ndarray, np.ndarray, 
     space = space_for(base_distribution(suite), where=f"suite {suite.name!r}")
     labels = [d.label for d in space.dims]
     ix, iy = (labels.index(a) for a in MAP_AXES)
-    R, K = MAP_RESOLUTION, MAP_DRAWS
+    R, K = resolution, draws
     centres = (np.arange(R) + 0.5) / R
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[1])
     unit = rng.uniform(size=(R, R, K, space.size))  # (y, x, draw, dim): the other parameters drawn
@@ -124,23 +125,23 @@ def map_points(suite: Any, seed: int = 0) -> tuple[Any, np.ndarray, np.ndarray, 
     return space, unit.reshape(-1, space.size), dx.lo + centres * (dx.hi - dx.lo), dy.lo + centres * (dy.hi - dy.lo)
 
 
-def _map_job(args: tuple[str, str, dict[str, list[float]], int]) -> dict[str, Any]:
+def _map_job(args: tuple[str, str, dict[str, list[float]], int, int, int]) -> dict[str, Any]:
     from overtakezoo import zoo
 
     from ..suites import load_suite
     from .search import evaluate
 
-    suite_name, decider_name, failures, budget = args
+    suite_name, decider_name, failures, budget, resolution, draws = args
     suite = load_suite(suite_name)
-    space, unit, xs, ys = map_points(suite)
+    space, unit, xs, ys = map_points(suite, 0, resolution, draws)
     ev = evaluate(suite, zoo.load(decider_name, suite.config), space.build(unit))
-    rate = ev.failed.reshape(MAP_RESOLUTION, MAP_RESOLUTION, MAP_DRAWS).mean(axis=2)
-    png = map_png(decider_name, suite, xs, ys, rate, failures, budget)
+    rate = ev.failed.reshape(resolution, resolution, draws).mean(axis=2)
+    png = map_png(decider_name, suite, xs, ys, rate, failures, budget, draws)
     return {"decider": decider_name, "png": png, "cells_failing": int((rate > 0).sum())}
 
 
 def map_png(decider: str, suite: Any, xs: np.ndarray, ys: np.ndarray, rate: np.ndarray,
-            failures: dict[str, list[float]], budget: int) -> bytes:
+            failures: dict[str, list[float]], budget: int, draws: int = MAP_DRAWS) -> bytes:
     """The failure map as PNG bytes (Agg canvas, no timestamps)."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -164,7 +165,7 @@ def map_png(decider: str, suite: Any, xs: np.ndarray, ys: np.ndarray, rate: np.n
         ax.set_xlabel("NPC2 (oncoming) distance D2 from the ego's front (m)")
         ax.set_ylabel("NPC1 (lead) gap D1 (m)")
         ax.set_title(f"{plot_text(decider)} on {plot_text(suite.name)}: where it crashes\n"
-                     f"(each cell: {MAP_DRAWS} scenarios, NPC speeds drawn from the suite's ranges)", fontsize=9)
+                     f"(each cell: {draws} scenarios, NPC speeds drawn from the suite's ranges)", fontsize=9)
         cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
         cb.set_label("crash rate of the cell (%)")
         fig.tight_layout()
@@ -251,7 +252,8 @@ def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str]
             drive.append((str(out_dir / name), r["file"], f"{r['suite']}/{r['decider']}", columns))
     driven = {d["row"]: d["cells"] for d in _pool_map("drive", drive, jobs)}
     if maps:
-        todo = [(MAP_SUITE, r["decider"], r["values"], budget) for r in searched if r["suite"] == MAP_SUITE]
+        todo = [(MAP_SUITE, r["decider"], r["values"], budget, MAP_RESOLUTION, MAP_DRAWS) for r in searched
+                if r["suite"] == MAP_SUITE]
         for m in _pool_map("map", todo, jobs):
             files[f"maps/{m['decider']}.png"] = m["png"]
     wall = time.perf_counter() - t0

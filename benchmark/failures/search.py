@@ -235,6 +235,10 @@ def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: lis
                space: Space | None = None, popsize: int | None = None) -> Found:
     """Search ``budget`` episodes for distinct failures of ``decider`` on ``suite`` (module docstring)."""
     budget = check_budget(budget)
+    try:
+        import cma  # noqa: F401
+    except ImportError:
+        raise UserError("search needs the cma package: pip install 'overtakezoo[search]'") from None
     if target not in TARGETS:
         raise UserError(f"--target {target!r}: expected one of {', '.join(TARGETS)}")
     space = space or space_for(base_distribution(suite), params, f"suite {suite.name!r}")
