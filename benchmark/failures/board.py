@@ -232,15 +232,23 @@ def _decode(obj: Any) -> Any:
 
 
 # ------------------------------------------------------------------ the board
+def board_columns(rows: list[str], upper_bounds: bool = True) -> list[str]:
+    """Who drives: the rows, then the privileged upper bounds (the oracle)."""
+    from overtakezoo import zoo
+
+    return rows + ([u for u in UPPER_BOUNDS if u in zoo.known_names() and u not in rows] if upper_bounds else [])
+
+
 def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str] | None = None,
-            budget: int = BUDGET, seed: int = 0, jobs: int = 1, maps: bool = True) -> dict[str, Any]:
+            budget: int = BUDGET, seed: int = 0, jobs: int = 1, maps: bool = True,
+            upper_bounds: bool = True) -> dict[str, Any]:
     """Run everything; returns the files (relative name -> bytes) and the data document."""
     from overtakezoo import zoo
 
     from ..suites import load_suite
 
     rows = deciders or board_deciders()
-    columns = rows + [u for u in UPPER_BOUNDS if u in zoo.known_names() and u not in rows]
+    columns = board_columns(rows, upper_bounds)
     t0 = time.perf_counter()
     searched = _pool_map("search", [(s, d, budget, seed) for s in suites for d in rows], jobs)
     files: dict[str, bytes] = {}
@@ -394,7 +402,7 @@ def cross_png(doc: dict[str, Any], suite: str) -> bytes:
 
 def write_failure_board(out_dir: str | Path = "leaderboards/failures", jobs: int = 1, budget: int = BUDGET,
                         deciders: list[str] | None = None, suites: tuple[str, ...] = SUITES,
-                        maps: bool = True) -> dict[str, Any]:
+                        maps: bool = True, upper_bounds: bool = True) -> dict[str, Any]:
     """Measure and write the board into ``out_dir`` as one swap (``io.atomic_directory``): the folder is
     the old board or the new one, never a mix. A folder that is not a board (no marker file) and is
     not empty is refused, so ``--out`` cannot replace anything else."""
@@ -403,7 +411,7 @@ def write_failure_board(out_dir: str | Path = "leaderboards/failures", jobs: int
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / MARKER).is_file())):
         raise UserError(f"{out}: exists and is not a failure board (no {MARKER}); choose a new or empty folder")
-    result = measure(out, suites, deciders, budget, 0, jobs, maps)
+    result = measure(out, suites, deciders, budget, 0, jobs, maps, upper_bounds)
     with atomic_directory(out) as tmp:
         (tmp / MARKER).write_text("a folder written by `overtakezoo failure-board`; it replaces the whole folder\n")
         for rel, data in sorted(result["files"].items()):
