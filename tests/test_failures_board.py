@@ -62,5 +62,5 @@ def test_failure_map():
     assert unit.shape == (50, space.size) and xs[0] > 20 and ys[-1] < 25
     vals = space.values(unit)
     assert np.allclose(np.unique(vals["oncoming_gap"]), xs) and np.allclose(np.unique(vals["lead_gap"]), ys)
-    out = board._map_job(("table1", "always-overtake", {"oncoming_gap": [50.0], "lead_gap": [10.0]}, 48, 5, 2))
+    out = board._map_job(("table1", "always-overtake", {"oncoming_gap": [50.0], "lead_gap": [10.0]}, 48, 5, 2, 3))
     assert out["png"].startswith(b"\x89PNG") and out["cells_failing"] > 0

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -125,49 +126,59 @@ def map_points(suite: Any, seed: int = 0, resolution: int = MAP_RESOLUTION,
     return space, unit.reshape(-1, space.size), dx.lo + centres * (dx.hi - dx.lo), dy.lo + centres * (dy.hi - dy.lo)
 
 
-def _map_job(args: tuple[str, str, dict[str, list[float]], int, int, int]) -> dict[str, Any]:
+def _map_job(args: tuple[str, str, dict[str, list[float]], int, int, int, int]) -> dict[str, Any]:
     from overtakezoo import zoo
 
     from ..suites import load_suite
     from .search import evaluate
 
-    suite_name, decider_name, failures, budget, resolution, draws = args
+    suite_name, decider_name, failures, budget, resolution, draws, total = args
     suite = load_suite(suite_name)
     space, unit, xs, ys = map_points(suite, 0, resolution, draws)
     ev = evaluate(suite, zoo.load(decider_name, suite.config), space.build(unit))
     rate = ev.failed.reshape(resolution, resolution, draws).mean(axis=2)
-    png = map_png(decider_name, suite, xs, ys, rate, failures, budget, draws)
+    png = map_png(decider_name, suite, xs, ys, rate, failures, budget, draws, total)
     return {"decider": decider_name, "png": png, "cells_failing": int((rate > 0).sum())}
 
 
 def map_png(decider: str, suite: Any, xs: np.ndarray, ys: np.ndarray, rate: np.ndarray,
-            failures: dict[str, list[float]], budget: int, draws: int = MAP_DRAWS) -> bytes:
+            failures: dict[str, list[float]], budget: int, draws: int = MAP_DRAWS, total: int | None = None) -> bytes:
     """The failure map as PNG bytes (Agg canvas, no timestamps)."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import BoundaryNorm, ListedColormap
     from matplotlib.figure import Figure
 
+    # Counts of crashing scenarios per cell, 0 white and every count >= 1 clearly red (a rare crash shows).
+    reds = matplotlib.colormaps["Reds"](np.linspace(0.3, 1.0, draws))
+    cmap = ListedColormap(np.vstack([[1.0, 1.0, 1.0, 1.0], reds]))
+    norm = BoundaryNorm(np.arange(draws + 2) - 0.5, cmap.N)
+    counts = np.rint(rate * draws)
     with matplotlib.rc_context({"font.family": "DejaVu Sans", "font.size": 9}):
         fig = Figure(figsize=(7.0, 5.2), dpi=100)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot(1, 1, 1)
         hx, hy = (xs[1] - xs[0]) / 2, (ys[1] - ys[0]) / 2
         extent = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
-        im = ax.imshow(100.0 * rate, origin="lower", aspect="auto", extent=extent, cmap="Reds", vmin=0, vmax=100,
+        im = ax.imshow(counts, origin="lower", aspect="auto", extent=extent, cmap=cmap, norm=norm,
                        interpolation="nearest")
         fx, fy = failures.get(MAP_AXES[0], []), failures.get(MAP_AXES[1], [])
         if len(fx):
             ax.scatter(fx, fy, s=14, marker="x", color="#1f3b73", linewidths=0.9,
-                       label=f"crashes found by the search ({len(fx)}, budget {budget})")
+                       label=f"distinct crashes found by the search in {budget} episodes ({len(fx)}"
+                             + (f" of {total} shown)" if total and total > len(fx) else ")"))
             ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=8, frameon=False)
+        else:
+            ax.text(0.5, -0.16, f"no crash found by the search in {budget} episodes", transform=ax.transAxes,
+                    ha="center", va="center", fontsize=8)
         ax.set_xlim(extent[0], extent[1])
         ax.set_ylim(extent[2], extent[3])
         ax.set_xlabel("NPC2 (oncoming) distance D2 from the ego's front (m)")
         ax.set_ylabel("NPC1 (lead) gap D1 (m)")
         ax.set_title(f"{plot_text(decider)} on {plot_text(suite.name)}: where it crashes\n"
                      f"(each cell: {draws} scenarios, NPC speeds drawn from the suite's ranges)", fontsize=9)
-        cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
-        cb.set_label("crash rate of the cell (%)")
+        cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, ticks=range(draws + 1))
+        cb.set_label(f"crashes among the cell's {draws} scenarios")
         fig.tight_layout()
         buf = io.BytesIO()
         fig.savefig(buf, format="png", metadata={"Software": None})
@@ -260,8 +271,8 @@ def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str]
             drive.append((str(out_dir / name), r["file"], f"{r['suite']}/{r['decider']}", columns))
     driven = {d["row"]: d["cells"] for d in _pool_map("drive", drive, jobs)}
     if maps:
-        todo = [(MAP_SUITE, r["decider"], r["values"], budget, MAP_RESOLUTION, MAP_DRAWS) for r in searched
-                if r["suite"] == MAP_SUITE]
+        todo = [(MAP_SUITE, r["decider"], r["values"], budget, MAP_RESOLUTION, MAP_DRAWS, r["distinct"])
+                for r in searched if r["suite"] == MAP_SUITE]
         for m in _pool_map("map", todo, jobs):
             files[f"maps/{m['decider']}.png"] = m["png"]
     wall = time.perf_counter() - t0
@@ -413,6 +424,9 @@ def write_failure_board(out_dir: str | Path = "leaderboards/failures", jobs: int
         raise UserError(f"{out}: exists and is not a failure board (no {MARKER}); choose a new or empty folder")
     result = measure(out, suites, deciders, budget, 0, jobs, maps, upper_bounds)
     with atomic_directory(out) as tmp:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # (a temp folder is private; the board is an ordinary folder)
         (tmp / MARKER).write_text("a folder written by `overtakezoo failure-board`; it replaces the whole folder\n")
         for rel, data in sorted(result["files"].items()):
             path = tmp / rel
