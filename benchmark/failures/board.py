@@ -9,9 +9,9 @@ columns, the privileged oracle as an upper bound among them) then drives every r
 the **failure cross-table** gives crash and success rates (``README.md``, ``cross-<suite>.png``). The
 diagonal re-runs a decider on its own failures (100 % crashes: the failures reproduce).
 
-**Failure maps** (``maps/<decider>.png``, on ``table1``): the crash rate over a grid of NPC1 gap x
-NPC2 distance (Fig. 10's axes, as ``decision_map``), each cell the share of :data:`MAP_DRAWS`
-scenarios whose other parameters are drawn from the suite's ranges (the same draws for every decider),
+**Failure maps** (``maps/<decider>.png``, on ``table1``): crashes over a grid of NPC1 gap x NPC2
+distance (Fig. 10's axes, as ``decision_map``), each cell coloured by how many of its :data:`MAP_DRAWS`
+scenarios crash, their other parameters drawn from the suite's ranges (the same draws for every decider),
 with the failures the search found overlaid (their own values of the other parameters differ: a
 projection).
 
@@ -358,10 +358,10 @@ def markdown(doc: dict[str, Any]) -> str:
         m = doc["map"]
         out += ["## Failure maps", "",
                 f"Where each decider crashes on {md_code(m['suite'])} over NPC2 distance x NPC1 gap (the paper's "
-                f"Fig. 10 axes): a {m['resolution']} x {m['resolution']} grid, each cell the crash rate of {m['draws']} "
-                "scenarios whose other parameters (the NPC speeds) are drawn from the suite's ranges, the same draws "
-                "for every decider; crosses: the crashes the search found (their speeds differ from the cells': a "
-                "projection).", ""]
+                f"Fig. 10 axes): a {m['resolution']} x {m['resolution']} grid, each cell coloured by how many of its "
+                f"{m['draws']} scenarios crash, their other parameters (the NPC speeds) drawn from the suite's ranges, "
+                "the same draws for every decider; crosses: the distinct crashes the search found (their speeds are "
+                "their own: a projection).", ""]
         for r in doc["rows"]:
             if m["suite"] in doc["suites"] and r in doc["suites"][m["suite"]]["rows"]:
                 out.append(f"- {md_link(r, f'maps/{r}.png')}")
