@@ -128,3 +128,35 @@ def test_a_suite_with_no_range_is_one_error(tmp_path, capsys):
     err = one_line_error(capsys, ["search", "--decider", "rule-fsm", "--suite", str(fixed_suite(tmp_path)),
                                   "--budget", "10", "--out", str(tmp_path / "f.toml")])
     assert "has no searchable range" in err
+
+
+@pytest.mark.parametrize("command", ["search", "export-xosc", "failure-board"])
+def test_help_has_examples(capsys, command):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0 and "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--budget", "0"], "--budget 0"),
+    (["--jobs", "0"], "--jobs 0"),
+    (["--deciders", "rule-fsm,nobody"], "unknown decider 'nobody'"),
+    (["--deciders", "rule-fsm,rule-fsm"], "expected distinct zoo names"),
+])
+def test_failure_board_bad_input(tmp_path, capsys, argv, needle):
+    err = one_line_error(capsys, ["failure-board", "--out", str(tmp_path / "b"), *argv])
+    assert needle in err and not (tmp_path / "b").exists()
+
+
+def test_perf_rows(monkeypatch):
+    from overtakezoo.benchmark.failures import perf_rows
+    from overtakezoo.benchmark.perf import Report
+
+    monkeypatch.setattr(perf_rows, "ROWS", (("table1", "rule-fsm"),))
+    monkeypatch.setattr(perf_rows, "BUDGET", 32)
+    monkeypatch.setattr(perf_rows, "SEEDS", (0,))
+    report = Report(lambda line: None)
+    perf_rows.add_failure_search_rows(report)
+    row = report.get("failure-search-table1-rule-fsm")
+    assert row["unit"] == "x" and row["median"] > 0 and row["search"][0]["episodes"] == 32
+    assert report.get("failure-search-table1-rule-fsm-wall")["median"] > 0
