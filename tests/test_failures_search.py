@@ -102,6 +102,8 @@ def fixed_suite(tmp_path):
 @pytest.mark.parametrize("extra, needle", [
     (["--budget", "0"], "--budget 0: expected a positive number of episodes"),
     (["--budget", "-5"], "--budget -5: expected a positive number"),
+    (["--budget", ""], "--budget '': expected a positive number"),
+    (["--budget", "many"], "--budget 'many': expected a positive number"),
     (["--param", "lead_sped"], "--param lead_sped: unknown parameter for suite 'table1'"),
     (["--param", "ego_speed"], "is a single value"),
     (["--decider", "nobody"], "nobody"),
@@ -142,6 +144,7 @@ def test_help_has_examples(capsys, command):
     (["--jobs", "0"], "--jobs 0"),
     (["--deciders", "rule-fsm,nobody"], "unknown decider 'nobody'"),
     (["--deciders", "rule-fsm,rule-fsm"], "expected distinct zoo names"),
+    (["--out", "/proc/nope/b"], "cannot write /proc/nope"),
 ])
 def test_failure_board_bad_input(tmp_path, capsys, argv, needle):
     err = one_line_error(capsys, ["failure-board", "--out", str(tmp_path / "b"), *argv])

@@ -17,7 +17,7 @@ def register(subparsers: Any) -> None:
                    ["overtakezoo failure-board --jobs 2",
                     "overtakezoo failure-board --out /tmp/board --budget 300 --deciders rule-fsm,fuzzy"])
     p.add_argument("--out", default="leaderboards/failures", help="the board's folder (default leaderboards/failures)")
-    p.add_argument("--budget", type=int, default=1000, help="episodes per search and per random baseline (default 1000)")
+    p.add_argument("--budget", default="1000", help="episodes per search and per random baseline (default 1000)")
     p.add_argument("--deciders", metavar="A,B,...", help="rows and columns (default: every zoo member that is not "
                    "privileged or shielded; the oracle is always a column)")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -29,7 +29,7 @@ def run(args: Any) -> int:
     from ..failures.board import write_failure_board
     from ..failures.search import check_budget
 
-    check_budget(args.budget)
+    args.budget = check_budget(args.budget)
     if not 1 <= args.jobs <= 64:
         raise UserError(f"--jobs {args.jobs}: expected 1..64")
     names = None

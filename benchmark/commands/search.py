@@ -26,7 +26,7 @@ def register(subparsers: Any) -> None:
                     "overtakezoo eval --suite failures.toml --decider fuzzy   # the failures, re-run"])
     add_decider_options(p)
     p.add_argument("--suite", required=True, help="a suite name or a .toml path (its [scenario] ranges are the box)")
-    p.add_argument("--budget", required=True, type=int, metavar="N", help="simulated episodes to spend (> 0)")
+    p.add_argument("--budget", required=True, metavar="N", help="simulated episodes to spend (> 0)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="the failure suite to write")
     p.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
     p.add_argument("--param", action="append", metavar="NAME[=LO:HI]",
@@ -75,7 +75,7 @@ def run(args: Any) -> int:
     from ..io import atomic_write_bytes
     from ..suites import NAME_RE, load_suite
 
-    check_budget(args.budget)
+    args.budget = check_budget(args.budget)
     check_distinct(args.distinct)
     if not 1 <= args.batch <= 65536:
         raise UserError(f"--batch {args.batch}: expected 1..65536")

@@ -417,11 +417,12 @@ def write_failure_board(out_dir: str | Path = "leaderboards/failures", jobs: int
     """Measure and write the board into ``out_dir`` as one swap (``io.atomic_directory``): the folder is
     the old board or the new one, never a mix. A folder that is not a board (no marker file) and is
     not empty is refused, so ``--out`` cannot replace anything else."""
-    from ..io import atomic_directory
+    from ..io import atomic_directory, check_writable_dir
 
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / MARKER).is_file())):
         raise UserError(f"{out}: exists and is not a failure board (no {MARKER}); choose a new or empty folder")
+    check_writable_dir(out.parent)  # an unwritable place fails now, not after the minutes of measuring
     result = measure(out, suites, deciders, budget, 0, jobs, maps, upper_bounds)
     with atomic_directory(out) as tmp:
         umask = os.umask(0)

@@ -215,6 +215,12 @@ class _Island:
 
 
 def check_budget(budget: Any) -> int:
+    """A positive number of episodes (an int, or its text as given on the command line)."""
+    if isinstance(budget, str):
+        try:
+            budget = int(budget.strip())
+        except ValueError:
+            raise UserError(f"--budget {budget!r}: expected a positive number of episodes") from None
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise UserError(f"--budget {budget!r}: expected a positive number of episodes")
     if budget > 10_000_000:
