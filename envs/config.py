@@ -27,6 +27,10 @@ class ConfigError(ValueError):
     """A configuration key is unknown or its value is out of range."""
 
 
+class SuiteError(ConfigError):
+    """A suite name, file or shard the user gave is unknown or malformed (the CLI prints one line)."""
+
+
 def bounded(default: Any, lo: float, hi: float, unit: str = "") -> Any:
     """A setting with its physical range [lo, hi] (for a [low, high] pair: both ends), kept in the
     field's metadata so the check, the error message and the docs quote one range. Integer

@@ -20,13 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from overtakezoo.envs.config import ConfigError, EnvConfig, unknown_key
+from overtakezoo.envs.config import ConfigError, EnvConfig, SuiteError, unknown_key
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
-
-
-class SuiteError(ConfigError):
-    """A suite name, file or shard the user gave is unknown or malformed (the CLI prints one line)."""
 
 
 SUITES_DIR = Path(__file__).with_name("suites")
@@ -40,7 +36,7 @@ CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "
 MULTI = ("duel", "platoon", "mixed-traffic")
 MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE),
             "multi-train": tuple(f"{name}-train" for name in MULTI)}
-_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base"}
+_KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base", "scenarios", "search"}
 
 
 @dataclass(frozen=True)
@@ -222,6 +218,10 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         raise SuiteError(f"{where}: {section}{exc}") from None
     except (TypeError, ValueError) as exc:  # a value of the wrong type deep in a nested table
         raise SuiteError(f"{where}: sim: {exc}") from None
+    if "scenarios" in doc or "search" in doc:  # a suite that lists its scenarios (envs/explicit.py)
+        from overtakezoo.envs.explicit import explicit_distribution
+
+        distribution = explicit_distribution(distribution, doc, where)
     return Suite(name=name, version=version, count=count, seed=seed, description=description,
                  hash=digest.hexdigest(), path=path.resolve(), config=config,
                  distribution=distribution)

@@ -30,3 +30,5 @@ mkdir -p leaderboards/decision-maps
 for decider in rule-fsm dqn; do
   overtakezoo decision-map --decider "$decider" --out "leaderboards/decision-maps/$decider.png"
 done
+# The failure board (failure search of every zoo member, cross-table, failure maps; ~4 minutes).
+overtakezoo failure-board --jobs 2
