@@ -22,9 +22,9 @@ from overtakezoo.benchmark.run.perf import load_average, machine
 from overtakezoo.envs.suites import load_suite
 
 # The zoo members under 5 % crashes on table1 (leaderboards/table1.md: fuzzy 0.2 %, double-dqn 2.8 %,
-# ppo 2.4 %, ps-dqn 3.6 %), then two of them on oncoming-4.
+# ppo 2.4 %, ps-dqn 3.6 %; the shielded ppo+shield and rule-fsm+shield 0.1 %), then two on oncoming-4.
 ROWS = [("table1", "fuzzy"), ("table1", "ppo"), ("table1", "double-dqn"), ("table1", "ps-dqn"),
-        ("oncoming-4", "fuzzy"), ("oncoming-4", "ppo")]
+        ("table1", "ppo+shield"), ("table1", "rule-fsm+shield"), ("oncoming-4", "fuzzy"), ("oncoming-4", "ppo")]
 SEEDS = [0, 1, 2]
 
 

@@ -268,14 +268,7 @@ def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: lis
             x = x[:take]
             unit = space.canonical(x)
             ev = evaluate(suite, decider, space.build(x), target, ttc_limit)
-            new = np.zeros(take, bool)
-            fail = np.flatnonzero(ev.failed)
-            if fail.size:
-                new[fail] = archive.add(unit[fail])
-            for i in np.flatnonzero(new):
-                infos.append(_info(ev, i, episodes + i))
-            found_units.append(unit[new])
-            found_values.append({k: v[new] for k, v in space.values(x).items()})
+            new = _keep_new(ev, unit, space.values(x), archive, episodes, infos, found_units, found_values)
             failures += int(ev.failed.sum())
             episodes += take
             generations += 1
@@ -292,6 +285,20 @@ def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: lis
         bar.close()
     return _found(space, found_units, found_values, infos, episodes, failures, time.perf_counter() - t0,
                   restarts=sum(isl.restarts for isl in islands), generations=generations, history=history)
+
+
+def _keep_new(ev: Any, unit: np.ndarray, vals: dict[str, np.ndarray], archive: Any, offset: int, infos: list,
+              found_units: list, found_values: list) -> np.ndarray:
+    """The batch's failures that the archive had not seen (each added to it), recorded with their
+    values and episode info; returns which rows they are."""
+    new = np.zeros(len(unit), bool)
+    fail = np.flatnonzero(ev.failed)
+    if fail.size:
+        new[fail] = archive.add(unit[fail])
+    infos.extend(_info(ev, i, offset + i) for i in np.flatnonzero(new))
+    found_units.append(unit[new])
+    found_values.append({k: v[new] for k, v in vals.items()})
+    return new
 
 
 def random_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: list[str] | None = None,
@@ -318,14 +325,7 @@ def random_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: 
                 vals = _recorded_sample(space, n, rng)
                 unit = space.units(vals)
             ev = evaluate(suite, decider, build(space.dist, vals), target, ttc_limit)
-            new = np.zeros(n, bool)
-            fail = np.flatnonzero(ev.failed)
-            if fail.size:
-                new[fail] = archive.add(unit[fail])
-            for i in np.flatnonzero(new):
-                infos.append(_info(ev, i, episodes + i))
-            found_units.append(unit[new])
-            found_values.append({k: v[new] for k, v in vals.items()})
+            _keep_new(ev, unit, vals, archive, episodes, infos, found_units, found_values)
             failures += int(ev.failed.sum())
             episodes += n
             history.append(len(archive.points))

@@ -89,7 +89,7 @@ class TopView:
                                                        zorder=3))
         text = dict(fontsize=7, clip_on=True)
         self.goal_text = ax.text(0, 0, "goal", ha="center", va="top", color="white", **text)
-        self.sensor_text = ax.text(0, 0, "sensor\nrange", ha="right", va="top", color="cyan", **text)
+        self.sensor_text = ax.text(0, 0, "sensor range", ha="right", va="top", color="cyan", **text)
         # Lane names inside the axes (axes-fraction x, data y), so no label is cut at the figure edge.
         ytx = ax.get_yaxis_transform()
         self.lane_text = [ax.text(0.005, 0.0, "ego lane", transform=ytx, ha="left", va="center", color="white",
@@ -153,7 +153,8 @@ class TopView:
         self.goal_text.set_position((g, -w / 2 - 0.2))
         # Sensor range: vehicles farther than this (along the road) are invisible to decider and planner.
         self.sensor.set_segments([[(e, bottom), (e, top)] for e in (x0 - sensor, x0 + sensor)])
-        self.sensor_text.set_position((x0 + sensor - 0.3, top - 0.1))
+        # One line in the verge above the road, kept inside the view when the range reaches beyond it.
+        self.sensor_text.set_position((min(x0 + sensor, right) - 0.3, top - 0.1))
         for text, y in zip(self.lane_text, (0.0, w)):
             text.set_y(y)
 
@@ -183,6 +184,8 @@ class TopView:
         # Vehicles: NPCs (faded when the sensor does not see them, red when hit), then the ego.
         crash = frame["outcome"] == CRASH
         turn = 0.0 if self.extent else 1.0  # the stretched overview draws boxes unrotated
+        # Half a label's width ("NPC1 ->", 7 pt) in metres at this view's scale, plus a margin.
+        half_label = 20.0 * (right - left) / max(float(self.ax.bbox.width), 1.0)
         for j, (box, label) in enumerate(self.npcs[:len(frame["npc_present"])]):
             if not frame["npc_present"][j]:
                 box.set_visible(False)
@@ -192,11 +195,16 @@ class TopView:
             length, width = float(frame["npc_length"][j]), float(frame["npc_width"][j])
             visible = abs(s - x0) <= min(sensor, float(frame["npc_reveal"][j]))
             hit = crash and frame["crash_npc"] == j
+            if self.extent:  # the stretched overview: a box as wide as its label, so no edge crosses it
+                length = max(length, 2.0 * half_label)
             box.set(xy=(s - length / 2, lane * w - width / 2), width=length, height=width,
                     angle=float(np.degrees(np.pi if lane == OPPOSITE_LANE else 0.0)) * turn,
                     facecolor="#d62728" if hit else "#bbbbbb", alpha=1.0 if visible or hit else 0.35, visible=True)
             arrow = "\u2190" if lane == OPPOSITE_LANE else "\u2192"
-            label.set(position=(s, lane * w), text=f"NPC{j + 1} {arrow}",
+            # A label near an edge of the view is anchored on its inner side, so it is never cut.
+            ha = "left" if s - left < half_label else ("right" if right - s < half_label else "center")
+            x = max(s, left + 0.3) if ha == "left" else (min(s, right - 0.3) if ha == "right" else s)
+            label.set(position=(x, lane * w), text=f"NPC{j + 1} {arrow}", ha=ha,
                       alpha=1.0 if visible else 0.4, visible=True)
         length, width = frame["ego_length"], frame["ego_width"]
         self.ego.set(xy=(x0 - length / 2, y0 - width / 2), width=length, height=width,
