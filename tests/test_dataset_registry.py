@@ -1,4 +1,4 @@
-"""The official datasets: the recipe table regenerates a registry, `download --build` rebuilds a
+"""The official datasets: the recipe table regenerates a registry, `download` rebuilds a
 dataset offline whose content hash equals the registry's (a tampered hash is refused), and the
 download tries the mirrors in order on a real 127.0.0.1 server, resuming from a .part file."""
 
@@ -73,12 +73,16 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
     archive = home / "release" / "overtakezoo__t1__rule-fsm-v0.tar.gz"
     assert archive.stat().st_size == e["size"]
 
-    # Offline: the only mirror refuses the connection; one error line suggests --build.
+    # Offline with --no-build: the only mirror refuses the connection; one error line says how to rebuild.
     capsys.readouterr()
-    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
+    assert main(["dataset", "download", MEDIUM, "--no-build", "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and err.count("\n") == 1 and "--build" in err and "unreachable" in err
-    assert main(["dataset", "download", MEDIUM, "--build", "--no-progress"]) == 0  # rebuilt, hash checked
+    assert err.startswith("error:") and err.count("\n") == 1 and "--no-build" in err and "unreachable" in err
+    # By default the rebuild follows, hash checked, and each step is said.
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "trying http" in out and "failed:" in out and "rebuilding it from the registry's recipe" in out
+    assert f"content hash matches the registry's ({e['content_sha256'][:16]}" in out and "installed" in out
 
     from overtakezoo.benchmark.datasets.store import content_sha256
 
@@ -90,7 +94,7 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
         assert np.array_equal(a.observations, b.observations) and np.array_equal(a.actions, b.actions)
 
     # The mixed dataset alternates its components' episodes exactly.
-    assert main(["dataset", "download", MIXED, "--build", "--no-progress"]) == 0
+    assert main(["dataset", "download", MIXED, "--no-progress"]) == 0
     mixed = list(load_minari(fresh, MIXED).iterate_episodes())
     parts = [list(load_minari(built, n).iterate_episodes()) for n in (RANDOM, MEDIUM)]
     for i, ep in enumerate(mixed):
@@ -110,18 +114,18 @@ def test_tampered_content_hash_or_other_versions_are_refused(published, home, ca
 
     edit(lambda e: e.update(content_sha256="0" * 64))
     capsys.readouterr()
-    assert main(["dataset", "download", MEDIUM, "--build", "--no-progress"]) == 2
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "does not reproduce" in err and "nothing was installed" in err and err.count("\n") == 1
     datasets = home / "fresh" / "datasets" / "overtakezoo" / "t1"
     assert not datasets.exists() or list(datasets.iterdir()) == []  # no dataset, no staging left behind
 
     edit(lambda e: e.update(content_sha256=reg[MEDIUM]["content_sha256"]) or e["recipe"].update(suite_sha256="1" * 64))
-    assert main(["dataset", "download", MEDIUM, "--build", "--no-progress"]) == 2
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
     assert "another version" in capsys.readouterr().err
     edit(lambda e: e["recipe"].update(suite_sha256=reg[MEDIUM]["recipe"]["suite_sha256"])
          or e["recipe"]["policies"][0].update(decider_version="99"))
-    assert main(["dataset", "download", MEDIUM, "--build", "--no-progress"]) == 2
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
     assert "the recipe used v99" in capsys.readouterr().err
 
 

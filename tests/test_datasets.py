@@ -325,3 +325,39 @@ def test_a_killed_builds_temp_folder_is_swept_by_the_next_build(home):
     assert stale.startswith(".test-v0.build-")
     assert main(BUILD) == 0
     assert _hidden(home) == []
+
+
+def test_minari_finds_an_installed_dataset_with_no_environment_variable(tmp_path, monkeypatch):
+    """With neither MINARI_DATASETS_PATH nor OVERTAKEZOO_HOME set, a build lands in Minari's own
+    default folder, and plain `minari.load_dataset` (a fresh process, no variable) reads it."""
+    import os
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("HOME", str(tmp_path))  # Minari's default is ~/.minari/datasets
+    monkeypatch.delenv("OVERTAKEZOO_HOME", raising=False)
+    monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
+    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "rule-fsm", "--count", "3",
+                 "--name", NAME]) == 0
+    assert (tmp_path / ".minari" / "datasets" / NAME).is_dir()
+    env = {k: v for k, v in os.environ.items() if k not in ("OVERTAKEZOO_HOME", "MINARI_DATASETS_PATH")}
+    out = subprocess.run([sys.executable, "-c", f"import minari; print(minari.load_dataset({NAME!r}).total_episodes)"],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "3", out.stderr
+
+
+def test_list_shows_the_registrys_datasets(monkeypatch, tmp_path, capsys):
+    """`dataset list` names every published dataset of the shipped registry, with its suite and size."""
+    from overtakezoo.benchmark.datasets.registry import load_registry
+
+    monkeypatch.setenv("OVERTAKEZOO_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
+    monkeypatch.delenv("OVERTAKEZOO_REGISTRY", raising=False)
+    assert main(["dataset", "list"]) == 0
+    out = capsys.readouterr().out
+    registry = load_registry()
+    assert len(registry) == 8
+    for name, entry in registry.items():
+        line = next(line for line in out.splitlines() if line.strip().startswith(name + " "))
+        assert f"suite {entry['recipe']['suite']}" in line and f"episodes {entry['episodes']}" in line
+        assert line.rstrip().endswith("not installed")

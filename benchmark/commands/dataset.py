@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from typing import Any
 
 from overtakezoo.benchmark.commands._options import add_parser
@@ -9,13 +10,13 @@ from overtakezoo.benchmark.commands._options import add_parser
 
 def register(subparsers: Any) -> None:
     p = add_parser(subparsers, "dataset", "build, list, download or pack offline-RL datasets (Minari)",
-                   "Offline-RL datasets in Minari's format (HDF5), stored under $MINARI_DATASETS_PATH or\n"
-                   "$OVERTAKEZOO_HOME/datasets (default ~/.cache/overtakezoo/datasets); load them with\n"
-                   "minari.load_dataset(NAME) once MINARI_DATASETS_PATH points there.",
+                   "Offline-RL datasets in Minari's format (HDF5), stored where Minari looks: $MINARI_DATASETS_PATH,\n"
+                   "else $OVERTAKEZOO_HOME/datasets when that is set, else Minari's default ~/.minari/datasets;\n"
+                   "load them with minari.load_dataset(NAME).",
                    ["overtakezoo dataset build --suite table1-train --decider rule-fsm --epsilon 0.1 "
                     "--name overtakezoo/table1/rule-fsm-v0",
                     "overtakezoo dataset list",
-                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0 --build",
+                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0",
                     "overtakezoo dataset regenerate",
                     "overtakezoo dataset pack overtakezoo/table1/rule-fsm-v0 --out rule-fsm-v0.tar.gz"])
     sub = p.add_subparsers(dest="action", metavar="ACTION")
@@ -34,18 +35,22 @@ def register(subparsers: Any) -> None:
     b.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once")
     b.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that name")
     b.set_defaults(handler=run_build)
-    ls = add_parser(sub, "list", "list local datasets", "List the datasets in the local datasets folder.",
+    ls = add_parser(sub, "list", "list the registry's datasets and the local ones",
+                    "List the published datasets of the package's registry (name, suite, deciders, episodes,\n"
+                    "steps, archive size, whether it is installed here) and the datasets in the local folder.",
                     ["overtakezoo dataset list"])
     ls.set_defaults(handler=run_list)
     d = add_parser(sub, "download", "fetch a published dataset (or rebuild it from its recipe)",
-                   "Download a dataset listed in the package's registry from its mirrors, in order (resumable,\n"
-                   "SHA-256 verified). With --build, a dataset no mirror delivers is rebuilt locally from the\n"
-                   "registry's recipe and installed only if its content hash equals the registry's.",
+                   "Download a dataset listed in the package's registry (`overtakezoo dataset list`) from its\n"
+                   "mirrors, in order (resumable, SHA-256 verified). When no mirror delivers it, the dataset is\n"
+                   "rebuilt locally from the registry's recipe and installed only if its content hash equals the\n"
+                   "registry's (--no-build: fail instead). Each step is printed.",
                    ["overtakezoo dataset download overtakezoo/table1/rule-fsm-v0",
-                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0 --build   # works offline"])
+                    "overtakezoo dataset download overtakezoo/table1/rule-fsm-v0 --no-build   # mirrors only"])
     d.add_argument("name", help="a dataset name from the registry")
-    d.add_argument("--build", action="store_true",
-                   help="when no mirror delivers the archive, rebuild the dataset from its recipe (verified)")
+    d.add_argument("--no-build", dest="build", action="store_false",
+                   help="do not rebuild from the recipe when no mirror delivers the archive")
+    d.add_argument("--build", dest="build", action="store_true", help=argparse.SUPPRESS)  # the default now
     d.add_argument("--no-progress", action="store_true", help="no progress bar")
     d.set_defaults(handler=run_download)
     k = add_parser(sub, "pack", "write a local dataset as .tar.gz for publishing",
@@ -86,12 +91,23 @@ def run_build(args: Any) -> int:
 
 
 def run_list(args: Any) -> int:
+    from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
     from overtakezoo.benchmark.datasets.store import datasets_dir, list_datasets
 
     found = list_datasets()
-    print(f"datasets in {datasets_dir()}:")
+    registry = load_registry()
+    print(f"published datasets (registry {registry_path()}; get one with `overtakezoo dataset download NAME`):")
+    if not registry:
+        print("  (none)")
+    for name, e in sorted(registry.items()):
+        recipe = e.get("recipe") or {}
+        deciders = "+".join(p["decider"] for p in recipe.get("policies", [])) or "?"
+        print(f"  {name}  suite {recipe.get('suite', '?')}  {deciders}  episodes {e.get('episodes', '?')}  "
+              f"steps {e.get('steps', '?')}  {e.get('size', 0) / 1e6:.1f} MB  "
+              f"{'installed' if name in found else 'not installed'}")
+    print(f"local datasets in {datasets_dir()}:")
     if not found:
-        print("  (none; build one with `overtakezoo dataset build`)")
+        print("  (none; build one with `overtakezoo dataset build` or download one)")
     for name, meta in sorted(found.items()):
         print(f"  {name}  episodes {meta.get('total_episodes', '?')}  steps {meta.get('total_steps', '?')}  "
               f"{meta.get('dataset_size', '?')} MB  {meta.get('algorithm_name', '')}")
@@ -101,9 +117,21 @@ def run_list(args: Any) -> int:
 def run_download(args: Any) -> int:
     from overtakezoo.benchmark.datasets.fetch import download
 
-    path = download(args.name, progress=not args.no_progress, build=args.build)
-    print(f"installed {args.name} in {path}")
+    path = download(args.name, progress=not args.no_progress, build=args.build, say=print)
+    print(f"installed {args.name} in {path}; load it with minari.load_dataset({args.name!r})"
+          + _minari_hint())
     return 0
+
+
+def _minari_hint() -> str:
+    """What plain Minari code needs to find our datasets folder: nothing when it is Minari's own."""
+    import os
+
+    from overtakezoo.benchmark.datasets.store import datasets_dir, minari_default_dir
+
+    if os.environ.get("MINARI_DATASETS_PATH") or datasets_dir() == minari_default_dir():
+        return ""
+    return f" (with MINARI_DATASETS_PATH={datasets_dir()}, as $OVERTAKEZOO_HOME moved the folder)"
 
 
 def run_pack(args: Any) -> int:

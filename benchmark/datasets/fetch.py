@@ -1,6 +1,6 @@
 """Downloading a published dataset: mirrors tried in order, resumed over HTTP Range, verified by SHA-256, unpacked
-safely; with ``build=True`` a rebuild from the recipe when no mirror works, installed only if its content
-hash matches the registry's."""
+safely; when no mirror delivers (and ``build``, the default), a rebuild from the registry's recipe,
+installed only if its content hash matches the registry's. ``say`` hears each step in one line."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import urllib.error
 import urllib.parse
 import urllib.request
 from pathlib import Path, PurePosixPath
+from typing import Callable
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir, file_sha256
@@ -19,7 +20,7 @@ from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets
 
 
 def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: float = 30.0,
-             build: bool = False) -> Path:
+             build: bool = True, say: Callable[[str], None] = lambda line: None) -> Path:
     """Fetch, verify and unpack dataset ``name`` from the registry's mirrors (in order); returns its
     local folder. With ``build``, a dataset no mirror delivers is rebuilt from its recipe instead."""
     registry = load_registry()
@@ -39,32 +40,42 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
         part = final.with_name(final.name + ".part")
         size, sha = int(entry["size"]), entry["sha256"].lower()
         ok = final.exists() and file_sha256(final) == sha
+        if ok:
+            say(f"{final}: already downloaded (sha256 {sha[:16]}... matches)")
         for url in ([] if ok else entry["mirrors"]):
+            say(f"trying {url}")
             try:  # each mirror resumes the same .part: the sha256 proves the pieces belong together
                 _fetch(url, part, size, progress, chunk, timeout)
             except _MirrorFailed as exc:
                 failures.append(f"{url}: {exc}")
+                say(f"  failed: {exc}")
                 continue
             got = file_sha256(part)
             if got == sha:
                 os.replace(part, final)
+                say(f"  downloaded {size} bytes; sha256 {sha[:16]}... matches the registry's")
                 ok = True
                 break
             part.unlink(missing_ok=True)
             failures.append(f"{url}: checksum mismatch (expected sha256 {sha[:16]}..., got {got[:16]}...; "
                             "deleted the partial file)")
+            say(f"  failed: {failures[-1].split(': ', 1)[1]}")
         if ok:
             _extract(final, root, name)
             return root / name
-    if build:
+    if build and entry.get("recipe"):
         from overtakezoo.benchmark.datasets.recipes import build_entry
 
-        build_entry(name, entry, progress=progress)
+        recipe = entry["recipe"]
+        say(f"no mirror delivered {name}; rebuilding it from the registry's recipe (suite {recipe['suite']}, "
+            f"{recipe['count']} scenarios, {', '.join(p['decider'] for p in recipe['policies'])})")
+        build_entry(name, entry, progress=progress)  # installed only if the content hash matches
+        say(f"  rebuilt; its content hash matches the registry's ({entry['content_sha256'][:16]}...)")
         return root / name
     where = "; ".join(failures) if failures else f"the registry lists no mirror for {name}"
     kept = part.stat().st_size if entry["mirrors"] and part.exists() else 0
     hint = f"run the command again to resume ({kept} of {size} bytes kept), or " if kept else ""
-    how = ("add --build to rebuild it locally from its recipe" if entry.get("recipe")
+    how = ("drop --no-build to rebuild it locally from its recipe" if entry.get("recipe")
            else "the registry has no recipe to rebuild it from")
     raise UserError(f"could not download {name} ({where}); {hint}{how}")
 

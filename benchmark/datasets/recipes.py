@@ -3,7 +3,7 @@
 ``registry/recipes.toml`` is the declarative table: suites x levels (random, medium, expert,
 mixed). :func:`regenerate` expands it, builds every dataset, packs its archive, and writes
 ``registry/datasets.json`` in one piece; each entry there carries its full recipe, so
-:func:`build_entry` (``dataset download NAME --build``) rebuilds a dataset from the registry alone
+:func:`build_entry` (``dataset download NAME`` when no mirror delivers) rebuilds a dataset from the registry alone
 and installs it only if its content hash (see :mod:`overtakezoo.benchmark.datasets.store`) equals the
 registry's.
 
