@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-ROWS = (("table1", "fuzzy"), ("table1", "ppo"))
+ROWS = (("table1", "fuzzy"), ("table1", "ppo"), ("table1", "ppo+shield"))
 BUDGET = 2000
 SEEDS = (0, 1, 2)
 

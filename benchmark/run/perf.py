@@ -333,7 +333,7 @@ def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, 
                   f"episode (median of {repeats} runs; start-up included)", "s", replay_gif_times(repeats), digits=2)
         except RuntimeError as exc:
             progress(f"archive and replay rows: not measured: {exc}")
-        from .failures.perf_rows import add_failure_search_rows  # failure search vs random sampling (issue 23)
+        from overtakezoo.benchmark.failures.perf_rows import add_failure_search_rows  # failure search (issue 23)
         add_failure_search_rows(r, progress)
     meta["load_average_at_end"] = load_average()
     meta["report_wall_time_s"] = round(time.perf_counter() - started, 1)
