@@ -188,6 +188,8 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
         raise UserError(f"policy {path}: unreadable Stable-Baselines3 file (data is not a JSON object)")
     found = re.search(r"stable_baselines3\.(\w+)\.policies", json.dumps(meta.get("policy_class", {})))
     algo = found.group(1) if found else None
+    if algo == "common" and "ActorCriticPolicy.__init__" in json.dumps(meta.get("policy_class", {})):
+        algo = "ppo" if "clip_range" in meta else "a2c"  # SB3 >= 2.x: PPO and A2C share common's ActorCriticPolicy
     if algo not in SB3_ALGOS:
         raise UserError(f"policy {path}: a Stable-Baselines3 {algo or 'policy of unknown algorithm'}: only "
                         f"{', '.join(a.upper() for a in SB3_ALGOS)} with MlpPolicy are read")
