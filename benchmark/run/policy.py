@@ -13,6 +13,7 @@ A SPEC is one of:
     with ``torch.load(weights_only=True)``);
   - an ONNX file (extra ``[onnx]``), external data inlined from beside the model: a network mapping
     float32 observations (N, D) to Q-values or logits (N, 3), argmax taken (or to modes (N,) / (N, 1));
+    a model whose batch is fixed to 1 (rsl-rl's ``export_policy_to_onnx``) is run row by row;
   - a Stable-Baselines3 ``.zip`` (DQN, PPO, A2C ``MlpPolicy``; needs torch): its ``policy.pth``
     state dict is read with ``weights_only=True`` and the network acts in numpy; the pickled
     entries of its ``data`` file are never unpickled;
