@@ -29,6 +29,12 @@ writes `runs/my-dqn/dqn.npz` (numpy weights; the torch `dqn.pt` too) with its mo
 `package.module:factory` policy works with `eval` but is not a file: export it to submit it. Tune
 on `table1-train`, never on the suites you submit to.
 
+If your policy held each decision for several core steps in training (an action repeat, e.g. 10
+steps: 1 s), say so in its policy card before you evaluate: `overtakezoo card my-dqn.zip
+--action-repeat 10 --suite core-train` (beside a `.zip` or TorchScript file as `my-dqn.card.json`,
+inside an ONNX file). `eval` and `submit` apply the hold, and the stored artifact keeps it for
+`--verify`.
+
 **2. Evaluate** on each suite you want a row on (`overtakezoo suites` lists them):
 
 ```bash

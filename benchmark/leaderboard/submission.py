@@ -161,7 +161,7 @@ def _converted(policy: Path, decider: dict[str, Any], suite: Suite) -> Artifact:
             raise UserError(f"--policy {policy}: {exc}; export it to ONNX yourself and submit the .onnx") from None
         finally:
             dec.inner.close()
-        art = Artifact("onnx", onnx_bytes, None, "torchscript", art.source_sha256)
+        art = Artifact("onnx", onnx_bytes, None, "torchscript", art.source_sha256, policy_card=art.policy_card)
     return art
 
 

@@ -17,6 +17,14 @@ Everything else is converted, without unpickling anything:
   (never outside its directory), so one sha256 covers everything that runs;
 - TorchScript: exported to ONNX inside the sandbox (:mod:`.sandbox`), since loading it runs code.
 
+A file from outside carries a *policy card* (JSON, ``policy_card.schema.json`` beside this module):
+the decision hold it was trained with (``action_repeat``) and its observation contract
+(``observation_size``, ``observation_layout``), beside a ``.zip`` or TorchScript file
+(``<stem>.card.json``) and inside an ONNX file (``metadata_props`` key ``overtakezoo.card``). It is
+data, validated when read (:func:`parse_card`), and goes with the converted artifact (the npz's model
+card, the ONNX metadata), so that a verifier re-runs with the same hold. :func:`write_card` (and
+``overtakezoo card``) writes one.
+
 :func:`read_policy_file` gives the :class:`Artifact` for a file; ``Artifact.data`` is what acts, and
 ``Artifact.sha256`` its hash.
 """
@@ -52,6 +60,7 @@ class Artifact:
     source_kind: str = ""
     source_sha256: str = ""
     notes: list[str] = field(default_factory=list)
+    policy_card: dict[str, Any] | None = None  # the policy card it came with (parse_card), if any
 
     @property
     def sha256(self) -> str:
@@ -60,6 +69,16 @@ class Artifact:
     @property
     def card_bytes(self) -> bytes | None:
         return None if self.card is None else (json.dumps(self.card, indent=1, sort_keys=True) + "\n").encode()
+
+    @property
+    def box_card(self) -> bytes | None:
+        """What the sandbox gets beside the bytes: an npz's model card, a TorchScript file's policy card
+        (an ONNX file carries its card inside)."""
+        if self.kind == "mlp":
+            return self.card_bytes
+        if self.kind == "torchscript" and self.policy_card is not None:
+            return json.dumps(self.policy_card, sort_keys=True).encode()
+        return None
 
     @property
     def ext(self) -> str:
@@ -72,17 +91,27 @@ def read_policy_file(path: Path, data: bytes, config: Any) -> Artifact:
     card_path = model_card(path)
     if card_path is not None:
         return _trained(path, data, card_path, sha)
+    beside = card_file(path)
     if path.suffix == ".onnx" or _looks_onnx(data):
+        if beside.is_file():
+            raise UserError(f"policy {path}: the policy card of an ONNX file travels inside it, not beside it "
+                            f"({beside.name}): run `overtakezoo card {path} --action-repeat N` (and remove "
+                            f"{beside.name})")
         need("onnxruntime", "onnx", path)
         model = self_contained_onnx(path, data)  # its sha256 covers the external data too
-        return Artifact("onnx", model, None, "onnx", hashlib.sha256(model).hexdigest())
+        art = Artifact("onnx", model, None, "onnx", hashlib.sha256(model).hexdigest())
+        art.policy_card = onnx_card(model, path)
+        check_card(art.policy_card, config, f"policy {path}")
+        return art
     if zipfile.is_zipfile(io.BytesIO(data)):
         names = _zip_names(data)
+        card = read_card_file(beside, f"policy {path}") if beside.is_file() else None
+        check_card(card, config, f"policy {path}")
         if "data" in names and "policy.pth" in names:
-            return sb3_to_mlp(path, data, sha)
+            return sb3_to_mlp(path, data, sha, card)
         if any(n.endswith("/constants.pkl") or "/code/" in n for n in names):
             need("torch", "train", path)
-            return Artifact("torchscript", data, None, "torchscript", sha)
+            return Artifact("torchscript", data, None, "torchscript", sha, policy_card=card)
     hint = (f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
             "`overtakezoo train` writes)" if path.suffix in (".pt", ".pth", ".npz") else "")
     raise UserError(f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a "
@@ -144,8 +173,9 @@ def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
 
 
 # ------------------------------------------------------------------ Stable-Baselines3
-def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
-    """A Stable-Baselines3 ``.zip`` as the npz MLP, read as data only (module docstring)."""
+def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | None = None) -> Artifact:
+    """A Stable-Baselines3 ``.zip`` as the npz MLP, read as data only (module docstring); its policy
+    card's hold becomes the npz card's ``action_repeat`` (the card itself is kept as ``policy_card``)."""
     from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
 
     try:
@@ -158,6 +188,8 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
         raise UserError(f"policy {path}: unreadable Stable-Baselines3 file (data is not a JSON object)")
     found = re.search(r"stable_baselines3\.(\w+)\.policies", json.dumps(meta.get("policy_class", {})))
     algo = found.group(1) if found else None
+    if algo == "common" and "ActorCriticPolicy.__init__" in json.dumps(meta.get("policy_class", {})):
+        algo = "ppo" if "clip_range" in meta else "a2c"  # SB3 >= 2.x: PPO and A2C share common's ActorCriticPolicy
     if algo not in SB3_ALGOS:
         raise UserError(f"policy {path}: a Stable-Baselines3 {algo or 'policy of unknown algorithm'}: only "
                         f"{', '.join(a.upper() for a in SB3_ALGOS)} with MlpPolicy are read")
@@ -198,7 +230,10 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str) -> Artifact:
                              "layers": [list(w.shape) for w, _ in net.layers]},
             "converted_from": {"format": "stable-baselines3", "algorithm": algo.upper(), "sha256": sha},
             "weights_file": "weights.npz", "weights_sha256": hashlib.sha256(npz).hexdigest()}
-    return Artifact("mlp", npz, card, "sb3", sha)
+    if policy_card is not None:  # (without one, the card is what it always was: stored rows stay identical)
+        card["action_repeat"] = policy_card["action_repeat"]
+        card["policy_card"] = policy_card
+    return Artifact("mlp", npz, card, "sb3", sha, policy_card=policy_card)
 
 
 def _torch_state(path: Path, data: bytes, what: str) -> dict[str, Any]:
@@ -269,3 +304,216 @@ def _all_tensors(model: Any) -> list[Any]:
     from onnx.external_data_helper import _get_all_tensors
 
     return list(_get_all_tensors(model))
+
+
+# ------------------------------------------------------------------ policy cards
+CARD_KEY = "overtakezoo.card"  # the ONNX metadata_props entry holding the card
+CARD_SCHEMA = Path(__file__).with_name("policy_card.schema.json")
+MAX_CARD_BYTES = 64 << 10
+_CARD_INTS = ("action_repeat", "observation_size")
+
+
+class CardError(ValueError):
+    """A policy card that is not one (``str``: one line)."""
+
+
+def card_file(path: Path) -> Path:
+    """Where the policy card of a ``.zip`` or TorchScript file lies: ``<stem>.card.json`` beside it."""
+    return path.with_name(f"{path.stem}.card.json")
+
+
+def parse_card(raw: bytes | str, where: str = "policy card") -> dict[str, Any]:
+    """The policy card in ``raw`` (JSON), validated against ``policy_card.schema.json``; a
+    :class:`CardError` (one line naming ``where`` and the key) for anything else. Data only."""
+    import jsonschema
+
+    if isinstance(raw, str):
+        raw = raw.encode("utf-8", "surrogatepass")
+    if len(raw) > MAX_CARD_BYTES:
+        raise CardError(f"{where}: {len(raw)} bytes, at most {MAX_CARD_BYTES} (a card is a few lines of JSON)")
+
+    def pairs(items: list[tuple[str, Any]]) -> dict[str, Any]:
+        keys = [k for k, _ in items]
+        dup = next((k for k in keys if keys.count(k) > 1), None)
+        if dup is not None:
+            raise CardError(f"{where}: key {dup!r} given twice")
+        return dict(items)
+
+    def constant(name: str) -> Any:
+        raise CardError(f"{where}: {name} is not a JSON number")
+
+    try:
+        card = json.loads(raw.decode("utf-8"), object_pairs_hook=pairs, parse_constant=constant)
+    except CardError:
+        raise
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise CardError(f"{where}: not JSON ({why})") from None
+    if not isinstance(card, dict):
+        raise CardError(f"{where}: expected a JSON object, got {type(card).__name__}")
+    errors = sorted(jsonschema.Draft202012Validator(_card_schema()).iter_errors(card),
+                    key=lambda e: (list(e.absolute_path), e.message))
+    if errors:
+        e = errors[0]
+        key = ".".join(str(p) for p in e.absolute_path)
+        message = e.message if len(e.message) <= 160 else e.message[:157] + "..."
+        if e.validator == "additionalProperties" and not key:
+            unknown = sorted(set(card) - set(_card_schema()["properties"]))
+            message = f"unknown key {unknown[0]!r} (known: {', '.join(sorted(_card_schema()['properties']))})"
+        raise CardError(f"{where}: {key + ': ' if key else ''}{message}")
+    for key in _CARD_INTS:  # (JSON Schema counts 10.0 as an integer; a card says 10)
+        if key in card and type(card[key]) is not int:
+            raise CardError(f"{where}: {key}: {card[key]!r} is not an integer")
+    for part, span in (card.get("observation_layout") or {}).items():
+        if any(type(v) is not int for v in span) or span[0] > span[1]:
+            raise CardError(f"{where}: observation_layout.{part}: {span!r} is not [start, stop] integers")
+    return card
+
+
+_SCHEMA_CACHE: list[dict[str, Any]] = []
+
+
+def _card_schema() -> dict[str, Any]:
+    if not _SCHEMA_CACHE:
+        _SCHEMA_CACHE.append(json.loads(CARD_SCHEMA.read_text()))
+    return _SCHEMA_CACHE[0]
+
+
+def read_card_file(path: Path, who: str) -> dict[str, Any]:
+    """The policy card in the file ``path`` (:func:`parse_card`); :class:`UserError` otherwise."""
+    try:
+        if path.is_symlink() or not path.is_file():
+            raise UserError(f"{who}: policy card {path.name} is not a regular file")
+        with path.open("rb") as f:
+            raw = f.read(MAX_CARD_BYTES + 1)
+    except OSError as exc:
+        raise UserError(f"{who}: cannot read its policy card {path.name} ({exc.strerror or exc})") from None
+    try:
+        return parse_card(raw, f"policy card {path.name}")
+    except CardError as exc:
+        raise UserError(f"{who}: {exc}") from None
+
+
+def card_contract(config: Any) -> dict[str, Any]:
+    """The observation contract of ``config`` as a card records it."""
+    from overtakezoo.envs import observation_layout, observation_size
+
+    return {"observation_size": int(observation_size(config)),
+            "observation_layout": {k: [int(s.start), int(s.stop)] for k, s in observation_layout(config).items()}}
+
+
+def check_card(card: dict[str, Any] | None, config: Any, who: str) -> None:
+    """:class:`UserError` when ``card``'s observation contract is not ``config``'s."""
+    if not card or config is None:
+        return
+    now = card_contract(config)
+    size = card.get("observation_size")
+    trained = f" (trained on {card['suite']})" if card.get("suite") else ""
+    if size is not None and size != now["observation_size"]:
+        raise UserError(f"{who}: its policy card's observation_size is {size}{trained}, this suite's observations "
+                        f"have {now['observation_size']} features (another planner / observation configuration)")
+    layout = card.get("observation_layout")
+    if layout is not None and layout != now["observation_layout"]:
+        part = next((k for k in [*now["observation_layout"], *sorted(layout)]  # in the observation's order
+                     if layout.get(k) != now["observation_layout"].get(k)), "?")
+        raise UserError(f"{who}: its policy card's observation_layout.{part} is {layout.get(part)}{trained}, this "
+                        f"suite's is {now['observation_layout'].get(part)} (another observation layout)")
+
+
+def onnx_card(model: bytes, path: Path | str) -> dict[str, Any] | None:
+    """The policy card inside an ONNX model (``metadata_props`` ``overtakezoo.card``), or None; the
+    sandbox reads it again when the ``onnx`` package is missing here."""
+    try:
+        import onnx
+    except ImportError:
+        return None
+    try:
+        props = {p.key: p.value for p in onnx.load_model_from_string(model).metadata_props}
+    except Exception as exc:
+        raise UserError(f"policy {path}: not a readable ONNX model ({type(exc).__name__})") from None
+    if CARD_KEY not in props:
+        return None
+    try:
+        card = parse_card(props[CARD_KEY], f"ONNX metadata {CARD_KEY}")
+        legacy_repeat(props, card)
+    except CardError as exc:
+        raise UserError(f"policy {path}: {exc}") from None
+    return card
+
+
+def legacy_repeat(props: dict[str, str], card: dict[str, Any] | None) -> Any:
+    """The hold an ONNX model's metadata gives: its card's, else the older entry ``action_repeat``
+    (else 1); a :class:`CardError` when both are there and differ."""
+    if card is None:
+        return props.get("action_repeat", "1")
+    old = props.get("action_repeat")
+    if old is not None and str(old).strip() != str(card["action_repeat"]):
+        raise CardError(f"ONNX metadata: action_repeat {old!r} differs from its {CARD_KEY} card's "
+                        f"{card['action_repeat']} (remove one)")
+    return card["action_repeat"]
+
+
+def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *, name: str | None = None,
+               version: str | None = None, observation_size: int | None = None) -> Path:
+    """Write the policy card of the policy file ``path`` (a Stable-Baselines3 ``.zip``, given with or
+    without its suffix as ``model.save`` takes it; a TorchScript file; an ONNX file) and return where it
+    went: ``<stem>.card.json`` beside it, or into an ONNX file's metadata (external data untouched).
+    ``suite`` (a suite or training mixture): the observation contract is that suite's config's.
+    Written atomically; :class:`UserError` for a bad value. E.g. after training with SB3::
+
+        model.save("model")
+        write_card("model", action_repeat=10, suite="core-train")
+    """
+    from overtakezoo.envs.io import atomic_write_bytes
+
+    path = Path(path)
+    if not path.exists() and path.with_name(path.name + ".zip").is_file():
+        path = path.with_name(path.name + ".zip")  # SB3's model.save("model") writes model.zip
+    if not path.is_file():
+        raise UserError(f"card {path}: no such policy file")
+    if model_card(path) is not None:
+        raise UserError(f"card {path}: weights of `overtakezoo train`: their model card {model_card(path).name} "
+                        "already holds the hold and the observation contract")
+    card: dict[str, Any] = {"card_version": 1, "action_repeat": action_repeat}
+    if suite is not None:
+        from overtakezoo.envs.suites import load_training
+
+        try:
+            config = load_training(suite)[0].config
+        except Exception as exc:  # SuiteError, ConfigError: one line
+            raise UserError(f"card {path}: --suite {suite}: {exc}") from None
+        card.update(suite=str(suite), **card_contract(config))
+    if observation_size is not None:
+        if "observation_size" in card and card["observation_size"] != observation_size:
+            raise UserError(f"card {path}: observation_size {observation_size} is not suite {suite}'s "
+                            f"{card['observation_size']}")
+        card["observation_size"] = observation_size
+    card.update({k: v for k, v in (("name", name), ("version", version)) if v is not None})
+    text = json.dumps(card, indent=1, sort_keys=True) + "\n"
+    try:
+        parse_card(text, "the card")
+    except CardError as exc:
+        raise UserError(f"card {path}: {exc}") from None
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"card {path}: cannot read ({exc.strerror or exc})") from None
+    if path.suffix == ".onnx" or _looks_onnx(data):
+        try:
+            import onnx
+        except ImportError:
+            raise UserError(f"card {path}: writing into an ONNX file needs onnx (pip install 'overtakezoo[onnx]')") from None
+        try:
+            model = onnx.load_model_from_string(data)  # external data stays where it is (referenced, not read)
+        except Exception as exc:
+            raise UserError(f"card {path}: not a readable ONNX model ({type(exc).__name__})") from None
+        keep = [(p.key, p.value) for p in model.metadata_props if p.key not in (CARD_KEY, "action_repeat")]
+        del model.metadata_props[:]
+        for key, value in keep + [(CARD_KEY, json.dumps(card, sort_keys=True))]:
+            entry = model.metadata_props.add()
+            entry.key, entry.value = key, value
+        atomic_write_bytes(path, model.SerializeToString())
+        return path
+    target = card_file(path)
+    atomic_write_bytes(target, text.encode())
+    return target

@@ -13,15 +13,18 @@ A SPEC is one of:
     with ``torch.load(weights_only=True)``);
   - an ONNX file (extra ``[onnx]``), external data inlined from beside the model: a network mapping
     float32 observations (N, D) to Q-values or logits (N, 3), argmax taken (or to modes (N,) / (N, 1));
+    a model whose batch is fixed to 1 (rsl-rl's ``export_policy_to_onnx``) is run row by row;
   - a Stable-Baselines3 ``.zip`` (DQN, PPO, A2C ``MlpPolicy``; needs torch): its ``policy.pth``
     state dict is read with ``weights_only=True`` and the network acts in numpy; the pickled
     entries of its ``data`` file are never unpickled;
   - a TorchScript file (``torch.jit.save``, the same contract as ONNX; deprecated by torch): it runs
     in the sandbox only.
 
-Each decision is held for the policy's ``action_repeat`` (a model card's, a TorchScript module's
-``action_repeat`` attribute, an ONNX metadata entry ``action_repeat``; else 1: one env step of the
-Gymnasium face) combined with the suite's ``decision_interval`` by the runner. A file policy is named
+Each decision is held for the policy's ``action_repeat`` (a model card's; a file's policy card, beside a
+``.zip`` or TorchScript file as ``<stem>.card.json``, inside an ONNX file as metadata
+``overtakezoo.card``, :mod:`.artifacts`; else a TorchScript module's ``action_repeat`` attribute or an
+ONNX metadata entry ``action_repeat``; else 1: one env step of the Gymnasium face) combined with the
+suite's ``decision_interval`` by the runner; a card's observation contract must be the suite's. A file policy is named
 ``<file stem>-<first 8 hex of its sha256>`` (never a zoo name), and its results record the kind and
 the sha256 of what acts (``decider.policy``, ``decider.weights_sha256``; for ONNX with external data,
 of the inlined model). Every expected failure (missing file, corrupted weights, wrong shapes, a
@@ -41,7 +44,7 @@ import numpy as np
 from overtakezoo import zoo
 from overtakezoo.envs import ConfigError, EnvConfig, observation_size
 
-from overtakezoo.benchmark.run.artifacts import Artifact, read_policy_file
+from overtakezoo.benchmark.run.artifacts import Artifact, check_card, read_policy_file
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.run.sandbox import PolicyFailure, SandboxedPolicy, check_modes
 
@@ -139,7 +142,9 @@ def _load_file(path: Path, config: EnvConfig) -> zoo.Decider:
     art = read_policy_file(path, data, config)
     dec = boxed(art, config, str(path), allow_code=True)  # the user's own file, on their request
     # Named and hashed by the user's file (for ONNX with external data: the inlined model, all that runs).
-    dec.name = f"{_slug(path.stem)}-{art.source_sha256[:8]}"
+    card = art.policy_card or {}
+    dec.name = f"{_slug(card.get('name') or path.stem)}-{art.source_sha256[:8]}"
+    dec.version = str(card.get("version", dec.version))
     dec.weights_sha256 = art.source_sha256
     dec.policy = {"kind": art.source_kind, "file": path.name, "sha256": art.source_sha256}
     return dec
@@ -150,7 +155,7 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
     observations; :class:`UserError` naming ``who`` when it cannot load or act. ``allow_code``: a
     TorchScript file (the user's own, for ``eval --policy`` or ``submit``'s conversion) may load."""
     try:
-        box = SandboxedPolicy(art.kind, art.data, config, art.card_bytes, who, allow_code=allow_code)
+        box = SandboxedPolicy(art.kind, art.data, config, art.box_card, who, allow_code=allow_code)
     except PolicyFailure as exc:
         raise UserError(f"policy {who}: {exc}") from None
     try:
@@ -160,6 +165,11 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
     except (TypeError, ValueError):
         box.close()
         raise UserError(f"policy {who}: action_repeat {box.info.get('action_repeat')!r} is not a positive int") from None
+    try:
+        check_card(box.info.get("card"), config, f"policy {who}")  # (a stored ONNX file's card is read there)
+    except UserError:
+        box.close()
+        raise
     dec = PolicyDecider(box.act, who, config, {}, action_repeat=repeat, inner=box)
     _probe(dec, config, who)
     return dec

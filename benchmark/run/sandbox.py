@@ -121,8 +121,9 @@ def modes_of(out: Any, n: int) -> np.ndarray:
 # ------------------------------------------------------------------ the parent's side
 class SandboxedPolicy:
     """A policy file acting in a child process (module docstring). ``kind``: ``mlp`` (an ``.npz``
-    with its model card ``card``), ``onnx`` or ``torchscript``; ``config``: the EnvConfig the
-    observations come from. ``info`` is what the child reported after loading (e.g. the action repeat)."""
+    with its model card ``card``), ``onnx`` (its policy card inside it) or ``torchscript`` (``card``:
+    its policy card, if any); ``config``: the EnvConfig the observations come from. ``info`` is what
+    the child reported after loading: the action repeat, and ``card``, the policy card it read."""
 
     def __init__(self, kind: str, data: bytes, config: Any, card: bytes | None = None, who: str = "policy",
                  limits: Limits | None = None, allow_code: bool = False) -> None:
@@ -172,7 +173,8 @@ class SandboxedPolicy:
         return modes_of(out, obs.shape[0])
 
     def export_onnx(self, obs_dim: int) -> bytes:
-        """A loaded TorchScript policy exported to ONNX by the child (loading it runs its code)."""
+        """A loaded TorchScript policy exported to ONNX by the child (loading it runs its code), its
+        policy card (if any) in the ONNX metadata."""
         self._send(b"X", str(int(obs_dim)).encode())
         tag, payload = self._receive(self.limits.load_s, "load")
         if tag == b"E":
@@ -337,16 +339,36 @@ def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[s
         arch = meta.get("architecture") or {}
         net = NumpyMLP.from_arrays(read_npz(data), arch.get("activation", "relu"), bool(arch.get("dueling", False)))
         dec = MLPDecider(net, str(meta.get("name", "policy")), config, meta)
-        return dec.act_batch, {"action_repeat": dec.action_repeat}
+        info = {"action_repeat": dec.action_repeat}
+        if meta.get("policy_card") is not None:  # (a converted SB3 file's card, checked again here)
+            from overtakezoo.benchmark.run.artifacts import parse_card
+
+            info["card"] = parse_card(json.dumps(meta["policy_card"]), "policy card")
+            if info["card"]["action_repeat"] != dec.action_repeat:
+                raise ValueError(f"the model card's action_repeat {dec.action_repeat} differs from its policy card's "
+                                 f"{info['card']['action_repeat']}")
+        return dec.act_batch, info
     if kind == "onnx":
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = opts.inter_op_num_threads = 1
+        from overtakezoo.benchmark.run.artifacts import CARD_KEY, legacy_repeat, parse_card
+
         session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         name = session.get_inputs()[0].name
-        repeat = session.get_modelmeta().custom_metadata_map.get("action_repeat", "1")
-        return (lambda obs: session.run(None, {name: obs})[0]), {"action_repeat": repeat}
+        props = session.get_modelmeta().custom_metadata_map
+        card = parse_card(props[CARD_KEY], f"ONNX metadata {CARD_KEY}") if CARD_KEY in props else None
+        info = {"action_repeat": legacy_repeat(props, card), **({"card": card} if card else {})}
+        if (session.get_inputs()[0].shape or [None])[0] == 1:  # a fixed batch of 1 (rsl-rl's export): row by row
+            def act(obs: np.ndarray) -> np.ndarray:
+                if obs.shape[0] == 0:
+                    return np.zeros((0,), np.int64)
+                return np.concatenate([np.asarray(session.run(None, {name: obs[i:i + 1]})[0])
+                                       for i in range(obs.shape[0])], axis=0)
+
+            return act, info
+        return (lambda obs: session.run(None, {name: obs})[0]), info
     if kind == "torchscript":
         import torch
 
@@ -358,7 +380,15 @@ def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[s
                 return module(torch.from_numpy(obs)).numpy()
 
         act.module = module  # for an export to ONNX (a 'X' request)
-        return act, {"action_repeat": getattr(module, "action_repeat", 1)}
+        if not card:
+            return act, {"action_repeat": getattr(module, "action_repeat", 1)}
+        from overtakezoo.benchmark.run.artifacts import parse_card
+
+        info = {"action_repeat": parse_card(card, "policy card")["action_repeat"], "card": parse_card(card)}
+        if hasattr(module, "action_repeat") and str(getattr(module, "action_repeat")) != str(info["action_repeat"]):
+            raise ValueError(f"the module's action_repeat {getattr(module, 'action_repeat')!r} differs from its "
+                             f"policy card's {info['action_repeat']} (remove one)")
+        return act, info
     raise ValueError(f"unknown policy kind {kind!r}")
 
 
@@ -377,6 +407,11 @@ def _to_onnx(act: Any, obs_dim: int, info: dict[str, Any]) -> bytes:
     model = onnx.load_model_from_string(buf.getvalue())
     entry = model.metadata_props.add()
     entry.key, entry.value = "action_repeat", str(int(info.get("action_repeat", 1)))
+    if info.get("card"):  # the policy card travels into the stored ONNX file
+        from overtakezoo.benchmark.run.artifacts import CARD_KEY
+
+        entry = model.metadata_props.add()
+        entry.key, entry.value = CARD_KEY, json.dumps(info["card"], sort_keys=True)
     return model.SerializeToString()
 
 
