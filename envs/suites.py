@@ -151,6 +151,39 @@ def list_suites() -> list[Suite]:
     return [load_suite(n) for n in suite_names()]
 
 
+# The zoo's decision: its learned members hold each decision 1 s (action_repeat 10 at dt = 0.1 s).
+ZOO_DECISION_S = 1.0
+
+
+@dataclass(frozen=True)
+class SuiteEnvId:
+    """A built-in suite as a registered environment id (``overtakezoo/<name>-v<version>``)."""
+
+    name: str  # the suite (file stem), passed as ``suite=`` to the env
+    version: int
+    hold_steps: int  # core steps per env step: the zoo's decision (ZOO_DECISION_S) at the suite's dt
+    multi_av: bool  # several automated vehicles per road: a PettingZoo id only
+
+
+def suite_env_ids() -> dict[str, SuiteEnvId]:
+    """Every built-in suite's environment id, read from the files' top-level keys only (cheap enough
+    for ``import overtakezoo.envs``; the env validates the whole file when it is made)."""
+    from overtakezoo.envs.hold import hold_steps
+
+    out: dict[str, SuiteEnvId] = {}
+    for name in suite_names():
+        doc = tomllib.loads((SUITES_DIR / f"{name}.toml").read_text("utf-8"))
+        base = doc
+        if isinstance(doc.get("base"), str) and (SUITES_DIR / f"{doc['base']}.toml").is_file():
+            base = tomllib.loads((SUITES_DIR / f"{doc['base']}.toml").read_text("utf-8"))
+        sim, scenario = base.get("sim", {}), base.get("scenario", {})
+        dt, interval = sim.get("dt", 0.1), sim.get("decision_interval", 1)
+        multi = scenario.get("platoon_size", 1) > 1 or scenario.get("oncoming_av", 0) > 0
+        held = hold_steps(interval, max(1, round(ZOO_DECISION_S / dt)))
+        out[f"overtakezoo/{name}-v{doc['version']}"] = SuiteEnvId(name, int(doc["version"]), held, multi)
+    return out
+
+
 def load_training(spec: str) -> list[Suite]:
     """The suites a trainer draws from: a mixture's name (``core-train``: every core suite's
     training split), suites or mixtures joined by ``+`` (``table1-train+urban-50-train``,

@@ -207,8 +207,9 @@ def test_decision_interval_repeats_the_action():
     e = OvertakeEnv(decision_interval=5, scenario={"time_limit": 2.0})
     e.reset(seed=0)
     assert [e.step(0)[3] for _ in range(4)] == [False, False, False, True]
-    with pytest.raises(ConfigError, match="decision_interval"):
-        make_vec(num_envs=2, decision_interval=5)
+    vec = make_vec(num_envs=2, decision_interval=5, scenario={"time_limit": 2.0})  # the vector env holds too
+    vec.reset(seed=0)
+    assert [bool(vec.step([0, 0])[3].all()) for _ in range(4)] == [False, False, False, True]
 
 
 def test_pettingzoo_registry():

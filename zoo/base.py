@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -75,6 +75,43 @@ class Decider:
     def card(self) -> str:
         """A one-paragraph model card."""
         return (self.__doc__ or self.name).strip().splitlines()[0]
+
+    # ------------------------------------------------------- several agents (PettingZoo)
+    def act_agents(self, observations: Mapping[Any, Any]) -> dict[Any, int]:
+        """One mode per agent, ``{agent: obs}`` -> ``{agent: int}``: how one decider drives several
+        agents (the AVs of a PettingZoo road) without mixing their state.
+
+        Each agent is one row of one batch (:meth:`act`), so a stateful decider (rule-fsm counts
+        ticks per row) keeps each agent's state in its own row. The rows are fixed by the first call
+        of an episode, one per agent in the order given (PettingZoo: every agent, right after
+        ``reset``), and stay with their agent while agents leave: a finished agent's row is fed its
+        last observation and its mode is not returned (rows never depend on each other). Call
+        :meth:`reset_agents` at every new episode (after ``env.reset()``); an agent that left and
+        comes back also starts a new episode, and one the episode never had is a ``KeyError``."""
+        rows: dict[Any, int] | None = getattr(self, "_agent_rows", None)
+        present = getattr(self, "_agents_present", set())
+        if rows is not None and any(a in rows and a not in present for a in observations):
+            rows = None  # an agent that had left is back: a new episode
+        if rows is None:
+            self.reset_agents()
+            rows = self._agent_rows = {agent: i for i, agent in enumerate(observations)}
+            if not rows:
+                return {}
+            first = np.asarray(next(iter(observations.values())))
+            self._agent_obs = np.zeros((len(rows), *first.shape), first.dtype)
+        for agent, obs in observations.items():
+            if agent not in rows:
+                raise KeyError(f"{self.name}: act_agents: agent {agent!r} is not one of this episode's agents "
+                               f"({', '.join(map(str, rows))}); call reset_agents() when a new episode starts")
+            self._agent_obs[rows[agent]] = obs
+        self._agents_present = set(observations)
+        modes = self.act(self._agent_obs)
+        return {agent: int(modes[rows[agent]]) for agent in observations}
+
+    def reset_agents(self) -> None:
+        """Start a new episode of :meth:`act_agents`: forget the agents' rows and every row's state."""
+        self._agent_rows, self._agents_present = None, set()
+        self.reset()
 
 
 def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider",

@@ -1,9 +1,13 @@
-"""``overtakezoo train``: train a learned member (dqn, double-dqn, ps-dqn, ppo) on a training suite,
-or an offline one (bc, cql) from a recorded dataset (:mod:`..training` does the work)."""
+"""``overtakezoo train``: train a learned member on a training suite (or, offline, from a recorded
+dataset) and evaluate it (:mod:`..training` does the work). The help is derived from the registry
+(the members that train), the shipped model cards (the suites the zoo trained on) and the trainer
+contract (the files written)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -12,8 +16,11 @@ from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir
 
-EPILOG = """examples:
+DEFAULT_SUITE, DEFAULT_EVAL = "table1-train", "table1"
+
+EXAMPLES = """examples:
   overtakezoo train dqn --suite table1-train --out runs/dqn
+  overtakezoo train dqn --suite core-train --out runs/dqn       # as the zoo's dqn was trained
   overtakezoo train double-dqn --suite table1-train --steps 200000 --seed 3 --out runs/ddqn
   overtakezoo train dqn --suite table1-train --out runs/dqn --resume runs/dqn/checkpoint.pt
   overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
@@ -21,23 +28,61 @@ EPILOG = """examples:
 
   overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
   overtakezoo train ppo --out runs/ppo --set train.select_every=10
+"""
 
-Writes into --out: the training log (dqn: log.csv; ppo: train_log.csv) and checkpoints (resumable),
-the torch weights <algo>.pt, their numpy export <algo>.npz (what the zoo and `eval --policy` load,
-no torch needed), the model card <algo>.json with the --eval-suite results (schema:
-zoo/train/card.schema.json) and the runner's results file <algo>-<suite>.results.json.
-`python scripts/seed_results.py ALGO RUN... --ship` publishes them into zoo/pretrained/. bc / cql
-(offline, from a dataset of `overtakezoo dataset`) write no torch file, log or checkpoint.
-Hyperparameter files and --set values are checked: an unknown key or an out-of-range value is one
-error naming the key."""
+
+def _learned() -> list[tuple[str, str, Any]]:
+    """(member, trainer module, its shipped card or None) for every learned member of the registry."""
+    from overtakezoo.zoo.members.learned import PRETRAINED
+
+    out = []
+    for name in zoo.names("learned"):
+        path = PRETRAINED / f"{name}.json"
+        try:
+            card = json.loads(path.read_text())
+        except (OSError, ValueError):
+            card = None
+        out.append((name, zoo.member(name).trainer, card))
+    return out
+
+
+def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
+    """The command's one-line summary and its epilog (the files, per trainer)."""
+    from overtakezoo.zoo.train.contract import run_files
+
+    trained_on: dict[str, list[str]] = {}
+    for name, _, card in learned:
+        suite = ((card or {}).get("train_suite") or {}).get("name")
+        if suite:
+            trained_on.setdefault(suite, []).append(name)
+    zoo_suites = "; ".join(f"{', '.join(names)} on {suite}" for suite, names in
+                           sorted(trained_on.items(), key=lambda kv: -len(kv[1])))
+    summary = (f"train a learned member ({', '.join(name for name, *_ in learned)}) on --suite (default "
+               f"{DEFAULT_SUITE}; the zoo trained {zoo_suites}) or --dataset, then evaluate it on --eval-suite "
+               f"(default {DEFAULT_EVAL})")
+    by_trainer: dict[str, list[str]] = {}
+    for name, trainer, _ in learned:
+        by_trainer.setdefault(trainer, []).append(name)
+    lines = [f"  {', '.join(names)}: {', '.join(run_files(trainer, '<member>'))}"
+             for trainer, names in by_trainer.items()]
+    epilog = (EXAMPLES + "\nWrites into --out (<member> is the name trained, e.g. dqn.npz):\n" + "\n".join(lines) +
+              "\n  and, unless --eval-suite none, the runner's results file <member>-<eval suite>.results.json\n"
+              "  (the card <member>.json then holds those results too; schema: zoo/train/card.schema.json).\n"
+              "The .npz is what the zoo and `eval --policy` load (no torch needed); --resume continues from a\n"
+              "checkpoint (bc and cql keep none). `python scripts/seed_results.py ALGO RUN... --ship` publishes\n"
+              "a run into zoo/pretrained/. Hyperparameter files and --set values are checked: an unknown key or\n"
+              "an out-of-range value is one error naming the key. Training needs torch: pip install -e '.[train]'.")
+    return summary, epilog
 
 
 def register(subparsers: Any) -> None:
-    p = subparsers.add_parser("train", help="train a learned member (dqn, ppo, bc, ...) and evaluate it on table1",
-                              description=__doc__, epilog=EPILOG,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    summary, epilog = _summary(_learned())
+    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100)
+    p = subparsers.add_parser("train", help=summary, description=description,
+                              epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")
-    p.add_argument("--suite", default="table1-train", help="training suite (default: table1-train)")
+    p.add_argument("--suite", default=DEFAULT_SUITE,
+                   help=f"training suite, suites joined by + or a mixture such as core-train (default: {DEFAULT_SUITE})")
     p.add_argument("--dataset", default=None, metavar="NAME",
                    help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)")
     p.add_argument("--steps", type=int, default=None,
@@ -45,13 +90,14 @@ def register(subparsers: Any) -> None:
                         "all parallel rows; bc / cql: gradient steps; default: the hyperparameter file)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the hyperparameter file)")
     p.add_argument("--out", default=None, help="output directory (default: runs/<algorithm>)")
-    p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint.pt")
+    p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint the trainer wrote (see below)")
     p.add_argument("--hyperparams", default=None, metavar="TOML",
                    help="hyperparameter file (default: zoo/hyperparams/<algorithm>.toml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
                    help="override a hyperparameter (a TOML value; ppo: SECTION.KEY, e.g. train.steps=1000); "
                         "repeatable")
-    p.add_argument("--eval-suite", default="table1", help="suite evaluated at the end ('none' to skip)")
+    p.add_argument("--eval-suite", default=DEFAULT_EVAL, help=f"suite evaluated at the end ('none' to skip; "
+                                                              f"default: {DEFAULT_EVAL})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run)
 

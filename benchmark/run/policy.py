@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import re
+import sys
 from pathlib import Path
 from typing import Any, Callable
 
@@ -108,7 +110,15 @@ def load_zoo(name: str, config: EnvConfig | None = None,
 def _load_factory(spec: str, config: EnvConfig) -> zoo.Decider:
     module_name, attr = spec.split(":")
     try:
-        module = importlib.import_module(module_name)
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            # Not installed: resolve it from the current directory, as `python -m` does (cwd first on
+            # sys.path, and kept there for the module's own imports).
+            if exc.name != module_name.split(".")[0] or os.getcwd() in sys.path:
+                raise
+            sys.path.insert(0, os.getcwd())
+            module = importlib.import_module(module_name)
     except ImportError as exc:
         raise UserError(f"policy {spec}: cannot import {module_name} ({exc})") from None
     factory = getattr(module, attr, None)

@@ -90,3 +90,16 @@ def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
             out[key] = None if value != value else value  # value != value: NaN
     out["outcome_name"] = OUTCOME_NAMES[out["outcome"]]
     return out
+
+
+def env_hold(hold_steps: Any, config: EnvConfig) -> int:
+    """Core steps one env step holds an action: ``hold_steps`` (a positive multiple of the config's
+    ``decision_interval``), or ``decision_interval`` when None; else a :class:`ConfigError`."""
+    interval = config.decision_interval
+    if hold_steps is None:
+        return interval
+    if isinstance(hold_steps, (bool, np.bool_)) or not isinstance(hold_steps, (int, np.integer)) or hold_steps < 1:
+        raise ConfigError(f"hold_steps: expected a positive integer (core steps per env step), got {hold_steps!r}")
+    if hold_steps % interval:
+        raise ConfigError(f"hold_steps: {hold_steps} is not a multiple of decision_interval {interval}")
+    return int(hold_steps)

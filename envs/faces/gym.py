@@ -1,11 +1,20 @@
 """The Gymnasium face: :class:`OvertakeEnv`, one ego over the core with ``N = 1``.
 
-Registered as ``"overtakezoo/Overtake-v0"`` by :func:`register_envs`, which ``import
-overtakezoo.envs`` runs (Gymnasium 1.x no longer loads ``gymnasium.envs`` entry-point plugins, so
-the import is what registers; ``gymnasium.make("overtakezoo.envs:overtakezoo/Overtake-v0")`` imports
-it for you). The same id is registered with PettingZoo's registry (parallel and AEC) and has a
-``vector_entry_point``, so ``gymnasium.make_vec(id, num_envs=N)`` gives the natively batched
-:class:`~.vector.OvertakeVectorEnv`.
+Registered by :func:`register_envs`, which ``import overtakezoo.envs`` runs (Gymnasium 1.x no
+longer loads ``gymnasium.envs`` entry-point plugins, so the import is what registers;
+``gymnasium.make("overtakezoo.envs:overtakezoo/Overtake-v0")`` imports it for you):
+
+- ``"overtakezoo/Overtake-v0"``: the env's defaults (table1-reactive's world, one core step per env
+  step), kept as it always was;
+- ``"overtakezoo/<suite>-v<version>"`` for every built-in suite (``overtakezoo/table1-v2``,
+  ``overtakezoo/table1-train-v2``, ...; :func:`~overtakezoo.envs.suites.suite_env_ids`): the suite's
+  settings and scenario distribution, each env step holding the action for the zoo's decision of
+  1 s (``hold_steps=10`` at dt = 0.1 s, in the spec's kwargs), so an agent trains on what the suite
+  evaluates. The single-ego suites are Gymnasium ids, every suite (the multi-AV ones too) a
+  PettingZoo id.
+
+Each Gymnasium id has a ``vector_entry_point``, so ``gymnasium.make_vec(id, num_envs=N)`` gives the
+natively batched :class:`~.vector.OvertakeVectorEnv` with the same settings and hold.
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ from overtakezoo.envs.config import MODE_NAMES, EnvConfig
 from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.faces.rendering import RendersFirstRow
 from overtakezoo.envs.hold import hold
-from overtakezoo.envs.faces._common import as_config, check_action, row_info, single_ego
+from overtakezoo.envs.faces._common import as_config, check_action, env_hold, row_info, single_ego, suite_config
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space
 
@@ -34,12 +43,20 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
     ``np_random`` (so ``reset(seed=s)`` is reproducible), or starts on
     ``options={"scenarios": <Scenarios of 1 row>}``. Episodes end by the core's outcomes
     (success / crash / off-road terminate; the scenario's time limit truncates).
+
+    ``suite``: a built-in suite's name (``"table1-train"``) or a suite file's path: its simulator
+    settings and scenario distribution instead of ``config`` (keyword arguments still override
+    EnvConfig keys). ``hold_steps``: core steps one env step holds the action (rewards summed,
+    :func:`~overtakezoo.envs.hold.hold`); a multiple of ``decision_interval``, which it defaults to.
+    The suite ids (``overtakezoo/table1-v2``) set it to the zoo's 1 s, 10 steps.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
-    def __init__(self, config: EnvConfig | dict[str, Any] | None = None, **overrides: Any) -> None:
-        self.config = single_ego(as_config(config, **overrides), "OvertakeEnv")
+    def __init__(self, config: EnvConfig | dict[str, Any] | None = None, *, suite: Any = None,
+                 hold_steps: int | None = None, **overrides: Any) -> None:
+        self.config = single_ego(as_config(suite_config(config, suite), **overrides), "OvertakeEnv")
+        self.hold_steps = env_hold(hold_steps, self.config)
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
@@ -71,8 +88,8 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
             # terminated=False on a frozen state, so say so instead.
             raise RuntimeError("step() after the episode ended (terminated or truncated): call reset() first")
         action = check_action(action, len(MODE_NAMES), "OvertakeEnv.step")
-        # One env step holds the action for decision_interval core steps (rewards summed).
-        res = hold(self.core, np.array([action], dtype=np.int64), self.config.decision_interval)
+        # One env step holds the action for hold_steps core steps (rewards summed).
+        res = hold(self.core, np.array([action], dtype=np.int64), self.hold_steps)
         if self.render_mode == "human":
             self.render()
         return (self._clip(res.obs[0]), float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0]),
@@ -91,17 +108,25 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
 
 
 def register_envs() -> None:
-    """Register ``overtakezoo/Overtake-v0`` with Gymnasium (single env + vector entry point) and
-    with PettingZoo (parallel and AEC). Idempotent; run by ``import overtakezoo.envs``."""
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="overtakezoo.envs.faces.gym:OvertakeEnv",
-                           vector_entry_point="overtakezoo.envs.faces.vector:make_vec")
+    """Register ``overtakezoo/Overtake-v0`` and every built-in suite's id (module docstring) with
+    Gymnasium (single env + vector entry point; the single-ego suites) and with PettingZoo (parallel
+    and AEC; every suite). Idempotent; run by ``import overtakezoo.envs``."""
+    from overtakezoo.envs.suites import suite_env_ids
+
+    ids = {ENV_ID: ({}, False), **{env_id: ({"suite": s.name, "hold_steps": s.hold_steps}, s.multi_av)
+                                   for env_id, s in suite_env_ids().items()}}
+    for env_id, (kwargs, multi_av) in ids.items():
+        if env_id not in gymnasium.registry and not multi_av:
+            gymnasium.register(id=env_id, entry_point="overtakezoo.envs.faces.gym:OvertakeEnv",
+                               vector_entry_point="overtakezoo.envs.faces.vector:make_vec", kwargs=kwargs)
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but the gym face does not need it
         return
     if hasattr(pettingzoo, "register"):  # the registry exists from PettingZoo 1.27
-        if ENV_ID not in pettingzoo.parallel_registry:
-            pettingzoo.register("parallel", ENV_ID, entry_point="overtakezoo.envs.faces.pettingzoo:parallel_env")
-        if ENV_ID not in pettingzoo.aec_registry:
-            pettingzoo.register("aec", ENV_ID, entry_point="overtakezoo.envs.faces.pettingzoo:env")
+        for env_id, (kwargs, _) in ids.items():
+            if env_id not in pettingzoo.parallel_registry:
+                pettingzoo.register("parallel", env_id, entry_point="overtakezoo.envs.faces.pettingzoo:parallel_env",
+                                    kwargs=kwargs)
+            if env_id not in pettingzoo.aec_registry:
+                pettingzoo.register("aec", env_id, entry_point="overtakezoo.envs.faces.pettingzoo:env", kwargs=kwargs)

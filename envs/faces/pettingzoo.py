@@ -7,8 +7,11 @@ other.
 
 Building: ``parallel_env(config, **overrides)`` with an :class:`EnvConfig` or a dict (keyword
 arguments are EnvConfig keys), or ``parallel_env(suite)`` / ``parallel_env(suite=suite)`` with a
-loaded suite (``overtakezoo.envs.suites.load_suite("duel")``: its simulator settings and
-scenario distribution; this package does not read suite files itself). Each ``reset(seed=s)`` draws
+loaded suite (``overtakezoo.envs.suites.load_suite("duel")``, or the name ``"duel"``, or a suite
+file's path: its simulator settings and scenario distribution). ``hold_steps`` (default: the
+config's ``decision_interval``) is how many core steps one env step holds the actions
+(:func:`~overtakezoo.envs.hold.hold`); the registered suite ids (``pettingzoo.make("parallel",
+"overtakezoo/duel-v1")``) hold the zoo's 1 s, 10 steps. Each ``reset(seed=s)`` draws
 the road from the distribution with the env's generator (``ScenarioDistribution.sample(1, rng)``;
 without a seed, the next draw of the generator, first seeded by the config's ``seed``), or starts on
 ``options={"scenarios": <Scenarios of one row>}``.
@@ -72,7 +75,7 @@ from overtakezoo.envs.faces.rendering import RendersFirstRow
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
-from overtakezoo.envs.faces._common import as_config, check_action, row_info, suite_config
+from overtakezoo.envs.faces._common import as_config, check_action, env_hold, row_info, suite_config
 
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
@@ -96,8 +99,10 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
     metadata = {"name": "overtake_v1", "render_modes": ["rgb_array", "human"], "render_fps": 10,
                 "is_parallelizable": True}
 
-    def __init__(self, config: Any = None, *, suite: Any = None, **overrides: Any) -> None:
+    def __init__(self, config: Any = None, *, suite: Any = None, hold_steps: int | None = None,
+                 **overrides: Any) -> None:
         self.config = as_config(suite_config(config, suite), **overrides)
+        self.hold_steps = env_hold(hold_steps, self.config)  # core steps per env step
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
@@ -190,12 +195,21 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             for a in live_npcs:
                 if actions.get(a) is not None:
                     npc_accel[0, int(a[4:])] = NPC_ACCELERATIONS[check_action(actions[a], len(NPC_ACCELERATIONS), a)]
-        # One env step holds the actions for decision_interval core steps (rewards summed).
-        res = hold(self.core, modes, self.config.decision_interval, npc_accel)
+        # One env step holds the actions for hold_steps core steps (rewards summed); an AV whose
+        # episode ends during the hold is frozen from then on and reported with the observation of
+        # the step that ended it.
+        last = None
+        if self.hold_steps > 1:
+            last = np.zeros((self.num_avs, self.core.obs_size), np.float32)
+
+            def keep_last(_: np.ndarray, step: Any) -> None:
+                if step.finished.any():
+                    last[step.finished] = step.obs[step.finished]
+        res = hold(self.core, modes, self.hold_steps, npc_accel, on_step=None if last is None else keep_last)
         self._truncated |= res.truncated
 
         obs, rew, term, trunc, infos = {}, {}, {}, {}, {}
-        av_obs = self._clip_avs(res.obs)
+        av_obs = self._clip_avs(res.obs if last is None else np.where(res.finished[:, None], last, res.obs))
         for e, a in enumerate(self._avs):
             if a in live:
                 obs[a], rew[a] = av_obs[e], float(res.reward[e])
@@ -260,14 +274,17 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         return self._render_first_row()
 
 
-def parallel_env(config: Any = None, *, suite: Any = None, **overrides: Any) -> OvertakeParallelEnv:
-    """The PettingZoo ``ParallelEnv`` of one road: ``config`` an :class:`EnvConfig`, a dict or a loaded
-    suite (or ``suite=``); keyword arguments are :class:`EnvConfig` keys."""
-    return OvertakeParallelEnv(config, suite=suite, **overrides)
+def parallel_env(config: Any = None, *, suite: Any = None, hold_steps: int | None = None,
+                 **overrides: Any) -> OvertakeParallelEnv:
+    """The PettingZoo ``ParallelEnv`` of one road: ``config`` an :class:`EnvConfig`, a dict, a loaded
+    suite, a built-in suite's name or a suite file's path (or ``suite=``); ``hold_steps`` core steps
+    per env step (default: ``decision_interval``; the registered suite ids: the zoo's 1 s, 10 steps);
+    other keyword arguments are :class:`EnvConfig` keys."""
+    return OvertakeParallelEnv(config, suite=suite, hold_steps=hold_steps, **overrides)
 
 
-def env(config: Any = None, *, suite: Any = None, **overrides: Any):
+def env(config: Any = None, *, suite: Any = None, hold_steps: int | None = None, **overrides: Any):
     """The AEC version (PettingZoo's own conversion, with its bounds and order checks)."""
-    aec = parallel_to_aec_wrapper(parallel_env(config, suite=suite, **overrides))
+    aec = parallel_to_aec_wrapper(parallel_env(config, suite=suite, hold_steps=hold_steps, **overrides))
     aec = wrappers.AssertOutOfBoundsWrapper(aec)
     return wrappers.OrderEnforcingWrapper(aec)

@@ -16,6 +16,14 @@ from the config's ``scenario`` distribution, in one of Gymnasium's two autoreset
 
 In both modes the other keys of ``infos`` are the per-row info of the current episodes, each with its
 ``_key`` mask.
+
+The decision hold (``hold_steps``, default the config's ``decision_interval``; the suite ids
+``overtakezoo/<suite>-v<version>`` hold the zoo's 1 s, 10 steps) applies per row: one env step holds
+each row's action for ``hold_steps`` core steps (:func:`~overtakezoo.envs.hold.hold`, rewards summed
+over the row's own steps). A row whose episode ends during the hold is frozen by the core from that
+core step on and is reported at this env step (terminated / truncated, the observation of the step
+that ended it); the autoreset mode then restarts it as above, so no held step ever runs in the next
+episode.
 """
 
 from __future__ import annotations
@@ -27,9 +35,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from overtakezoo.envs.config import MODE_NAMES, ConfigError, EnvConfig
+from overtakezoo.envs.config import MODE_NAMES, EnvConfig
 from overtakezoo.envs.core import OvertakeCore
-from overtakezoo.envs.faces._common import as_config, check_actions, single_ego
+from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, single_ego, suite_config
+from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space
 
@@ -40,7 +49,8 @@ class OvertakeVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any) -> None:
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, *, suite: Any = None,
+                 hold_steps: int | None = None, **overrides: Any) -> None:
         self._renderer = None  # first: close() runs on an instance whose __init__ raised, too
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -49,19 +59,16 @@ class OvertakeVectorEnv(VectorEnv):
         if mode is None:
             raise ValueError(f"autoreset_mode: expected AutoresetMode.NEXT_STEP or SAME_STEP, got {autoreset_mode!r}")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
-        self.config = single_ego(as_config(config, **overrides), "OvertakeVectorEnv")
-        if self.config.decision_interval != 1:
-            # Auto-reset replaces a row the moment it ends, so repeating an action across that
-            # boundary would drive the new episode blind; the held-row faces support it.
-            raise ConfigError("decision_interval: OvertakeVectorEnv steps every control cycle (1); got "
-                              f"{self.config.decision_interval} (OvertakeEnv and parallel_env repeat actions)")
+        self.config = single_ego(as_config(suite_config(config, suite), **overrides), "OvertakeVectorEnv")
+        self.hold_steps = env_hold(hold_steps, self.config)
         if self.config.render_mode not in (None, "rgb_array"):
             raise ValueError(f"OvertakeVectorEnv renders only 'rgb_array' (row 0), not {self.config.render_mode!r}")
         self.render_mode = self.config.render_mode
         self.num_envs = int(num_envs)
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
-        # SAME_STEP: the core refills finished rows itself; NEXT_STEP: it holds them until the next step.
-        self.core = OvertakeCore(self.config, auto_reset=mode == AutoresetMode.SAME_STEP, source=self._draw)
+        # The core freezes a finished row; this face restarts it, after the hold that ended it
+        # (SAME_STEP) or at the next step (NEXT_STEP), so no held step runs in a new episode.
+        self.core = OvertakeCore(self.config, auto_reset=False)
         self.single_observation_space = ego_observation_space(self.config)  # finite bounds, see envs/faces/spaces.py
         self.single_action_space = spaces.Discrete(len(MODE_NAMES))
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -96,10 +103,22 @@ class OvertakeVectorEnv(VectorEnv):
         if self.core.scen is None:
             raise RuntimeError("step() before reset(): call reset() first")
         actions = check_actions(actions, self.num_envs, "actions")
-        res = self.core.step(actions)  # NEXT_STEP: rows ended last step are frozen (reward 0, not done)
-        finished = res.finished
-        if not self.core.auto_reset:
-            obs, infos = res.obs, res.info
+        # One env step holds each row's action for hold_steps core steps (rewards summed per row,
+        # envs/hold.py); a row whose episode ends during the hold is frozen by the core from then on
+        # and reported at this env step, with the observation of the step that ended it.
+        last = None
+        if self.hold_steps > 1:
+            last = np.zeros((self.num_envs, self.core.obs_size), np.float32)
+
+            def keep_last(modes: np.ndarray, step: Any) -> None:
+                if step.finished.any():
+                    last[step.finished] = step.obs[step.finished]
+        res = hold(self.core, actions, self.hold_steps, on_step=None if last is None else keep_last)
+        finished, obs, infos = res.finished, res.obs, res.info
+        if last is not None and finished.any():
+            obs = np.where(finished[:, None], last, obs)
+        if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
+            # Rows that ended at the previous step were frozen (reward 0, not done): they start anew now.
             if self._autoreset.any():
                 rows = np.flatnonzero(self._autoreset)
                 obs = obs.copy()
@@ -107,18 +126,21 @@ class OvertakeVectorEnv(VectorEnv):
                 infos = self.core.info()  # the new episodes' (zeroed) stats in those rows
             self._autoreset = finished
             return self._clip(obs), res.reward, res.terminated, res.truncated, _with_masks(infos)
-        if finished.any():
+        if finished.any():  # SAME_STEP: the finished rows start anew in this step
+            rows = np.flatnonzero(finished)
             final_obs = np.full(self.num_envs, None, dtype=object)
-            last = self._clip(res.final_obs)
-            for i in np.flatnonzero(finished):  # Gymnasium's layout: one array per finished row
-                final_obs[i] = last[i]
+            ended = self._clip(obs)
+            for i in rows:  # Gymnasium's layout: one array per finished row
+                final_obs[i] = ended[i]
+            obs = obs.copy()
+            obs[rows] = self.core.restart(rows, self._draw(len(rows), self.core.rng))
             infos = _with_masks(self.core.info())  # the new episodes' (zeroed) stats
             infos["final_obs"], infos["_final_obs"] = final_obs, finished
             infos["final_info"] = _with_masks(res.info, finished)
             infos["_final_info"] = finished
         else:
-            infos = _with_masks(res.info)
-        return self._clip(res.obs), res.reward, res.terminated, res.truncated, infos
+            infos = _with_masks(infos)
+        return self._clip(obs), res.reward, res.terminated, res.truncated, infos
 
     def _clip(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only scenarios given through
@@ -152,8 +174,10 @@ def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> 
 
 
 def make_vec(num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
-             autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any) -> OvertakeVectorEnv:
+             autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, *, suite: Any = None,
+             hold_steps: int | None = None, **overrides: Any) -> OvertakeVectorEnv:
     """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv`` (NEXT_STEP
-    autoreset unless ``autoreset_mode`` says SAME_STEP); other keyword arguments are
-    :class:`EnvConfig` keys."""
-    return OvertakeVectorEnv(num_envs, config, autoreset_mode, **overrides)
+    autoreset unless ``autoreset_mode`` says SAME_STEP); ``suite`` a suite's name or file path (its
+    settings and distribution), ``hold_steps`` core steps per env step (default: the config's
+    ``decision_interval``); other keyword arguments are :class:`EnvConfig` keys."""
+    return OvertakeVectorEnv(num_envs, config, autoreset_mode, suite=suite, hold_steps=hold_steps, **overrides)

@@ -47,6 +47,21 @@ class TrainError(ConfigError):
     """Bad training input (an unusable checkpoint or dataset, a member that is not trained): one line."""
 
 
+# What each trainer (its module under zoo/train) writes into the run directory beside the outputs of
+# write_outputs (the trainers use these names; `overtakezoo train --help` lists them).
+RUN_FILES = {"dqn": ("log.csv", "checkpoint.pt"), "ppo": ("train_log.csv", "checkpoints/ppo_<iteration>.pt"),
+             "bc": (), "cql": ()}
+TORCH_WEIGHTS = ("dqn", "ppo")  # trainers whose member is exported from torch weights, <name>.pt
+
+
+def run_files(trainer: str, name: str) -> list[str]:
+    """Every file trainer module ``trainer`` writes into its run directory for member ``name``: its
+    log and checkpoints, then :func:`write_outputs`'s (``<name>.pt`` where it has torch weights,
+    ``<name>.npz``, the card ``<name>.json``)."""
+    torch = [f"{name}.pt"] if trainer in TORCH_WEIGHTS else []
+    return [*RUN_FILES[trainer], *torch, f"{name}.npz", f"{name}.json"]
+
+
 # ----------------------------------------------------------------------------- hyperparameters
 def hyperparams_file(member: str) -> Path:
     """The shipped hyperparameter file of ``member`` (``zoo/hyperparams/<member>.toml``)."""

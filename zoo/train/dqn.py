@@ -65,7 +65,7 @@ from overtakezoo.envs.mixture import MixedCore, split_rows
 from overtakezoo.zoo.base import member as registry_member, names
 from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.members.learned import NUM_MODES, action_mask
-from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
+from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
                        suite_source)
 from overtakezoo.zoo.train.qlearning import QNetwork, ReplayBuffer, masked_argmax, td_targets
 from overtakezoo.zoo.train.typed import as_dict, param
@@ -238,7 +238,7 @@ class Trainer:
 
             bar = tqdm(total=steps, initial=min(self.transitions, steps), unit="tr", desc=self.algo,
                        dynamic_ncols=True, mininterval=1.0)
-        log = _CsvLog(out / "log.csv") if out else None
+        log = _CsvLog(out / RUN_FILES["dqn"][0]) if out else None
         t0 = time.perf_counter() - self.wall
         while self.transitions < steps:
             before, steps_before = self.transitions, self.core_steps
@@ -263,11 +263,11 @@ class Trainer:
                                "wall_time_s": round(self.wall, 2)})
             if out and self.transitions >= next_ckpt:
                 next_ckpt += hp.checkpoint_every
-                self.checkpoint(out / "checkpoint.pt")
+                self.checkpoint(out / RUN_FILES["dqn"][1])
         if bar is not None:
             bar.close()
         if out:
-            self.checkpoint(out / "checkpoint.pt")
+            self.checkpoint(out / RUN_FILES["dqn"][1])
 
     # ------------------------------------------------------------------------- checkpoints
     def checkpoint(self, path: Path) -> None:

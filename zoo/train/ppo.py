@@ -41,7 +41,7 @@ from overtakezoo.envs.io import atomic_path, check_writable_dir
 
 from overtakezoo.zoo.base import Decider
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
+from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
                        suite_source)
 from overtakezoo.zoo.train.export import PPO_FORMAT
 from overtakezoo.zoo.train.typed import HyperparameterError, param
@@ -263,7 +263,7 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
         from tqdm import tqdm
 
         bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it")
-    log_path = out / "train_log.csv"
+    log_path = out / RUN_FILES["ppo"][0]
     new_log = resume is None or not log_path.exists()
     t0 = time.perf_counter()
     with open(log_path, "w" if new_log else "a", newline="") as f:
@@ -297,7 +297,8 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
                     bar.write(f"iteration {it + 1}: greedy success - crash on {selected} training "
                               f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})")
             if (it + 1) % hp.train.checkpoint_every == 0 or it + 1 == iterations:
-                with atomic_path(out / "checkpoints" / f"ppo_{it + 1:05d}.pt") as tmp:  # complete or absent
+                ckpt = out / RUN_FILES["ppo"][1].replace("<iteration>", f"{it + 1:05d}")
+                with atomic_path(ckpt) as tmp:  # complete or absent
                     runner.save(str(tmp), infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed,
                                                  "suite": meta, "best": best})
     if bar is not None:
