@@ -79,3 +79,37 @@ def shipped_weights_current(name: str) -> bool:
 needs_shipped_weights = pytest.mark.skipif(
     not all(shipped_weights_current(n) for n in LEARNED),
     reason="the shipped weights take 32 features, the observation has 33: retrained weights ship at integration")
+
+
+@pytest.fixture
+def tiny_suite(tmp_path, monkeypatch):
+    """``tiny_suite(count)``: the name of a built-in suite of ``count`` short table1 scenarios (the
+    suite registry points at tmp_path: a leaderboard row needs a built-in suite); eval, submit, the
+    policy loader and verify are the real ones."""
+    import re
+
+    from overtakezoo.envs import suites
+
+    def make(count: int) -> str:
+        builtin = tmp_path / "suites"
+        builtin.mkdir(exist_ok=True)
+        text = (suites.SUITES_DIR / "table1.toml").read_text()
+        for pattern, repl in ((r'(?m)^name = "table1"', 'name = "tiny"'), (r"(?m)^count = \d+", f"count = {count}"),
+                              (r"(?m)^time_limit = [\d.]+", "time_limit = 20.0")):
+            text, n = re.subn(pattern, repl, text)
+            assert n == 1, pattern
+        (builtin / "tiny.toml").write_text(text)
+        monkeypatch.setattr(suites, "SUITES_DIR", builtin)
+        return "tiny"
+
+    return make
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Small networks run fastest on one thread (and the machine is shared); restored afterwards."""
+    torch = pytest.importorskip("torch")
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -35,12 +35,8 @@ def suite(tmp_path):
 
 
 @pytest.fixture(autouse=True)
-def one_thread():
-    """Small networks run fastest on one thread (and the machine is shared)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
+def one_thread(one_torch_thread):
     yield
-    torch.set_num_threads(before)
 
 
 def evaluate(capsys, suite, spec, out):

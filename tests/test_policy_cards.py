@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import types
 import warnings
 
@@ -28,26 +27,14 @@ D = observation_size(EnvConfig())
 
 
 @pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
+def one_thread(one_torch_thread):
     yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture
-def tiny(tmp_path, monkeypatch):
+def tiny(tiny_suite):
     """A built-in suite of 8 short scenarios (submit needs a built-in suite)."""
-    builtin = tmp_path / "suites"
-    builtin.mkdir()
-    text = (suites.SUITES_DIR / "table1.toml").read_text()
-    for pattern, repl in ((r'(?m)^name = "table1"', 'name = "tiny"'), (r"(?m)^count = \d+", "count = 8"),
-                          (r"(?m)^time_limit = [\d.]+", "time_limit = 20.0")):
-        text, n = re.subn(pattern, repl, text)
-        assert n == 1, pattern
-    (builtin / "tiny.toml").write_text(text)
-    monkeypatch.setattr(suites, "SUITES_DIR", builtin)
-    return "tiny"
+    return tiny_suite(8)
 
 
 def one_line_error(capsys, argv):

@@ -1,7 +1,6 @@
 """Verified submissions: rows re-run exactly, edits and swapped artifacts are refused, names are guarded."""
 
 import json
-import re
 import shutil
 import time
 from pathlib import Path
@@ -11,7 +10,6 @@ import pytest
 
 from overtakezoo.envs.io import file_sha256
 from overtakezoo import zoo
-from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard.generate import generate
@@ -123,19 +121,9 @@ def test_edited_per_scenario_outcome_is_refused_naming_the_scenario(root, capsys
 
 # ------------------------------------------------------------------ a policy file, end to end through the CLI
 @pytest.fixture
-def tiny(tmp_path, monkeypatch):
-    """A built-in suite of 12 short scenarios: the suite registry points at tmp_path (a leaderboard
-    row needs a built-in suite); eval, submit, the policy loader and verify are the real ones."""
-    builtin = tmp_path / "suites"
-    builtin.mkdir()
-    text = (suites.SUITES_DIR / "table1.toml").read_text()
-    for pattern, repl in ((r'(?m)^name = "table1"', 'name = "tiny"'), (r"(?m)^count = \d+", "count = 12"),
-                          (r"(?m)^time_limit = [\d.]+", "time_limit = 20.0")):
-        text, n = re.subn(pattern, repl, text)
-        assert n == 1, pattern
-    (builtin / "tiny.toml").write_text(text)
-    monkeypatch.setattr(suites, "SUITES_DIR", builtin)
-    return "tiny"
+def tiny(tiny_suite):
+    """A built-in suite of 12 short scenarios (submit needs a built-in suite)."""
+    return tiny_suite(12)
 
 
 def scripted_policy(path, seed, favour):
