@@ -72,6 +72,11 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
     assert e["mirrors"][0].endswith("/overtakezoo__t1__rule-fsm-v0.tar.gz")
     archive = home / "release" / "overtakezoo__t1__rule-fsm-v0.tar.gz"
     assert archive.stat().st_size == e["size"]
+    # The outcome shares are the episodes' own last outcomes.
+    ds = load_minari(built, MEDIUM)
+    ends = [("running", "success", "crash", "timeout", "offroad")[int(ep.infos["outcome"][-1])]
+            for ep in ds.iterate_episodes()]
+    assert e["outcomes"] == {k: round(ends.count(k) / len(ends), 4) for k in set(ends)}
 
     # Offline with --no-build: the only mirror refuses the connection; one error line says how to rebuild.
     capsys.readouterr()

@@ -361,3 +361,7 @@ def test_list_shows_the_registrys_datasets(monkeypatch, tmp_path, capsys):
         line = next(line for line in out.splitlines() if line.strip().startswith(name + " "))
         assert f"suite {entry['recipe']['suite']}" in line and f"episodes {entry['episodes']}" in line
         assert line.rstrip().endswith("not installed")
+        # How the episodes ended, as the regenerate command measured them: shares that sum to 1.
+        shares = entry["outcomes"]
+        assert set(shares) <= {"success", "crash", "timeout", "offroad"} and abs(sum(shares.values()) - 1) < 1e-3
+        assert all(f"{k} {100 * v:.1f} %" in line for k, v in shares.items())

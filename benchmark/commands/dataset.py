@@ -102,8 +102,9 @@ def run_list(args: Any) -> int:
     for name, e in sorted(registry.items()):
         recipe = e.get("recipe") or {}
         deciders = "+".join(p["decider"] for p in recipe.get("policies", [])) or "?"
+        shares = "  ".join(f"{k} {100 * v:.1f} %" for k, v in e.get("outcomes", {}).items()) or "outcomes ?"
         print(f"  {name}  suite {recipe.get('suite', '?')}  {deciders}  episodes {e.get('episodes', '?')}  "
-              f"steps {e.get('steps', '?')}  {e.get('size', 0) / 1e6:.1f} MB  "
+              f"steps {e.get('steps', '?')}  {shares}  {(e.get('size') or 0) / 1e6:.1f} MB  "
               f"{'installed' if name in found else 'not installed'}")
     print(f"local datasets in {datasets_dir()}:")
     if not found:

@@ -20,11 +20,14 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from overtakezoo.benchmark.datasets.record import collect
 from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
 from overtakezoo.benchmark.datasets.store import check_name, pack, write_dataset
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import atomic_write_json
+from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
 
 RECIPES_FILE = Path(__file__).with_name("registry") / "recipes.toml"
 REGISTRY_FORMAT = ("name -> {level, description, recipe {suite, suite_version, suite_sha256, count, chunk_size, "
@@ -173,6 +176,13 @@ def build_entry(name: str, entry: dict[str, Any], progress: bool = True) -> str:
 
 
 # ---------------------------------------------------------------------------- regeneration
+def outcome_shares(episodes: list[dict[str, Any]]) -> dict[str, float]:
+    """How the episodes ended (each episode's last outcome), as shares that sum to 1, for `dataset list`."""
+    last = np.array([int(e["infos"]["outcome"][-1]) for e in episodes], np.int64)
+    counts = np.bincount(last, minlength=len(OUTCOME_NAMES))
+    return {name: round(float(c) / max(1, last.size), 4) for name, c in zip(OUTCOME_NAMES, counts) if c}
+
+
 def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archives: Path | None = None,
                progress: bool = True) -> tuple[dict[str, dict[str, Any]], Path]:
     """Build every dataset of the recipe table into the datasets folder, pack each into ``archives``,
@@ -200,6 +210,7 @@ def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archi
         entries[name] = {
             "level": p["level"], "description": description, "recipe": recipe, "content_sha256": digest,
             "episodes": len(episodes), "steps": int(sum(len(e["actions"]) for e in episodes)),
+            "outcomes": outcome_shares(episodes),
             "mirrors": [m.format(version=data["version"], archive=archive) for m in data.get("mirrors", [])],
             "size": size, "sha256": sha}
     atomic_write_json(registry, {"format": REGISTRY_FORMAT, "datasets": entries})

@@ -43,13 +43,19 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
         if not (isinstance(mirrors, list) and all(isinstance(u, str) for u in mirrors) and archive_ok
                 and (mirrors == [] or e.get("sha256") is not None)
                 and (e.get("content_sha256") is None or _is_sha(e["content_sha256"]))
-                and isinstance(e.get("recipe", {}), dict)):
+                and isinstance(e.get("recipe", {}), dict) and _is_shares(e.get("outcomes", {}))):
             raise UserError(f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the "
                             "archive's size (int) and sha256 (64 hex), and optionally recipe (object) and "
-                            "content_sha256 (64 hex)")
+                            "content_sha256 (64 hex), outcomes ({name: share in [0, 1]})")
         e["mirrors"] = mirrors
         out[name] = e
     return out
+
+
+def _is_shares(value: Any) -> bool:
+    return isinstance(value, dict) and all(
+        isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1
+        for k, v in value.items())
 
 
 def _is_sha(value: Any) -> bool:
