@@ -341,7 +341,9 @@ class OvertakeCore:
         modes = xp.where(active, modes, prev_mode)
         switched = modes != prev_mode  # (all False on the usual step, where no row changes its mode)
         if switched.any():
-            self.stats["aborts"] += active & (modes == ABORT) & (prev_mode != ABORT)
+            # An abort counts only when it ends an overtake under way (from OVERTAKE): ABORT chosen
+            # while following changes nothing the planner does, so it is no abort.
+            self.stats["aborts"] += active & (modes == ABORT) & (prev_mode == OVERTAKE)
             switched = active & switched & ((modes == OVERTAKE) | (prev_mode == OVERTAKE))
             self.stats["switches"] += switched
         self.mode = modes

@@ -95,6 +95,20 @@ def test_abort_returns_behind_the_lead_when_an_oncoming_car_appears_mid_overtake
     assert abs(core.y[0]) < 0.5 and core.x[0] < core.npc_s[0, 0]  # back in lane, behind NPC1
 
 
+def test_an_abort_counts_only_when_it_ends_an_overtake_under_way():
+    """`aborts` counts OVERTAKE -> ABORT; ABORT chosen while following (a no-op) is not an abort."""
+    scen = Scenarios.concat([make_scenario(lead=(8.0, 2.0), oncoming=[(120.0, 3.0)])] * 2)
+    # Row 0 flips follow <-> abort every second and never overtakes; row 1 overtakes, aborts at 3 s,
+    # overtakes again at 6 s and aborts at 9 s: two aborts.
+    core = OvertakeCore()
+    core.reset(scen)
+    for k in range(120):
+        t = k * core.cfg.dt
+        row1 = OVERTAKE if t < 3.0 or 6.0 <= t < 9.0 else ABORT
+        core.step(np.array([ABORT if int(t) % 2 else FOLLOW, row1]))
+    assert core.stats["aborts"].tolist() == [0, 2]
+
+
 def test_overtake_held_blindly_into_oncoming_traffic_crashes_with_the_oncoming_car():
     core = OvertakeCore()
     run(core, make_scenario(lead=(6.0, 2.0), oncoming=[(35.0, 3.0)]), constant(OVERTAKE))
