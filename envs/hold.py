@@ -103,11 +103,13 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
 
 def run_to_end(core: OvertakeCore, obs: Any, decide: Callable[[Any, int], Any], steps: int,
                on_step: Callable[[np.ndarray, StepResult], None] | None = None,
-               on_hold: Callable[[HeldStep], None] | None = None, max_steps: int | None = None) -> int:
+               on_hold: Callable[[HeldStep], None] | None = None, max_steps: int | None = None,
+               compact: Callable[[Any], tuple[OvertakeCore, Any] | None] | None = None) -> int:
     """Drive every row of ``core`` (reset, without auto-reset) to the end of its episode:
     ``decide(obs, step)`` gives the modes at core step ``step``, each held ``steps`` core steps;
-    ``on_hold`` sees each :class:`HeldStep`. Returns the core steps taken; more than ``max_steps``
-    is a RuntimeError (the core ends every row at its time limit, so that would be a bug)."""
+    ``on_hold`` sees each :class:`HeldStep`; ``compact(obs)``, after each hold, may return a smaller
+    core (finished rows dropped) and its observations to go on with. Returns the core steps taken;
+    more than ``max_steps`` is a RuntimeError (the core ends every row at its time limit)."""
     taken = 0
     while not core.done.all():
         if max_steps is not None and taken >= max_steps:
@@ -116,4 +118,7 @@ def run_to_end(core: OvertakeCore, obs: Any, decide: Callable[[Any, int], Any], 
         if on_hold is not None:
             on_hold(res)
         obs, taken = res.obs, taken + res.steps
+        smaller = compact(obs) if compact is not None else None
+        if smaller is not None:
+            core, obs = smaller
     return taken

@@ -129,3 +129,48 @@ def test_scale_up_suites_run(name):
     suite = load_suite(name)
     r = run_suite(suite, zoo.load("always-overtake", suite.config), shard=(0, 200), progress=False)
     assert r.per["outcome"].shape == (suite.count // 200,) and np.all(r.per["outcome"] > 0)
+
+
+@pytest.mark.parametrize("name", ["rule-fsm", "fuzzy", "dqn", "oracle", "ppo+shield"])
+def test_dropping_finished_rows_gives_the_same_bits(tmp_path, monkeypatch, name):
+    """The runner drops finished rows once at most half the batch runs; every per-scenario array
+    (outcomes, safety metrics, abort timing) is the same as when it steps the whole batch."""
+    from overtakezoo.benchmark.run import runner
+    from overtakezoo.envs.core import OvertakeCore
+
+    suite = small_suite(tmp_path, count=120)
+    sizes = []
+    real_clone = OvertakeCore.clone
+
+    def clone(self, rows=None):
+        out = real_clone(self, rows)
+        sizes.append(out.num)
+        return out
+
+    monkeypatch.setattr(OvertakeCore, "clone", clone)
+    runs = {}
+    for floor in (10**9, 8):  # never, then down to 8 rows
+        monkeypatch.setattr(runner, "MIN_COMPACT_ROWS", floor)
+        sizes.clear()
+        runs[floor] = run_suite(suite, zoo.load(name, config=suite.config), progress=False)
+        if floor == 8 and name != "oracle":  # (the oracle's look-ahead clones too)
+            assert sizes and all(2 * b <= a for a, b in zip([120, *sizes], sizes))  # it did shrink, by halves
+    a, b = runs[10**9].per, runs[8].per
+    assert a.keys() == b.keys()
+    for key in a:
+        assert np.array_equal(a[key], b[key], equal_nan=a[key].dtype.kind == "f"), key
+
+
+def test_a_decider_without_declared_row_state_sees_the_whole_batch(tmp_path):
+    """A decider whose per-row state is undeclared (an outside one) always gets every row."""
+    seen = []
+
+    class Outside(zoo.Decider):
+        name = "outside"
+
+        def act_batch(self, obs):
+            seen.append(obs.shape[0])
+            return np.full(obs.shape[0], 1, np.int64)
+
+    run_suite(small_suite(tmp_path, count=100), Outside(), progress=False)
+    assert set(seen) == {100}

@@ -34,6 +34,9 @@ class Decider:
       runner calls it when episodes (re)start.
     - ``action_repeat``: core steps each decision was made for (from training); the benchmark runner
       holds every decision that long (``overtakezoo.envs.hold``), so a decider never counts steps.
+    - ``row_state``: the names of the decider's per-row state arrays (``()``: stateless; ``None``,
+      the default: undeclared). A decider that declares it lets the runner drop finished rows from
+      the batch mid-run (:meth:`keep_rows`); an undeclared one always sees the whole batch.
 
     Subclasses set ``name`` and ``version`` and implement the batch form, :meth:`act_batch`; the
     single-observation form is derived here. (A subclass that overrides ``act`` itself is taken to
@@ -47,6 +50,7 @@ class Decider:
     privileged: bool = False
     weights_sha256: str | None = None
     action_repeat: int = 1
+    row_state: tuple[str, ...] | None = None
 
     def __init__(self, config: EnvConfig | None = None) -> None:
         self.config = config or EnvConfig()
@@ -63,6 +67,19 @@ class Decider:
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget any per-row state for rows in ``mask`` (all rows when None)."""
+
+    def keep_rows(self, rows: np.ndarray, core: Any = None) -> None:
+        """Keep only batch rows ``rows`` (increasing positions) of the per-row state named by
+        ``row_state``: the next batch is those rows, in that order. A privileged decider is bound to
+        ``core``, the compacted core, without losing its state. Only for a declared ``row_state``."""
+        if self.row_state is None:
+            raise TypeError(f"{self.name}: declares no row_state, so its rows cannot be dropped")
+        for name in self.row_state:
+            state = getattr(self, name)
+            if state.shape[0]:  # (an empty array: not sized yet, sized at the next act)
+                setattr(self, name, state[rows])
+        if self.privileged and core is not None:
+            self.core = core
 
     def act(self, obs: np.ndarray) -> Any:
         """One observation (D,) -> int; a batch (N, D) -> (N,) int64."""
@@ -167,6 +184,8 @@ class ConstantDecider(Decider):
     def __init__(self, mode: int, name: str, config: EnvConfig | None = None) -> None:
         super().__init__(config)
         self.mode, self.name = mode, name
+
+    row_state = ()
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         return np.full(obs.shape[0], self.mode, dtype=np.int64)

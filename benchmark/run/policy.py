@@ -181,6 +181,7 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
         box.close()
         raise
     dec = PolicyDecider(box.act, who, config, {}, action_repeat=repeat, inner=box)
+    dec.row_state = ()  # a policy file is a function of the observation: the runner may drop finished rows
     _probe(dec, config, who)
     return dec
 

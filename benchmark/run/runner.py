@@ -4,6 +4,11 @@ The runner applies the action hold (``overtakezoo.envs.hold``): the decider acts
 observations, and each decision is held for ``hold_steps(decision_interval, decider.action_repeat)``
 core steps; finished rows are frozen by the core, so the loop simply steps until every row is done.
 
+Finished rows are dropped from the batch (:class:`Compaction`) once at most half of it still runs,
+where every part with per-row state can drop them: the decider (a declared ``row_state``), the
+recorder (``keep_rows``) and the safety monitor. Rows never interact, so the results are the same
+bits either way (``tests/test_benchmark_runner.py`` checks it); single-ego suites only.
+
 On a multi-AV suite the decider drives every AV (self-play), or a :class:`~.pairing.Pairing` drives
 AV e with its e-th decider (cross-play); the per-scenario arrays then hold one value per AV,
 AV-major (results.py).
@@ -95,6 +100,8 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     keys = {**per_scenario_keys(scenarios.num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
     parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
+    compact = (scenarios.num_avs == 1 and getattr(decider, "row_state", None) is not None
+               and (recorder is None or hasattr(recorder, "keep_rows")))
     bar = tqdm(total=scenarios.num * scenarios.num_avs, unit="AV", desc=f"{suite.name}/{decider.name}", leave=False,
                disable=not progress or not sys.stderr.isatty())
     try:
@@ -110,13 +117,13 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             monitor = SafetyMonitor() if safety else None
             if monitor is not None:
                 monitor.begin_chunk(core)
-            rows = index[lo:lo + chunk.num]
-            total_steps += run_to_end(core, obs, lambda o, k: _decide(decider, o, rows, k, cfg.dt), held,
-                                      on_step=_on_step(core, recorder, monitor), max_steps=max_steps,
+            live = Compaction(core, index[lo:lo + chunk.num], decider, recorder, monitor, compact)
+            total_steps += run_to_end(core, obs, lambda o, k: _decide(decider, o, live.rows, k, cfg.dt), held,
+                                      on_step=live.on_step, max_steps=max_steps, compact=live.compact,
                                       on_hold=lambda res: bar.update(int(np.count_nonzero(res.finished))))
             if recorder is not None:
-                recorder.end_chunk(core)
-            parts.append({**_per_scenario(core), **(monitor.end_chunk(core) if monitor is not None else {})})
+                recorder.end_chunk(live.core)
+            parts.append(live.finish())
     finally:
         bar.close()
     e = scenarios.num_avs  # AV-major: join each AV's part of every chunk
@@ -125,18 +132,57 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     return per, total_steps
 
 
-def _on_step(core: Any, recorder: Any, monitor: Any) -> Any:
-    """The hold's per-step hook: the recorder's and the safety monitor's (None when neither)."""
-    if recorder is None and monitor is None:
-        return None
-    if recorder is None:
-        return lambda modes, res: monitor.record_step(core, modes, res)
+MIN_COMPACT_ROWS = 64  # below this a smaller batch saves less than the copy costs
 
-    def both(modes: np.ndarray, res: Any) -> None:
-        recorder.record_step(core, modes, res)
-        if monitor is not None:
-            monitor.record_step(core, modes, res)
-    return both
+
+class Compaction:
+    """One chunk's rows while they run: the core stepping them (smaller once finished rows are
+    dropped), which suite rows they are, and the per-scenario values of the rows already dropped."""
+
+    def __init__(self, core: OvertakeCore, rows: np.ndarray, decider: Any, recorder: Any, monitor: Any,
+                 enabled: bool) -> None:
+        self.core, self.rows, self.decider, self.recorder, self.monitor = core, rows, decider, recorder, monitor
+        self.enabled, self.size = enabled, core.num
+        self.pos = np.arange(core.num)  # chunk position of each current row
+        self.dropped: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+
+    def on_step(self, modes: np.ndarray, res: Any) -> None:
+        if self.recorder is not None:
+            self.recorder.record_step(self.core, modes, res)
+        if self.monitor is not None:
+            self.monitor.record_step(self.core, modes, res)
+
+    def _values(self) -> dict[str, np.ndarray]:
+        """The per-scenario arrays of the current rows (final for the finished ones)."""
+        return {**_per_scenario(self.core), **(self.monitor.end_chunk(self.core) if self.monitor is not None else {})}
+
+    def compact(self, obs: np.ndarray) -> tuple[OvertakeCore, np.ndarray] | None:
+        """After a hold: drop the finished rows when at most half the batch still runs; returns the
+        smaller core and its rows' observations, or None to go on with the same batch."""
+        done = np.asarray(self.core.done)
+        keep = np.flatnonzero(~done)
+        if not self.enabled or done.size < MIN_COMPACT_ROWS or 2 * keep.size > done.size or not keep.size:
+            return None
+        gone = np.ones(done.size, bool)
+        gone[keep] = False
+        self.dropped.append((self.pos[gone], {k: v[gone] for k, v in self._values().items()}))
+        self.core, self.pos, self.rows = self.core.clone(keep), self.pos[keep], self.rows[keep]
+        self.decider.keep_rows(keep, self.core)
+        if self.recorder is not None:
+            self.recorder.keep_rows(keep)
+        if self.monitor is not None:
+            self.monitor.keep_rows(keep)
+        return self.core, obs[keep]
+
+    def finish(self) -> dict[str, np.ndarray]:
+        """Every row's per-scenario arrays, in the chunk's row order."""
+        parts = [*self.dropped, (self.pos, self._values())]
+        out = {}
+        for key, value in parts[-1][1].items():
+            out[key] = np.empty((self.size, *value.shape[1:]), value.dtype)
+            for pos, values in parts:
+                out[key][pos] = values[key]
+        return out
 
 
 class RunFailure(UserError):

@@ -52,7 +52,7 @@ class SafetyMonitor:
         self.first_unsafe, self.abort_t = nan(), nan()
         self.abort_late = np.zeros(b, bool)
         self.viol_after_unsafe = np.zeros(b, bool)
-        self.ponr, self.last_ponr = np.full(b, INF), nan()
+        self.ponr, self.last_ponr, self.last_ponr_step = np.full(b, INF), nan(), -1
         self.step, self.pending, self.pending_columns, self.merging = 0, [], 0, []
 
     def record_step(self, core: Any, *_: Any) -> None:
@@ -88,6 +88,15 @@ class SafetyMonitor:
             rows = np.flatnonzero(merged)
             self.merging.append((rows, _columns(geo, rows), v[rows] * np.cos(psi[rows])))
 
+    def keep_rows(self, rows: np.ndarray) -> None:
+        """Keep only rows ``rows`` (the runner dropped finished rows): the buffered columns are
+        computed first, so every per-row array can then be taken."""
+        self._flush()
+        b = self.w.shape[0]
+        for name, value in list(vars(self).items()):
+            if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == b:
+                setattr(self, name, value[rows])
+
     def end_chunk(self, core: Any) -> dict[str, np.ndarray]:
         self._flush()
         opp = self.opp_steps > 0
@@ -112,7 +121,8 @@ class SafetyMonitor:
         ``last_ponr`` becomes each row's margin at the last recorded step (NaN where it was not in the
         opposite lane then)."""
         last = self.step - 1
-        self.last_ponr = np.full(self.w.shape[0], np.nan)
+        if self.last_ponr_step != last:  # a step since the last flush: its margins are all pending
+            self.last_ponr, self.last_ponr_step = np.full(self.w.shape[0], np.nan), last
         if self.merging:  # (order-free: the worst merge and the least PET per row)
             rows = np.concatenate([r for r, _, _ in self.merging])
             geo = {key: np.concatenate([c[key] for _, c, _ in self.merging], axis=1) for key in _KEYS}

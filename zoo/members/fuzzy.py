@@ -156,6 +156,8 @@ class FuzzyDecider(Decider):
         self.v_cap = min(self.config.planner.modes["overtake"].velocity, self.dist.speed_limit)
         self.mode = np.zeros(0, np.int64)
 
+    row_state = ("mode",)
+
     def reset(self, mask: np.ndarray | None = None) -> None:
         if mask is None:
             self.mode = np.zeros(0, np.int64)

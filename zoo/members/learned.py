@@ -124,6 +124,7 @@ class MLPDecider(Decider):
     ``action_repeat`` core steps by the runner)."""
 
     privileged = False
+    row_state = ()
 
     def __init__(self, net: NumpyMLP, name: str, config: EnvConfig | None = None,
                  card: dict[str, Any] | None = None) -> None:

@@ -53,6 +53,7 @@ class Oracle(Decider):
     name = "oracle"
     version = "1"
     privileged = True
+    row_state = ("decision", "verified")
 
     def __init__(self, config: EnvConfig | None = None, replan_s: float = 1.0, retreat_horizon_s: float = 8.0,
                  trust_verified: bool = True) -> None:

@@ -63,6 +63,7 @@ class RuleFSM(Decider):
 
     name = "rule-fsm"
     version = "1"
+    row_state = ("mode", "count")
 
     def __init__(self, config: EnvConfig | None = None, evidence: int = EVIDENCE_TRUST_NUMBER) -> None:
         super().__init__(config)

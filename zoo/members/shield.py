@@ -52,8 +52,15 @@ class Shielded(Decider):
         overtake = cfg.planner.modes["overtake"]
         self.accel, self.v_mode = overtake.acceleration, overtake.velocity
 
+    @property
+    def row_state(self) -> tuple[str, ...] | None:  # all of it is the inner decider's
+        return None if self.inner.row_state is None else ()
+
     def reset(self, mask: np.ndarray | None = None) -> None:
         self.inner.reset(mask)
+
+    def keep_rows(self, rows: np.ndarray, core: Any = None) -> None:
+        self.inner.keep_rows(rows, core)
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         want = np.asarray(self.inner.act(obs), np.int64)
