@@ -27,6 +27,8 @@ planner's horizon: it acts on the blocked flags only, plus the lead gap for ``di
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
@@ -40,9 +42,8 @@ EVIDENCE_TRUST_NUMBER = 3  # OpenPlanner launch default (op_behavior_selector/ev
 def lead_from_obs(obs: np.ndarray, cfg: EnvConfig) -> dict[str, np.ndarray]:
     """The nearest perceived ego-lane vehicle ahead of the ego (OpenPlanner's ``distanceToNext``):
     bumper gap (inf if none), relative speed (m/s, ego frame) and slot index (-1 if none)."""
-    lay = observation_layout(cfg)
+    lay, dist = _layout_and_sizes(cfg)
     oc = cfg.observation
-    dist = ScenarioDistribution.from_dict(cfg.scenario)
     slots = obs[:, lay["ego_lane"]].reshape(len(obs), -1, SLOT_FEATURES).astype(float)
     x = slots[:, :, 1] * oc.position_scale
     ahead = (slots[:, :, 0] > 0.5) & (x > 0.0)
@@ -53,6 +54,20 @@ def lead_from_obs(obs: np.ndarray, cfg: EnvConfig) -> dict[str, np.ndarray]:
     gap = dx - (dist.ego_length + dist.vehicle_length) / 2
     rel_v = np.where(np.isfinite(dx), slots[rows, idx, 3] * oc.speed_scale, 0.0)
     return {"gap": gap, "rel_v": rel_v, "slot": np.where(np.isfinite(dx), idx, -1)}
+
+
+def _layout_and_sizes(cfg: EnvConfig) -> tuple[dict[str, Any], ScenarioDistribution]:
+    """The observation layout and the scenario distribution of ``cfg``, built once per config object
+    (validating the distribution every decision cost as much as the decision itself)."""
+    cached = _CACHE.get(id(cfg))
+    if cached is None or cached[0] is not cfg:
+        if len(_CACHE) > 32:  # (a few configs live at a time; the entries keep theirs alive)
+            _CACHE.clear()
+        cached = _CACHE[id(cfg)] = (cfg, observation_layout(cfg), ScenarioDistribution.from_dict(cfg.scenario))
+    return cached[1], cached[2]
+
+
+_CACHE: dict[int, tuple[EnvConfig, dict[str, Any], ScenarioDistribution]] = {}
 
 
 class RuleFSM(Decider):
