@@ -14,10 +14,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 runs="${1:-runs/zoo}"
 mkdir -p "$runs"
-for seed in 0 1 2; do
-  overtakezoo train dqn --suite core-train --seed "$seed" --out "$runs/dqn-s$seed" --eval-suite none --no-progress
-  overtakezoo train double-dqn --suite core-train --seed "$seed" --out "$runs/double-dqn-s$seed" --eval-suite none --no-progress
-  overtakezoo train ppo --suite core-train --seed "$seed" --out "$runs/ppo-s$seed" --eval-suite none --no-progress
+# --seeds writes $runs/<algo>-s0, -s1, -s2: the seeds in parallel on Ray when it is installed, one
+# after the other otherwise (the same files either way: tests/test_seed_sweep.py).
+for algo in dqn double-dqn ppo; do
+  overtakezoo train "$algo" --suite core-train --seeds 0,1,2 --out "$runs/$algo" --eval-suite none --no-progress
 done
 for algo in dqn double-dqn ppo; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
@@ -25,17 +25,14 @@ done
 # ps-dqn: dqn with one Q-network for every automated vehicle, on the core and the multi-AV training
 # splits; every seed also in self-play on duel / platoon / mixed-traffic, beside the shipped dqn,
 # ppo and rule-fsm there. Shipped by the same median rule, over its own training splits.
-for seed in 0 1 2; do
-  overtakezoo train ps-dqn --suite core-train+multi-train --seed "$seed" --out "$runs/ps-dqn-s$seed" --eval-suite none --no-progress
-done
+overtakezoo train ps-dqn --suite core-train+multi-train --seeds 0,1,2 --out "$runs/ps-dqn" --eval-suite none --no-progress
 python scripts/seed_results.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --ship \
   --train-suite core-train+multi-train --compare dqn,ppo,rule-fsm \
   --suites table1,table1-reactive,oncoming-2,oncoming-4,oncoming-8,dense,urban-50,adversarial,occluded,duel,platoon,mixed-traffic
 overtakezoo dataset regenerate
 dataset=overtakezoo/table1/rule-fsm-v0
-for seed in 0 1 2; do
-  overtakezoo train bc --dataset "$dataset" --seed "$seed" --out "$runs/bc-s$seed" --eval-suite none --no-progress
-  overtakezoo train cql --dataset "$dataset" --seed "$seed" --out "$runs/cql-s$seed" --eval-suite none --no-progress
+for algo in bc cql; do
+  overtakezoo train "$algo" --dataset "$dataset" --seeds 0,1,2 --out "$runs/$algo" --eval-suite none --no-progress
 done
 for algo in bc cql; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship

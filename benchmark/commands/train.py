@@ -26,6 +26,8 @@ EXAMPLES = """examples:
   overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
   overtakezoo train cql --dataset overtakezoo/table1/rule-fsm-v0 --seed 1 --out runs/cql
 
+  overtakezoo train dqn --suite core-train --seeds 0,1,2 --out runs/dqn   # runs/dqn-s0, -s1, -s2 (on Ray if installed)
+
   overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
   overtakezoo train ppo --out runs/ppo --set train.select_every=10
 """
@@ -89,6 +91,11 @@ def register(subparsers: Any) -> None:
                    help="total training length, also when resuming (dqn: decision transitions summed over "
                         "all parallel rows; bc / cql: gradient steps; default: the hyperparameter file)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the hyperparameter file)")
+    p.add_argument("--seeds", default=None, metavar="S,S,...",
+                   help="a seed sweep: one run per seed into <out>-s<seed>, in parallel on Ray when it is "
+                        "installed (see --engine); the same files either way")
+    p.add_argument("--engine", choices=("auto", "ray", "sequential"), default="auto",
+                   help="--seeds: ray (parallel tasks on a local Ray), sequential, or auto (ray when installed)")
     p.add_argument("--out", default=None, help="output directory (default: runs/<algorithm>)")
     p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint the trainer wrote (see below)")
     p.add_argument("--hyperparams", default=None, metavar="TOML",
@@ -108,11 +115,28 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and not Path(args.resume).is_file():
         raise UserError(f"--resume: no checkpoint at {args.resume}")
     out = Path(args.out or f"runs/{args.algorithm}")
-    check_writable_dir(out)  # an unwritable --out fails now, not after training
     from overtakezoo.zoo.train.contract import parse_overrides
 
-    from overtakezoo.benchmark.run.training import train
+    from overtakezoo.benchmark.run.training import seed_dirs, train, train_seeds
 
+    if args.seeds is not None:
+        if args.seed is not None or args.resume:
+            raise UserError("--seeds runs a sweep: give it without --seed or --resume")
+        try:
+            seeds = [int(s) for s in args.seeds.split(",")]
+        except ValueError:
+            raise UserError(f"--seeds {args.seeds}: expected integers joined by commas, e.g. 0,1,2") from None
+        for where in seed_dirs(out, seeds):
+            check_writable_dir(where)  # an unwritable folder fails now, not after training
+        cards = train_seeds(args.algorithm, seeds, out, engine=args.engine, suite=args.suite, dataset=args.dataset,
+                            steps=args.steps, hyperparams=args.hyperparams,
+                            overrides=parse_overrides(args.overrides),
+                            eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
+                            progress=not args.no_progress)
+        for card, where in zip(cards, seed_dirs(out, seeds)):
+            _report(card, where)
+        return 0
+    check_writable_dir(out)  # an unwritable --out fails now, not after training
     # Bad hyperparameters, checkpoints or datasets are ConfigErrors: the CLI prints them in one line.
     trained = train(args.algorithm, suite=args.suite, dataset=args.dataset, steps=args.steps, seed=args.seed,
                     out=out, resume=args.resume, hyperparams=args.hyperparams,

@@ -16,6 +16,7 @@ ships); they know nothing of the benchmark. Here, for every trainer alike, :func
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,7 @@ import numpy as np
 
 from overtakezoo import zoo
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
+from overtakezoo.envs.config import ConfigError
 from overtakezoo.envs.suites import Suite, load_suite, load_training
 
 from overtakezoo.benchmark.errors import UserError
@@ -106,3 +108,67 @@ def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time
         "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
         "mean_completion_time_s": float(np.nanmean(completion_time)) if succ else None,
     }
+
+
+# ----------------------------------------------------------------------------- seed sweeps
+def seed_dirs(out: str | Path, seeds: list[int]) -> list[Path]:
+    """Where each seed of a sweep writes: ``<out>-s<seed>`` (runs/dqn -> runs/dqn-s0, runs/dqn-s1, ...)."""
+    out = Path(out)
+    return [out.with_name(f"{out.name}-s{seed}") for seed in seeds]
+
+
+def _train_one(member: str, seed: int, out: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """One seed of a sweep (here or on a Ray worker): the files go into ``out``; the card comes back
+    as JSON-able data (the driver needs nothing else)."""
+    return train(member, seed=seed, out=out, **kwargs).card
+
+
+def train_seeds(member: str, seeds: list[int], out: str | Path, engine: str = "auto", num_cpus: int | None = None,
+                say: Any = print, **kwargs: Any) -> list[dict[str, Any]]:
+    """Train ``member`` once per seed into :func:`seed_dirs`; returns the cards in seed order.
+
+    ``engine``: ``ray`` runs the seeds as parallel Ray tasks on a local instance (``num_cpus`` of
+    them at a time: Ray's default, every core), ``sequential`` one after the other here, ``auto``
+    Ray when it is installed. Each seed's run is the same deterministic code with the same torch
+    threads (the hyperparameter file's), so the files are the same bits either way."""
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise UserError(f"--seeds: expected distinct seeds, got {seeds}")
+    dirs = seed_dirs(out, seeds)
+    if engine == "auto":
+        engine = "ray" if importlib.util.find_spec("ray") is not None else "sequential"
+    if engine == "sequential":
+        cards = []
+        for seed, where in zip(seeds, dirs):
+            say(f"seed {seed}: training into {where}")
+            cards.append(_train_one(member, seed, str(where), kwargs))
+        return cards
+    if engine != "ray":
+        raise UserError(f"engine {engine!r}: expected auto, ray or sequential")
+    try:
+        import ray
+    except ImportError:
+        raise UserError("--engine ray needs Ray: pip install -e '.[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        task = ray.remote(num_cpus=1)(_train_one)
+        quiet = {**kwargs, "progress": False}  # (bars from parallel workers would interleave)
+        say(f"training {len(seeds)} seeds of {member} on Ray ({int(ray.cluster_resources().get('CPU', 0))} CPUs)")
+        refs = [task.remote(member, seed, str(where.resolve()), quiet) for seed, where in zip(seeds, dirs)]
+        pending, cards = list(refs), {}
+        while pending:
+            done, pending = ray.wait(pending)
+            for ref in done:
+                seed = seeds[refs.index(ref)]
+                cards[seed] = ray.get(ref)
+                say(f"seed {seed}: done, files in {dirs[seeds.index(seed)]}")
+    except ray.exceptions.RayTaskError as exc:
+        cause = getattr(exc, "cause", None)
+        if isinstance(cause, (UserError, ConfigError)):  # the one-line errors of a run here
+            raise cause from None
+        raise
+    finally:
+        if started_here:
+            ray.shutdown()
+    return [cards[seed] for seed in seeds]
