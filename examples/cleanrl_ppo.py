@@ -8,7 +8,7 @@ PPO update inline), for the discrete 3-mode action (follow / overtake / abort) o
 ``overtakezoo/table1-train-v2``: one env step is one decision held 10 core steps (1 s), and all
 ``num_envs`` scenarios step in one natively batched core. The exported ``policy.onnx`` maps the
 env's raw observation (N, D) to (N, 3) logits (``eval`` takes their argmax); its policy card
-(``action_repeat=10``, suite table1-train) goes into the ONNX metadata (README, "Guide: CleanRL").
+(``action_repeat=10``, suite table1-train) goes into the ONNX metadata (README, "Guide: CleanRL-style PPO").
 """
 
 from __future__ import annotations
@@ -183,9 +183,9 @@ def main() -> None:
                 mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
                 pg_loss = torch.max(-mb_adv * ratio,
                                     -mb_adv * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)).mean()
-                # clipped value loss, as CleanRL's default
-                v_clipped = b_values[mb] + torch.clamp(newvalue.view(-1) - b_values[mb], -args.clip_coef, args.clip_coef)
-                v_loss = 0.5 * torch.max((newvalue.view(-1) - b_returns[mb]) ** 2, (v_clipped - b_returns[mb]) ** 2).mean()
+                newvalue = newvalue.view(-1)  # clipped value loss, as CleanRL's default
+                v_clipped = b_values[mb] + torch.clamp(newvalue - b_values[mb], -args.clip_coef, args.clip_coef)
+                v_loss = 0.5 * torch.max((newvalue - b_returns[mb]) ** 2, (v_clipped - b_returns[mb]) ** 2).mean()
                 loss = pg_loss - args.ent_coef * entropy.mean() + v_loss * args.vf_coef
                 optimizer.zero_grad()
                 loss.backward()
