@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from overtakezoo import zoo
 from overtakezoo.benchmark.leaderboard import crossplay
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
@@ -199,8 +200,23 @@ def test_crossplay_regenerates_byte_identically_and_check_catches_edits(tmp_path
     capsys.readouterr()
     assert main(["crossplay", "--suite", "duel", "--check", "--root", str(root)]) == 1
     assert "differs from a re-run" in capsys.readouterr().err
-    assert main(["crossplay", "--suite", "platoon", "--limit", "2", "--root", str(root)]) == 2
-    assert "two deciders on two-AV suites" in capsys.readouterr().err
+    assert main(["crossplay", "--suite", "table1", "--limit", "2", "--root", str(root)]) == 2
+    assert "on multi-AV suites" in capsys.readouterr().err
+
+
+def test_crossplay_on_platoon_seats_b_on_every_other_av(tmp_path):
+    """On a three-AV road A drives the ego and B both followers: B's counts are per AV (2 per road),
+    and A = B is self-play (the same as every AV run by that member)."""
+    from overtakezoo.benchmark.run.runner import run_suite
+
+    suite = load_suite("platoon")
+    doc = crossplay.measure(suite, ["rule-fsm", "always-follow"], scenarios=8)
+    pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
+    assert all(p["a_success"][1] == 8 and p["b_success"][1] == 16 for p in pairs.values())
+    alone = run_suite(suite, zoo.load("rule-fsm", suite.config), limit=8, progress=False).summary
+    assert pairs[("rule-fsm", "rule-fsm")]["all_succeed"] == [alone["joint"]["all_succeed"]["k"], 8]
+    # always-follow never passes: as B it never succeeds, and its followers block nobody ahead.
+    assert pairs[("rule-fsm", "always-follow")]["b_success"][0] == 0
 
 
 def test_repo_crossplay_matrix_covers_the_zoo():

@@ -1,4 +1,4 @@
-"""``overtakezoo crossplay``: every zoo decider against every other on a two-AV suite (crossplay.py)."""
+"""``overtakezoo crossplay``: every zoo decider against every other on a multi-AV suite (crossplay.py)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "crossplay", "measure the cross-play matrix of the zoo on a two-AV suite",
-                   "Decider A drives AV 0 (towards +s), decider B AV 1 (towards -s) of the suite's first K\n"
+    p = add_parser(subparsers, "crossplay", "measure the cross-play matrix of the zoo on a multi-AV suite (A drives the ego, B every other AV)",
+                   "Decider A drives AV 0 (the ego), decider B every other AV (one B per AV) of the suite's first K\n"
                    "scenarios, for every ordered pair of zoo deciders (the privileged oracle left out). Writes the\n"
                    "counts to <root>/crossplay/<suite>.json and regenerates the leaderboard, which turns them into\n"
                    "crossplay-<suite>.md (joint success and AV-AV crash matrices with 95 % Wilson intervals) and\n"
@@ -18,8 +18,9 @@ def register(subparsers: Any) -> None:
                    "and the exit status is 1 when it differs from the stored one.",
                    ["overtakezoo crossplay --suite duel --jobs 2",
                     "overtakezoo crossplay --suite duel --limit 50 --deciders rule-fsm,fuzzy,dqn --root /tmp/lb",
+                    "overtakezoo crossplay --suite platoon --jobs 2",
                     "overtakezoo crossplay --suite duel --check --jobs 2"])
-    p.add_argument("--suite", default="duel", help="a two-AV suite (default: duel)")
+    p.add_argument("--suite", default="duel", help="a multi-AV suite: duel, platoon, mixed-traffic (default: duel)")
     p.add_argument("--limit", type=int, metavar="K", help="scenarios per pair, the suite's first K "
                    "(default: 500)")
     p.add_argument("--deciders", metavar="A,B,...", help="zoo deciders to pair (default: every non-privileged "

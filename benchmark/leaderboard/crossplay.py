@@ -1,8 +1,10 @@
-"""Cross-play: every zoo decider against every other on a two-AV suite (``duel``).
+"""Cross-play: every zoo decider against every other on a multi-AV suite (``duel``, ``platoon``,
+``mixed-traffic``).
 
-Decider A drives AV 0 (the ego, towards +s) and B drives AV 1 (towards -s) of the suite's first
-``scenarios`` roads (a :class:`~.pairing.Pairing`); each ordered pair (A, B), A = B included, is one
-run. What is measured is written, as counts, to ``leaderboards/crossplay/<suite>.json`` (the
+Decider A drives AV 0 (the ego) and B drives every other AV of the suite's first ``scenarios``
+roads (a :class:`~.pairing.Pairing`, one B object per AV: their per-row state stays apart); each
+ordered pair (A, B), A = B included, is one run. On ``duel`` AV 1 drives towards -s; on
+``platoon`` AVs 1 and 2 follow the ego in its direction. What is measured is written, as counts, to ``leaderboards/crossplay/<suite>.json`` (the
 input, like the submissions; ``overtakezoo crossplay --check`` re-runs it and requires the same
 bytes), and ``overtakezoo leaderboard`` turns it into ``crossplay-<suite>.md`` (matrices of joint
 success and AV-AV crash rate with 95 % Wilson intervals) and ``crossplay-<suite>.png`` (heatmaps).
@@ -53,11 +55,15 @@ def _pair_counts(suite: Suite, a: str, b: str, scenarios: int) -> dict[str, list
     from overtakezoo.benchmark.run.pairing import Pairing
     from overtakezoo.benchmark.run.runner import run_suite
 
-    pairing = Pairing([zoo.load(a, suite.config), zoo.load(b, suite.config)], suite.config.decision_interval)
+    others = [zoo.load(b, suite.config) for _ in range(suite.num_avs - 1)]
+    pairing = Pairing([zoo.load(a, suite.config), *others], suite.config.decision_interval)
     s = run_suite(suite, pairing, limit=scenarios, progress=False).summary
-    picked = {**s["joint"], "a_success": s["per_av"][0]["success_rate"], "b_success": s["per_av"][1]["success_rate"],
-              "a_yielded": s["per_av"][0]["yielded"], "b_yielded": s["per_av"][1]["yielded"]}
-    return {key: [picked[key]["k"], picked[key]["n"]] for key, _ in MEASURES}
+    counts = {key: [s["joint"][key]["k"], s["joint"][key]["n"]] for key, _ in MEASURES if key in s["joint"]}
+    av, rest = s["per_av"][0], s["per_av"][1:]  # B's counts: summed over its AVs (per AV, not per road)
+    for mine, theirs, key in (("a_success", "b_success", "success_rate"), ("a_yielded", "b_yielded", "yielded")):
+        counts[mine] = [av[key]["k"], av[key]["n"]]
+        counts[theirs] = [sum(r[key]["k"] for r in rest), sum(r[key]["n"] for r in rest)]
+    return {key: counts[key] for key, _ in MEASURES}
 
 
 def _row(args: tuple[str, str, list[str], int]) -> list[dict[str, Any]]:
@@ -73,9 +79,9 @@ def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAU
     from overtakezoo import zoo
 
     num_avs = suite.num_avs
-    if num_avs != 2:
-        raise UserError(f"suite {suite.name!r} has {num_avs} automated vehicle(s) per scenario; cross-play pairs "
-                        "two deciders on two-AV suites (duel)")
+    if num_avs < 2:
+        raise UserError(f"suite {suite.name!r} has one automated vehicle per scenario; cross-play pairs deciders "
+                        "on multi-AV suites (duel, platoon, mixed-traffic)")
     if not 1 <= scenarios <= suite.count:
         raise UserError(f"--limit {scenarios}: must lie in [1, {suite.count}] (the suite's scenarios)")
     names = zoo_deciders(suite.config) if names is None else list(names)
@@ -156,7 +162,8 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
            f"scenarios (suite v{md(doc['suite']['version'])}, sha256 {md_code(str(doc['suite']['hash'])[:12])}), {len(names)} x "
            f"{len(names)} ordered pairs ({md_code(f'overtakezoo crossplay --suite {raw} --jobs 2')}; at the default "
            f"{DEFAULT_SCENARIOS} scenarios per pair the zoo's 11 x 11 matrix takes about 2-3 minutes on 2 cores: "
-           "128 s wall, 223 s of CPU time, measured). Row A drives AV 0 (towards +s), column B drives AV 1 (towards -s); the "
+           "128 s wall, 223 s of CPU time, measured on duel). Row A drives AV 0, the ego; column B drives every other AV "
+           "(AV 1 on duel, towards -s, and on mixed-traffic; AVs 1 and 2 on platoon, behind the ego), one B per AV; the "
            "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
            "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
            "the other decider's).", ""]
@@ -167,7 +174,7 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
                                                                    if d["weights_sha256"] else "") for d in doc["deciders"])
     out += [f"Deciders: {versions}.", ""]
     for key, label in MEASURES[:2]:
-        out += [f"## {label}", "", "| A (AV 0) \\ B (AV 1) | " + " | ".join(map(md, names)) + " |", "|" + "---|" * (len(names) + 1)]
+        out += [f"## {label}", "", "| A (AV 0) \\ B (the other AVs) | " + " | ".join(map(md, names)) + " |", "|" + "---|" * (len(names) + 1)]
         for a in names:
             cells = [format_metric(_rate(pairs[(a, b)][key]), "rate", "%") for b in names]
             out.append(f"| **{md(a)}** | " + " | ".join(cells) + " |")
@@ -181,8 +188,8 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
     for d in names:
         mine = [pairs[(d, b)] for b in names] + [pairs[(a, d)] for a in names]
         mean = lambda key, rows: float(np.mean([r[key][0] / r[key][1] for r in rows]))  # noqa: E731
-        yielded = float(np.mean([pairs[(d, b)]["a_yielded"][0] / n for b in names]
-                                + [pairs[(a, d)]["b_yielded"][0] / n for a in names]))
+        yielded = float(np.mean([pairs[(d, b)]["a_yielded"][0] / pairs[(d, b)]["a_yielded"][1] for b in names]
+                                + [pairs[(a, d)]["b_yielded"][0] / pairs[(a, d)]["b_yielded"][1] for a in names]))
         summary.append((-mean("all_succeed", mine), mean("av_crash", mine), d, yielded))
     for neg_ok, crash, d, yielded in sorted(summary):
         out.append(f"| {md(d)} | {-neg_ok * 100:.1f} % | {crash * 100:.1f} % | {yielded * 100:.1f} % |")
@@ -211,8 +218,8 @@ def heatmap(doc: dict[str, Any]) -> bytes:
                             color="white" if m[r, c] > 60 else "black")
             ax.set_xticks(range(len(names)), [plot_text(x) for x in names], rotation=45, ha="right")
             ax.set_yticks(range(len(names)), [plot_text(x) for x in names])
-            ax.set_xlabel("B (AV 1, towards -s)")
-            ax.set_ylabel("A (AV 0, towards +s)")
+            ax.set_xlabel("B (every other AV)")
+            ax.set_ylabel("A (AV 0, the ego)")
             ax.set_title(f"{label} (%)")
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
         fig.suptitle(f"{plot_text(doc['suite']['name'])}: cross-play on {doc['scenarios']} scenarios, measured")
