@@ -30,7 +30,7 @@ episodes), so the target is always either absent, the previous file, or complete
 episodes and finishing the file are not cut by SIGTERM or Ctrl-C (a second one included): the signal
 waits until they are done. A full disk drops the temp file and raises a ``WriteError``.
 
-Modules: this one records (capture per step, serialize per chunk); :mod:`.reader` reads;
+Modules: this one records (capture per step, serialize per finished episode); :mod:`.reader` reads;
 :mod:`.format` holds topics and schemas; :mod:`.scene` builds the Foxglove scene; :mod:`.sink` is the
 batched write path into mcap's Writer.
 
@@ -55,7 +55,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
 
@@ -101,10 +100,15 @@ class ArchiveRecorder:
     """Records every episode of a run into one MCAP file.
 
     The runner calls :meth:`begin_chunk` after ``core.reset``, :meth:`record_step` after each
-    ``core.step`` and :meth:`end_chunk` when the chunk is done. Per step only the rows still running
-    are kept (compact numpy arrays); messages are serialized at :meth:`end_chunk`, episode by
-    episode in scenario order, so each episode's messages are contiguous (reading one episode
-    decompresses only the chunks it spans). ``scene_every`` thins the Foxglove scene (0: none).
+    ``core.step`` and :meth:`end_chunk` when the chunk is done; :meth:`keep_rows` when it compacts
+    finished rows away mid-chunk. Per step the state of the rows still running is copied into
+    preallocated numpy blocks (``BLOCK_STEPS`` steps each, no per-row Python); messages are
+    serialized per episode, in bulk (one %-template per topic and episode), at :meth:`end_chunk` in
+    scenario order, so each episode's messages are contiguous (reading one episode decompresses only
+    the chunks it spans). A big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its
+    finished episodes early, in scenario order within each batch, and frees their captures: memory
+    is bounded by the history of the rows still running. ``scene_every`` thins the Foxglove scene
+    (0: none).
 
     The file is written to a temp file beside ``path`` (``tmp_path``, by
     :func:`overtakezoo.envs.io.atomic_output`) and renamed to ``path`` by :meth:`close` (two runs
@@ -112,8 +116,8 @@ class ArchiveRecorder:
     Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open (or whatever the
     previous SIGTERM handler raises: the CLI's exits 143), so an interrupted run still finishes the
     file with its whole episodes; a SIGTERM or Ctrl-C that arrives while episodes are written or the
-    file is finished is held until that is done. ``progress``: a bar while a chunk's episodes are
-    written (on a terminal) and a line when an interrupted run is finished.
+    file is finished is held until that is done. ``progress``: a line when an interrupted run is
+    finished (episodes are now written as they finish, so there is no separate writing phase to show).
     """
 
     def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
