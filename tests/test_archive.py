@@ -658,3 +658,78 @@ def test_a_killed_writers_temp_file_is_swept_by_the_next_write_not_a_live_one(tm
     assert not dead.exists()
     live.close(), other.close()
     assert list(tmp_path.iterdir()) == [target]
+
+
+def _drive(rec, suite, index, compact=()):
+    """Step one chunk by hand (modes from the episode and step, not the row), recording it; at the steps
+    in ``compact`` the finished rows are compacted away (``core.clone(rows=keep)`` and ``keep_rows``),
+    as the runner will do."""
+    from overtakezoo.envs import OvertakeCore
+
+    core = OvertakeCore(suite.config)
+    core.reset(suite.scenarios().take(index))
+    ids = np.arange(len(index))  # each current row's episode (position in index)
+    rec.begin_chunk(core, index)
+    k = 0
+    while not core.done.all():
+        modes = np.select([(k // 40 + ids) % 4 == 0, (k // 40 + ids) % 4 == 3], [0, 2], 1).astype(np.int64)
+        rec.record_step(core, modes, core.step(modes))
+        k += 1
+        if k in compact:
+            keep = np.flatnonzero(~core.done)
+            assert 0 < keep.size < core.num  # a real compaction
+            core, ids = core.clone(rows=keep), ids[keep]
+            rec.keep_rows(keep)
+    rec.end_chunk(core)
+
+
+def _same_episodes(a, b):
+    assert [e.index for e in a] == [e.index for e in b]
+    for x, y in zip(a, b):
+        for name, u in vars(x).items():
+            v = getattr(y, name)
+            if isinstance(u, dict):
+                assert u.keys() == v.keys()
+                for key in u:
+                    np.testing.assert_array_equal(np.asarray(u[key]), np.asarray(v[key]), err_msg=f"{name}.{key}")
+            else:
+                np.testing.assert_array_equal(np.asarray(u), np.asarray(v), err_msg=name)
+
+
+def _scenes_by_episode(path):
+    """Each episode's /scene and /tf payloads in order, with times relative to its start."""
+    entries, out = list_episodes(path), {}
+    starts = [e.start_ns for e in entries]
+    with open(path, "rb") as f:
+        for _, channel, msg in make_reader(f).iter_messages(topics=["/scene", "/tf"]):
+            e = entries[int(np.searchsorted(starts, msg.log_time, side="right")) - 1]
+            out.setdefault(e.index, []).append((channel.topic, msg.log_time - e.start_ns,
+                                                msg.data.replace(str(msg.log_time // 10**9).encode(), b"S")))
+    return out
+
+
+@pytest.mark.parametrize("early", [False, True])
+def test_keep_rows_compaction_mid_chunk_reads_back_the_same_episodes(tmp_path, monkeypatch, early):
+    """A chunk recorded whole, and again with its finished rows compacted away twice mid-chunk
+    (keep_rows): the same episodes, scene included. ``early``: a tiny buffer budget, so finished
+    episodes are also written before the chunk ends (and compaction meets written rows)."""
+    from overtakezoo.benchmark.archive import recorder as rec_mod
+
+    if early:
+        monkeypatch.setattr(rec_mod, "FLUSH_ROW_STEPS", 2000)
+    suite = load_suite("table1")
+    index = np.arange(100, 300)
+    paths = [tmp_path / "whole.mcap", tmp_path / "compacted.mcap"]
+    for path, compact in zip(paths, [(), (120, 260)]):
+        with ArchiveRecorder(path, scene_every=3) as rec:
+            _drive(rec, suite, index, compact)
+    _same_episodes(read_archive(paths[0]), read_archive(paths[1]))
+    assert len(read_archive(paths[0])) == len(index)
+    assert _scenes_by_episode(paths[0]) == _scenes_by_episode(paths[1])
+    with ArchiveRecorder(tmp_path / "bad.mcap") as rec:  # dropping a running row is refused
+        from overtakezoo.envs import OvertakeCore
+        core = OvertakeCore(suite.config)
+        core.reset(suite.scenarios().take(index[:4]))
+        rec.begin_chunk(core, index[:4])
+        with pytest.raises(ValueError, match="only finished rows"):
+            rec.keep_rows(np.array([0, 1]))

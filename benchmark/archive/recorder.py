@@ -30,7 +30,7 @@ episodes), so the target is always either absent, the previous file, or complete
 episodes and finishing the file are not cut by SIGTERM or Ctrl-C (a second one included): the signal
 waits until they are done. A full disk drops the temp file and raises a ``WriteError``.
 
-Modules: this one records (capture per step, serialize per chunk); :mod:`.reader` reads;
+Modules: this one records (capture per step, serialize per finished episode); :mod:`.reader` reads;
 :mod:`.format` holds topics and schemas; :mod:`.scene` builds the Foxglove scene; :mod:`.sink` is the
 batched write path into mcap's Writer.
 
@@ -51,39 +51,65 @@ import signal
 import sys
 import threading
 from dataclasses import dataclass, field
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
 
 from overtakezoo.benchmark.archive.format import (EPISODE_GAP_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, SCHEMAS, SUMMARY_FIELDS, json_number, json_ready)
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import WriteError, atomic_output
-from overtakezoo.benchmark.archive.scene import flatten_scenes, scene_messages, scene_state
+from overtakezoo.benchmark.archive.scene import rollout_geometry, scene_messages
 from overtakezoo.benchmark.archive.sink import MessageSink
 
 
 # ---------------------------------------------------------------------------- recorder
+BLOCK_STEPS = 32  # steps per capture block (one preallocated array per block)
+FLUSH_ROW_STEPS = 1 << 18  # a chunk buffering more (row, step) captures writes its finished episodes early
+
+
+class _Block:
+    """Captures of steps ``start .. start + BLOCK_STEPS - 1`` for the rows running at ``start``:
+    ``f`` (steps, rows, float fields) and ``i`` (steps, rows, int8 fields), filled in place."""
+
+    def __init__(self, start: int, ids: np.ndarray, src: np.ndarray, nf: int, ni: int) -> None:
+        self.start, self.ids, self.src = start, ids, src  # chunk-local row ids (increasing); their core rows
+        self.cols = np.arange(len(ids))  # the columns still fed by the core (dropped rows are finished)
+        self.f = np.empty((BLOCK_STEPS, len(ids), nf))
+        self.i = np.empty((BLOCK_STEPS, len(ids), ni), np.int8)
+
+
 @dataclass
 class _Chunk:
-    index: np.ndarray  # (N,) global scenario indices
-    steps: list[dict[str, np.ndarray]] = field(default_factory=list)  # active rows only, per step
-    scenes: list[dict[str, np.ndarray]] = field(default_factory=list)  # Foxglove scene captures
+    index: np.ndarray  # (N,) global scenario indices, by chunk-local row id
+    ids: np.ndarray  # the current core's rows -> chunk-local row ids (keep_rows compacts the core)
+    scen: dict[str, np.ndarray]  # the scenario arrays, by row id
+    lanes: list[list[int]]
+    m_r: int  # rollouts
+    last: np.ndarray  # (N,) each row's final step, -1 while it runs
+    written: np.ndarray  # (N,) bool: its episode is in the file
+    blocks: list[_Block] = field(default_factory=list)
     prev_done: np.ndarray | None = None  # core.done before the current step
     step: int = 0  # core.step calls so far (a row's step k is the chunk's step k: all rows start together)
+    info: dict[str, np.ndarray] = field(default_factory=dict)  # summary values of finished rows, by row id
 
 
 class ArchiveRecorder:
     """Records every episode of a run into one MCAP file.
 
     The runner calls :meth:`begin_chunk` after ``core.reset``, :meth:`record_step` after each
-    ``core.step`` and :meth:`end_chunk` when the chunk is done. Per step only the rows still running
-    are kept (compact numpy arrays); messages are serialized at :meth:`end_chunk`, episode by
-    episode in scenario order, so each episode's messages are contiguous (reading one episode
-    decompresses only the chunks it spans). ``scene_every`` thins the Foxglove scene (0: none).
+    ``core.step`` and :meth:`end_chunk` when the chunk is done; :meth:`keep_rows` when it compacts
+    finished rows away mid-chunk. Per step the state of the rows still running is copied into
+    preallocated numpy blocks (``BLOCK_STEPS`` steps each, no per-row Python); messages are
+    serialized per episode, in bulk (one %-template per topic and episode), at :meth:`end_chunk` in
+    scenario order, so each episode's messages are contiguous (reading one episode decompresses only
+    the chunks it spans). A big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its
+    finished episodes early, in scenario order within each batch, and frees their captures: memory
+    is bounded by the history of the rows still running. ``scene_every`` thins the Foxglove scene
+    (0: none).
 
     The file is written to a temp file beside ``path`` (``tmp_path``, by
     :func:`overtakezoo.envs.io.atomic_output`) and renamed to ``path`` by :meth:`close` (two runs
@@ -91,8 +117,8 @@ class ArchiveRecorder:
     Used as a context manager, SIGTERM raises KeyboardInterrupt while it is open (or whatever the
     previous SIGTERM handler raises: the CLI's exits 143), so an interrupted run still finishes the
     file with its whole episodes; a SIGTERM or Ctrl-C that arrives while episodes are written or the
-    file is finished is held until that is done. ``progress``: a bar while a chunk's episodes are
-    written (on a terminal) and a line when an interrupted run is finished.
+    file is finished is held until that is done. ``progress``: a line when an interrupted run is
+    finished (episodes are now written as they finish, so there is no separate writing phase to show).
     """
 
     def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
@@ -143,12 +169,14 @@ class ArchiveRecorder:
         if getattr(core, "auto_reset", False):
             raise ValueError("archives record evaluation cores (auto_reset=False): rows must not be replaced")
         self._core = core
-        self._chunk = _Chunk(index=np.asarray(scenario_index, dtype=np.int64).reshape(-1))
-        rows = np.arange(core.num)
-        self._chunk.prev_done = core.done.copy()
-        self._chunk.steps.append(self._snapshot(core, rows, None, None, None) | {"step": 0})
-        if self.scene_every:
-            self._chunk.scenes.append(scene_state(core, rows) | {"step": 0})
+        n = core.num
+        self._chunk = ch = _Chunk(index=np.asarray(scenario_index, dtype=np.int64).reshape(-1), ids=np.arange(n),
+                                  scen=core.scen.to_arrays(), lanes=core.scen.npc_lane.tolist(),
+                                  m_r=core.cfg.planner.num_rollouts + 1, last=np.full(n, -1),
+                                  written=np.zeros(n, bool))
+        ch.prev_done = core.done.copy()
+        self._capture(core, ch, np.ones(n, bool))
+        self._finished(core, ch, np.flatnonzero(ch.prev_done))
 
     def record_step(self, core: Any, modes: np.ndarray, step_result: Any) -> None:
         ch = self._chunk
@@ -157,23 +185,42 @@ class ArchiveRecorder:
         # Rows that ran this step: those not finished before it (finished rows are frozen).
         active = ~ch.prev_done
         ch.prev_done = core.done.copy()
-        rows = np.flatnonzero(active)
         ch.step += 1
-        if rows.size == 0:
+        if not active.any():
             return
-        step = ch.step
-        ch.steps.append(self._snapshot(core, rows, core.mode, core.last_plan, step_result.reward) | {"step": step})
-        if self.scene_every:  # every K-th step, and the final step of each row
-            scene_rows = rows if step % self.scene_every == 0 else rows[ch.prev_done[rows]]
-            if scene_rows.size:
-                ch.scenes.append(scene_state(core, scene_rows) | {"step": step})
+        self._capture(core, ch, active, step_result.reward)
+        self._finished(core, ch, np.flatnonzero(active & ch.prev_done))
+        if sum(b.f.shape[1] for b in ch.blocks) * BLOCK_STEPS > FLUSH_ROW_STEPS:
+            done = np.flatnonzero((ch.last >= 0) & ~ch.written)
+            if len(done) >= 64:  # a big chunk: write its finished episodes now, keeping the buffers bounded
+                with self._writing():
+                    self._write_episodes(ch, done)
+
+    def keep_rows(self, rows: np.ndarray) -> None:
+        """The runner compacted its core to ``rows`` (positions into the current batch, increasing;
+        the rows dropped have finished): the next calls get a core whose row i was row ``rows[i]``."""
+        ch = self._chunk
+        if ch is None:
+            raise RuntimeError("keep_rows before begin_chunk")
+        rows = np.asarray(rows, dtype=np.int64)
+        if (ch.last[np.setdiff1d(ch.ids, ch.ids[rows])] < 0).any():
+            raise ValueError("keep_rows: only finished rows may be dropped")
+        n_old = len(ch.ids)
+        ch.ids, ch.prev_done = ch.ids[rows], ch.prev_done[rows]
+        new_pos = np.full(n_old, -1)
+        new_pos[rows] = np.arange(len(rows))
+        for blk in ch.blocks:  # the core rows feeding each block, renumbered (dropped ones stop)
+            src = new_pos[blk.src]
+            keep = src >= 0
+            blk.cols, blk.src = blk.cols[keep], src[keep]
 
     def end_chunk(self, core: Any) -> None:
         ch = self._chunk
         if ch is None:
             return
         with self._writing():  # the chunk is marked written in the same uncut step (no episode twice)
-            self._write_chunk(core, ch)
+            self._finished(core, ch, np.flatnonzero(ch.last[ch.ids] < 0))  # (all are, after run_to_end)
+            self._write_episodes(ch, np.flatnonzero((ch.last >= 0) & ~ch.written))
             self._chunk = None
 
     def close(self) -> None:
@@ -183,12 +230,13 @@ class ArchiveRecorder:
             return
         with self._writing():
             ch = self._chunk
-            if ch is not None and self._core is not None:
+            if ch is not None:
+                todo = np.flatnonzero((ch.last >= 0) & ~ch.written)
                 if self.progress and not self._told:
                     self._told = True
-                    print(f"finishing {self.path}: writing the {int(ch.prev_done.sum())} finished episodes of "
+                    print(f"finishing {self.path}: writing the {len(todo)} finished episodes of "
                           "the open chunk", file=sys.stderr, flush=True)
-                self._write_chunk(self._core, ch, whole=ch.prev_done)
+                self._write_episodes(ch, todo)
                 self._chunk = None
             self._sink.flush()
             self._writer.finish()
@@ -244,87 +292,129 @@ class ArchiveRecorder:
             self._signals.clear()
 
     # -- capture (numpy, no per-row Python)
+    def _capture(self, core: Any, ch: _Chunk, active: np.ndarray, reward: Any = None) -> None:
+        """Append the state of the running rows to the open block (a new block every BLOCK_STEPS
+        steps, holding only the rows still running then)."""
+        j = ch.step - ch.blocks[-1].start if ch.blocks else BLOCK_STEPS
+        if j >= BLOCK_STEPS:
+            src = np.flatnonzero(active)
+            m = core.npc_s.shape[1]
+            ch.blocks.append(_Block(ch.step, ch.ids[src], src, 8 + 2 * m + ch.m_r, 3 + ch.m_r))
+            self._compact(ch)
+            j = 0
+        blk = ch.blocks[-1]
+        r, cols = blk.src, blk.cols
+        f = [core.t, core.x, core.y, core.psi, core.v, core.a, core.steer]
+        f = np.stack([x[r] for x in f], axis=1)
+        plan = core.last_plan
+        if plan is None:  # step 0: no decision, plan or reward yet (padded with zeros, as before)
+            zf, zi = np.zeros((len(r), 1 + ch.m_r)), np.zeros((len(r), 1 + ch.m_r), np.int8)
+            pf, pi = zf, zi
+        else:
+            pf = np.concatenate([np.asarray(reward)[r, None], plan.offsets[r]], axis=1)
+            pi = np.concatenate([plan.rollout[r, None], plan.blocked[r]], axis=1)
+        blk.f[j, cols] = np.concatenate([f, core.npc_s[r], core.npc_v[r], pf], axis=1)
+        blk.i[j, cols] = np.concatenate([core.mode[r, None], core.rollout[r, None], pi], axis=1)
+
+    def _finished(self, core: Any, ch: _Chunk, rows: np.ndarray) -> None:
+        """Rows (of the current core) that just finished: their final step and summary values."""
+        if rows.size == 0:
+            return
+        ids = ch.ids[rows]
+        ch.last[ids] = ch.step
+        for k, v in core.info().items():
+            if k not in ch.info:
+                ch.info[k] = np.zeros((len(ch.index),) + np.shape(v)[1:], np.asarray(v).dtype)
+            ch.info[k][ids] = v[rows]
+
     @staticmethod
-    def _snapshot(core: Any, rows: np.ndarray, mode: Any, plan: Any, reward: Any) -> dict[str, np.ndarray]:
-        snap = {"rows": rows, "t": core.t[rows], "ego": np.stack(
-            [core.x[rows], core.y[rows], core.psi[rows], core.v[rows], core.a[rows], core.steer[rows]], axis=1),
-            "npc_s": core.npc_s[rows], "npc_v": core.npc_v[rows], "ret": core.episode_return[rows]}
-        if mode is not None:
-            snap.update(mode=mode[rows].astype(np.int8), rollout=plan.rollout[rows].astype(np.int8),
-                        offsets=plan.offsets[rows], blocked=plan.blocked[rows], reward=np.asarray(reward)[rows])
-        return snap
+    def _compact(ch: _Chunk) -> None:
+        """Drop the columns of written episodes from blocks where they are most of it (frees memory)."""
+        keep_blocks = []
+        for blk in ch.blocks:
+            live = ~ch.written[blk.ids]
+            if not live.any():
+                continue
+            if live.sum() * 2 < len(live):
+                pos = np.full(len(live), -1)
+                pos[live] = np.arange(int(live.sum()))
+                blk.ids, blk.f, blk.i = blk.ids[live], blk.f[:, live], blk.i[:, live]
+                fed = pos[blk.cols] >= 0
+                blk.cols, blk.src = pos[blk.cols][fed], blk.src[fed]
+            keep_blocks.append(blk)
+        ch.blocks[:] = keep_blocks
 
     # -- serialization
-    def _write_chunk(self, core: Any, ch: _Chunk, whole: np.ndarray | None = None) -> None:
-        """Write each episode of the chunk contiguously, in global scenario order (only the rows
-        ``whole`` marks, when given), each closed by its own chunk and metadata record."""
-        n = len(ch.index)
-        # Flatten the per-step captures to records ordered by (row, step): one lexsort for the chunk.
-        rows = np.concatenate([s["rows"] for s in ch.steps])
-        steps = np.concatenate([np.full(len(s["rows"]), s["step"]) for s in ch.steps])
-        order = np.lexsort((steps, rows))
-        rows, steps = rows[order], steps[order]
-        cat = lambda key: np.concatenate([s[key] for s in ch.steps])[order]  # noqa: E731
-        t, ego, npc_s, npc_v = (cat(k) for k in ("t", "ego", "npc_s", "npc_v"))
-        # Decision / planner / reward exist from step 1 on; pad step 0 so they align with the states.
-        m_r = core.last_plan.offsets.shape[1] if core.last_plan is not None else 1
-        first = ch.steps[0]
-        first.update(mode=np.zeros(len(first["rows"]), np.int8), rollout=np.zeros(len(first["rows"]), np.int8),
-                     offsets=np.zeros((len(first["rows"]), m_r)), blocked=np.zeros((len(first["rows"]), m_r), bool),
-                     reward=np.zeros(len(first["rows"])))
-        mode, rollout, offsets, blocked, reward = (cat(k) for k in ("mode", "rollout", "offsets", "blocked", "reward"))
-        bounds = np.searchsorted(rows, np.arange(n + 1))
-        scen = core.scen.to_arrays()
-        info = core.info()
-        lanes = core.scen.npc_lane.tolist()
-        scenes, sbounds = flatten_scenes(ch.scenes, n)
+    def _write_episodes(self, ch: _Chunk, ids: np.ndarray) -> None:
+        """Write the finished rows ``ids`` contiguously, in global scenario order, each closed by its
+        own chunk and metadata record; then free their captures."""
+        ids = ids[np.argsort(ch.index[ids], kind="stable")]
+        for g in range(0, len(ids), 128):  # gather a group's captures at once (bounded copies)
+            group = ids[g:g + 128]
+            f_parts, i_parts = [], []
+            for blk in ch.blocks:
+                if blk.start > ch.last[group].max():
+                    break
+                cols = np.minimum(np.searchsorted(blk.ids, group), len(blk.ids) - 1)
+                f_parts.append(blk.f[:, cols])
+                i_parts.append(blk.i[:, cols])
+            f, i = np.concatenate(f_parts), np.concatenate(i_parts)  # (steps, group, fields)
+            for k, r in enumerate(group.tolist()):
+                if self._pending is not None and self.progress and not self._told:  # a held signal: say why
+                    self._told = True
+                    print(f"finishing {self.path}: writing the {len(ids) - g - k} remaining episodes of this "
+                          "chunk first", file=sys.stderr, flush=True)
+                last = int(ch.last[r])
+                self._write_episode(ch, r, f[:last + 1, k], i[:last + 1, k])
+                ch.written[r] = True
+        self._compact(ch)
+
+    def _write_episode(self, ch: _Chunk, r: int, f: np.ndarray, i: np.ndarray) -> None:
+        ep = int(ch.index[r])
+        base = self._clock_ns
+        last = len(f) - 1  # the final step of this episode
+        end = base + last * self._dt_ns
+        info, scen = ch.info, ch.scen
+        outcome = int(info["outcome"][r])
+        m = (f.shape[1] - 8 - ch.m_r) // 2
+        t, ego, npc_s, npc_v = f[:, 0], f[:, 1:7], f[:, 7:7 + m], f[:, 7 + m:7 + 2 * m]
+        reward, offsets = f[:, 7 + 2 * m], f[:, 8 + 2 * m:]
+        mode, rollout, blocked = i[:, 0].copy(), i[:, 2], i[:, 3:].astype(bool)
+        mode[0] = 0  # step 0 has no decision (padding, as the state topics always had)
+        spec = {"episode": ep, "step": 0, "t": 0.0,
+                "scenario": {name: json_ready(arr[r]) for name, arr in scen.items()}}
+        self._add("/episode/spec", base, json.dumps(spec, separators=(",", ":")))
+        self._add("/episode/index", base, json.dumps({
+            "episode": ep, "step": 0, "start_ns": base, "end_ns": end, "steps": last,
+            "outcome_name": OUTCOME_NAMES[outcome]}, separators=(",", ":")))
+        msgs = self._state_messages(ep, base, ch.lanes[r], t, ego, npc_s, npc_v, mode, rollout, offsets,
+                                    blocked, reward)
+        if self.scene_every:  # every K-th step, and the final step
+            ks = np.unique(np.append(np.arange(0, last + 1, self.scene_every), last))
+            rx, ry = rollout_geometry(self._core.cfg.planner, ego[ks, 0], ego[ks, 1], ego[ks, 3],
+                                      np.full(len(ks), scen["lane_width"][r]))
+            cap = {"rollout_x": rx, "rollout_y": ry, "blocked": blocked[ks], "mode": i[ks, 0], "rollout": i[ks, 1]}
+            msgs.extend(scene_messages(ep, base, r, scen, ks, ego[ks], npc_s[ks], cap,
+                                       (outcome, int(info["crash_npc"][r])) if ks[-1] == last else None,
+                                       self._dt_ns, self._channels["/scene"], self._channels["/tf"]))
+            # Time order, stable: a step's scene and tf after its state messages (numpy, no key calls).
+            order = np.argsort(np.fromiter(map(itemgetter(1), msgs), np.int64, len(msgs)), kind="stable")
+            msgs = list(itemgetter(*order.tolist())(msgs)) if len(msgs) > 1 else msgs
         sink = self._sink
-        order = np.argsort(ch.index, kind="stable")
-        if whole is not None:
-            order = order[whole[order]]
-        bar = tqdm(order.tolist(), unit="episode", desc=f"writing {self.path.name}", leave=False,
-                   disable=not self.progress or not sys.stderr.isatty())
-        for k, r in enumerate(bar):
-            if self._pending is not None and self.progress and not self._told:  # a held signal: say why we wait
-                self._told = True
-                print(f"finishing {self.path}: writing the {len(order) - k} remaining episodes of this chunk "
-                      "first", file=sys.stderr, flush=True)
-            ep = int(ch.index[r])
-            base = self._clock_ns
-            a, b = int(bounds[r]), int(bounds[r + 1])
-            last = b - a - 1  # the final step of this episode
-            end = base + last * self._dt_ns
-            outcome = int(info["outcome"][r])
-            spec = {"episode": ep, "step": 0, "t": 0.0,
-                    "scenario": {name: json_ready(arr[r]) for name, arr in scen.items()}}
-            self._add("/episode/spec", base, json.dumps(spec, separators=(",", ":")))
-            self._add("/episode/index", base, json.dumps({
-                "episode": ep, "step": 0, "start_ns": base, "end_ns": end, "steps": last,
-                "outcome_name": OUTCOME_NAMES[outcome]}, separators=(",", ":")))
-            msgs = self._state_messages(ep, base, lanes[r], t[a:b], ego[a:b], npc_s[a:b], npc_v[a:b], mode[a:b],
-                                        rollout[a:b], offsets[a:b], blocked[a:b], reward[a:b])
-            sa, sb = int(sbounds[r]), int(sbounds[r + 1])
-            if sb > sa:
-                sl = {k: v[sa:sb] for k, v in scenes.items()}
-                ks = sl["step"]
-                msgs.extend(scene_messages(ep, base, r, scen, ks, ego[a + ks], npc_s[a + ks], sl,
-                                           (outcome, int(info["crash_npc"][r])) if ks[-1] == last else None,
-                                           self._dt_ns, self._channels["/scene"], self._channels["/tf"]))
-                msgs.sort(key=lambda m: m[1])  # stable: a step's scene and tf after its state messages
-            sink.pending.extend(msgs)
-            sink.flush()
-            summary = {k: json_ready(info[k][r]) for k in SUMMARY_FIELDS}
-            summary.update(episode=ep, step=last, t=json_ready(t[b - 1]), outcome_name=OUTCOME_NAMES[outcome],
-                           start_ns=base, end_ns=end)
-            self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
-            sink.flush()
-            self._writer.flush()  # the episode's last chunk is on disk before its metadata record
-            self._writer.add_metadata("episode", {
-                "episode": str(ep), "start_ns": str(base), "end_ns": str(end), "steps": str(last),
-                "outcome": OUTCOME_NAMES[outcome], "episode_return": json_number(float(info["episode_return"][r]))})
-            self._stream.flush()  # the episode is whole on disk (a killed writer keeps it)
-            self.episodes += 1
-            self._clock_ns = end + EPISODE_GAP_NS
+        sink.pending.extend(msgs)
+        sink.flush()
+        summary = {k: json_ready(info[k][r]) for k in SUMMARY_FIELDS}
+        summary.update(episode=ep, step=last, t=json_ready(t[-1]), outcome_name=OUTCOME_NAMES[outcome],
+                       start_ns=base, end_ns=end)
+        self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
+        sink.flush()
+        self._writer.flush()  # the episode's last chunk is on disk before its metadata record
+        self._writer.add_metadata("episode", {
+            "episode": str(ep), "start_ns": str(base), "end_ns": str(end), "steps": str(last),
+            "outcome": OUTCOME_NAMES[outcome], "episode_return": json_number(float(info["episode_return"][r]))})
+        self._stream.flush()  # the episode is whole on disk (a killed writer keeps it)
+        self.episodes += 1
+        self._clock_ns = end + EPISODE_GAP_NS
 
     def _state_messages(self, ep: int, base: int, lanes: list[int], t: np.ndarray, ego: np.ndarray,
                         npc_s: np.ndarray, npc_v: np.ndarray, mode: np.ndarray, rollout: np.ndarray,

@@ -1,6 +1,6 @@
 """The Foxglove scene of an archive: ``/scene`` (``foxglove.SceneUpdate``) and ``/tf`` messages.
 
-The recorder captures :func:`scene_state` at scene steps and, per episode, :func:`scene_messages`
+The recorder captures the state per step and, per episode, :func:`scene_messages`
 fills one %-template per episode with every step's numbers (road and vehicle sizes built in;
 display precision only: the state topics are exact).
 """
@@ -17,37 +17,25 @@ from overtakezoo.envs import CRASH, MODE_NAMES, OUTCOME_NAMES
 ROLLOUT_DRAW_M = 30.0  # rollouts are drawn this far ahead of the ego in the Foxglove scene
 
 
-def scene_state(core: Any, rows: np.ndarray) -> dict[str, np.ndarray]:
+def rollout_geometry(pc: Any, x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, R, 4) x and y of each rollout's drawn corners for states (x, y, v) on lanes of width w.
+
+    Recomputed from the recorded state at write time (elementwise, so the same numbers as at the
+    step) instead of being captured per step: the capture stays a few numbers per row and step."""
     from overtakezoo.envs.model.planner import lateral_profile
 
-    pc, sc = core.cfg.planner, core.scen
-    # Each rollout's lateral profile is piecewise linear (hold, ramp, end offset): its corners
-    # within the first ROLLOUT_DRAW_M metres draw it exactly with four points.
-    y, v = core.y[rows, None], core.v[rows, None]
-    w = sc.lane_width[rows, None]
+    y, v, w = y[:, None], v[:, None], w[:, None]
     roll_in = pc.roll_in_speed_factor * v + pc.roll_in_margin
     targets = w * (np.arange(pc.num_rollouts + 1) / pc.num_rollouts)[None, :]  # (n, R)
+    # Each rollout's lateral profile is piecewise linear (hold, ramp, end offset): its corners
+    # within the first ROLLOUT_DRAW_M metres draw it exactly with four points.
     ramp_end = np.minimum(pc.car_tip_margin + np.abs(targets - y) * roll_in / w, ROLLOUT_DRAW_M)
     ahead = np.stack(np.broadcast_arrays(0.0, min(pc.car_tip_margin, ROLLOUT_DRAW_M), ramp_end,
                                          ROLLOUT_DRAW_M), axis=-1)  # (n, R, 4)
     lat = lateral_profile(y[..., None], targets[..., None], ahead, w[..., None], roll_in[..., None],
                           pc.car_tip_margin)
-    plan = core.last_plan
-    blocked = plan.blocked[rows] if plan is not None else np.zeros(targets.shape[:2], bool)
-    return {"rows": rows, "rollout_x": core.x[rows, None, None] + ahead, "rollout_y": lat, "blocked": blocked,
-            "mode": core.mode[rows], "rollout": core.rollout[rows]}
+    return x[:, None, None] + ahead, lat
 
-def flatten_scenes(scenes: list[dict[str, np.ndarray]], n: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """All scene captures of the chunk as arrays ordered by (row, step), and each row's bounds."""
-    if not scenes:
-        return {}, np.zeros(n + 1, np.int64)
-    rows = np.concatenate([c["rows"] for c in scenes])
-    steps = np.concatenate([np.full(len(c["rows"]), c["step"]) for c in scenes])
-    order = np.lexsort((steps, rows))
-    flat = {k: np.concatenate([c[k] for c in scenes])[order]
-            for k in ("rollout_x", "rollout_y", "blocked", "mode", "rollout")}
-    flat["step"] = steps[order]
-    return flat, np.searchsorted(rows[order], np.arange(n + 1))
 
 def scene_messages(ep: int, base: int, r: int, scen: dict[str, np.ndarray], ks: np.ndarray,
                     ego: np.ndarray, npc_s: np.ndarray, cap: dict[str, np.ndarray],

@@ -55,7 +55,10 @@ class MessageSink:
         heads["opcode"], heads["length"], heads["channel"] = 0x05, 22 + sizes, ch_arr
         heads["log_time"] = heads["publish_time"] = t_arr
         raw = heads.tobytes()
-        head_parts = [raw[k:k + 31] for k in range(0, 31 * n, 31)]
+        # Headers and payloads interleaved, built by slice assignment (C loops, not per-message Python).
+        parts: list[bytes] = [b""] * (2 * n)
+        parts[0::2] = map(raw.__getitem__, map(slice, range(0, 31 * n, 31), range(31, 31 * n + 1, 31)))
+        parts[1::2] = datas
         ends = np.cumsum(31 + sizes)  # record ends relative to the batch start
         i = 0
         while i < n:
@@ -71,8 +74,8 @@ class MessageSink:
                 index = cb.message_indices.get(ch)
                 if index is None:
                     index = cb.message_indices[ch] = FastMessageIndex(channel_id=ch, records=[])
-                index.records.extend(zip(seg_t[mask].tolist(), offsets[mask].tolist()))
-            buf.write(b"".join([x for pair in zip(head_parts[i:j], datas[i:j]) for x in pair]))
+                index.records.append(np.stack([seg_t[mask], offsets[mask].astype(np.uint64)], axis=1))
+            buf.write(b"".join(parts[2 * i:2 * j]))
             lo, hi = int(seg_t.min()), int(seg_t.max())
             cb.message_start_time = lo if cb.num_messages == 0 else min(lo, cb.message_start_time)
             cb.message_end_time = max(hi, cb.message_end_time)
@@ -94,12 +97,14 @@ _RECORD_HEAD = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2")
 
 
 class FastMessageIndex(MessageIndex):
-    """mcap's MessageIndex writing its (log time, offset) pairs in one buffer instead of two
-    ``write8`` calls per message (identical bytes: little-endian u64 pairs)."""
+    """mcap's MessageIndex holding its (log time, offset) pairs as (k, 2) uint64 arrays, one per
+    batch, written in one buffer instead of two ``write8`` calls per message (identical bytes:
+    little-endian u64 pairs)."""
 
     def write(self, stream: Any) -> None:
+        pairs = np.concatenate(self.records) if self.records else np.zeros((0, 2), np.uint64)
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
-        stream.write4(len(self.records) * 16)
-        stream.write(np.asarray(self.records, dtype="<u8").reshape(-1).tobytes())
+        stream.write4(len(pairs) * 16)
+        stream.write(pairs.astype("<u8").tobytes())
         stream.finish_record()

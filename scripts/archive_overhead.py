@@ -1,0 +1,98 @@
+"""CPU time and peak memory of `eval --archive` against a plain eval (table1, rule-fsm by default).
+
+    python scripts/archive_overhead.py [--suite table1] [--decider rule-fsm] [--repeats 3] [--out docs/archive-overhead.md]
+                                       [-- extra eval arguments, e.g. --scene-every 10]
+
+Each run is a fresh `overtakezoo eval` process; plain and archived runs alternate (so load drift
+hits both alike). CPU is the child's user + sys time and peak RSS its ru_maxrss, both from
+os.wait4 (CPU time, not wall time: the machine is shared). Prints a markdown table of medians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def run_once(args: list[str]) -> tuple[float, float]:
+    """(user + sys CPU seconds, peak RSS MB) of one eval process."""
+    proc = subprocess.Popen([sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, ru = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    if proc.returncode != 0:
+        raise SystemExit(f"eval {' '.join(args)} failed ({proc.returncode}):\n{err}")
+    return ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--suite", default="table1")
+    ap.add_argument("--decider", default="rule-fsm")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", help="also write the table (markdown) to this file")
+    ap.add_argument("extra", nargs="*", help="extra arguments for the archived eval (after --)")
+    a = ap.parse_args()
+    cpu: dict[str, list[float]] = {"plain": [], "archive": []}
+    rss: dict[str, list[float]] = {"plain": [], "archive": []}
+    size = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        base = ["--suite", a.suite, "--decider", a.decider, "--no-progress", "--out", f"{tmp}/r.json"]
+        for _ in range(a.repeats):  # interleaved: plain, archive, plain, archive, ...
+            for kind in ("plain", "archive"):
+                extra = ["--archive", f"{tmp}/run.mcap", *a.extra] if kind == "archive" else []
+                c, m = run_once(base + extra)
+                cpu[kind].append(c)
+                rss[kind].append(m)
+            size = os.path.getsize(f"{tmp}/run.mcap")
+    med = {k: statistics.median(v) for k, v in cpu.items()}
+    mem = {k: statistics.median(v) for k, v in rss.items()}
+    ratios = [x / y for x, y in zip(cpu["archive"], cpu["plain"])]
+    args = " ".join(a.extra)
+    lines = [
+        f"`eval --suite {a.suite} --decider {a.decider}` with and without `--archive`{' ' + args if args else ''}; "
+        f"{a.repeats} interleaved runs each, fresh processes, medians (range).",
+        f"Machine: {cpu_name()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        "",
+        "| run | CPU time (user + sys) | peak RSS |",
+        "|---|---|---|",
+        f"| plain eval | {med['plain']:.2f} s ({min(cpu['plain']):.2f} - {max(cpu['plain']):.2f}) | "
+        f"{mem['plain']:.0f} MB ({min(rss['plain']):.0f} - {max(rss['plain']):.0f}) |",
+        f"| eval --archive | {med['archive']:.2f} s ({min(cpu['archive']):.2f} - {max(cpu['archive']):.2f}) | "
+        f"{mem['archive']:.0f} MB ({min(rss['archive']):.0f} - {max(rss['archive']):.0f}) |",
+        f"| ratio | {statistics.median(ratios):.1f} x ({min(ratios):.1f} - {max(ratios):.1f}) | |",
+        "",
+        f"Archive size: {size / 1e6:.1f} MB ({size / 1e3 / max(1, _episodes(a.suite)):.0f} KB per episode).",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if a.out:
+        Path(a.out).write_text(text)
+
+
+def _episodes(suite: str) -> int:
+    from overtakezoo.envs.suites import load_suite
+    return load_suite(suite).count
+
+
+if __name__ == "__main__":
+    main()
