@@ -733,3 +733,20 @@ def test_keep_rows_compaction_mid_chunk_reads_back_the_same_episodes(tmp_path, m
         rec.begin_chunk(core, index[:4])
         with pytest.raises(ValueError, match="only finished rows"):
             rec.keep_rows(np.array([0, 1]))
+
+
+def test_the_runner_dropping_finished_rows_writes_the_same_archive(tmp_path, monkeypatch):
+    """eval --archive with the runner's compaction (finished rows dropped, the recorder's keep_rows)
+    writes the same bytes as stepping the whole batch."""
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.run import runner
+
+    suite = load_suite("table1")
+    digests = []
+    for floor in (10**9, 8):
+        monkeypatch.setattr(runner, "MIN_COMPACT_ROWS", floor)
+        path = tmp_path / f"run-{floor}.mcap"
+        with ArchiveRecorder(path) as rec:
+            run_suite(suite, zoo.load("rule-fsm", suite.config), progress=False, recorder=rec, limit=40)
+        digests.append(path.read_bytes())
+    assert digests[0] == digests[1] and len(list_episodes(tmp_path / "run-8.mcap")) == 40
