@@ -70,8 +70,8 @@ def test_gymnasium_resolves_to_1_0_and_the_package_runs(d3venv):
 def test_env_and_face_tests_pass_on_gymnasium_1_0(d3venv):
     py, _, env, _ = d3venv
     # -p no:cacheprovider: nothing written into the repository
-    out = run([str(py), "-m", "pytest", "-q", "-p", "no:cacheprovider", *ENV_TESTS], REPO, env)
-    assert " passed" in out and "failed" not in out, out[-2000:]
+    out = run([str(py), "-m", "pytest", "-p", "no:cacheprovider", *ENV_TESTS], REPO, env)  # -q from addopts
+    assert " passed" in out and " failed" not in out and " error" not in out, out[-2000:]
 
 
 def test_d3rlpy_cql_example_trains_and_evaluates(d3venv):
