@@ -32,6 +32,7 @@ from overtakezoo.envs import (  # noqa: E402
     register_envs,
 )
 from overtakezoo.envs.faces.pettingzoo import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
+from overtakezoo.envs.faces._compat import AutoresetMode  # noqa: E402  (gymnasium 1.1+'s own, or its stand-in on 1.0)
 
 ENV_ID = "overtakezoo/Overtake-v0"
 # Observation bounds are finite (envs/faces/spaces.py): no checker warning is accepted, but (with NPC
@@ -256,8 +257,8 @@ def test_gymnasium_plugin_entry_point_resolves():
 
 # ---------------------------------------------------------------- vector env
 def test_make_vec_steps_and_autoresets_in_the_same_step():
-    vec = make_vec(num_envs=6, scenario={"time_limit": 1.0}, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
-    assert vec.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.SAME_STEP
+    vec = make_vec(num_envs=6, scenario={"time_limit": 1.0}, autoreset_mode=AutoresetMode.SAME_STEP)
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     assert vec.single_action_space.n == 3 and vec.action_space.shape == (6,)
     assert vec.observation_space.shape == (6, vec.single_observation_space.shape[0])
     obs, infos = vec.reset(seed=0)

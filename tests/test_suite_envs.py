@@ -12,7 +12,7 @@ import numpy as np
 import pettingzoo
 import pytest
 from gymnasium.utils.env_checker import check_env
-from gymnasium.vector import AutoresetMode
+from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 
 import overtakezoo.envs  # noqa: F401  (registers the ids)
 from overtakezoo import zoo

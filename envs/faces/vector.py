@@ -32,10 +32,11 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from overtakezoo.envs.config import MODE_NAMES, EnvConfig
+from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium's own on 1.1+, a same-valued Enum on 1.0
 from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, single_ego, suite_config
 from overtakezoo.envs.hold import hold
