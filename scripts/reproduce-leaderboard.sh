@@ -24,8 +24,11 @@ for suite in "${suites[@]}"; do
   done
 done
 overtakezoo leaderboard
-# The cross-play matrix (every non-privileged member against every other on duel; a few minutes).
-overtakezoo crossplay --suite duel --jobs 2
+# The cross-play matrices (every non-privileged member against every other: A drives the ego, B every
+# other AV; a few minutes each).
+for suite in duel platoon mixed-traffic; do
+  overtakezoo crossplay --suite "$suite" --jobs 2
+done
 mkdir -p leaderboards/decision-maps
 for decider in rule-fsm dqn; do
   overtakezoo decision-map --decider "$decider" --out "leaderboards/decision-maps/$decider.png"

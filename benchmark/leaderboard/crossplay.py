@@ -36,7 +36,7 @@ DATA = Path("crossplay")
 # +-4.4 points.
 DEFAULT_SCENARIOS = 500
 # (key, label) of the counts kept for each pair; the matrices show the first two.
-MEASURES = [("all_succeed", "joint success (both AVs succeed)"), ("av_crash", "AV-AV crash"),
+MEASURES = [("all_succeed", "joint success (every AV succeeds)"), ("av_crash", "AV-AV crash"),
             ("any_crash", "any crash"), ("a_success", "A's AV succeeds"), ("b_success", "B's AV succeeds"),
             ("a_yielded", "A yielded"), ("b_yielded", "B yielded")]
 
