@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from guide_cli import RULE_FSM_TABLE1, overtakezoo
+
 pytest.importorskip("torch")
 pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
@@ -26,17 +28,7 @@ pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "cleanrl_ppo.py"
-RULE_FSM_TABLE1 = {"success_rate": 0.71, "crash_rate": 0.29}  # results/table1/rule-fsm.json
 
-
-def overtakezoo(*args: str, cwd: Path) -> str:
-    cli = Path(sys.executable).with_name("overtakezoo")
-    command = [str(cli)] if cli.is_file() else [sys.executable, "-c",
-                                                "import sys; from overtakezoo.benchmark.cli import main; "
-                                                "sys.exit(main())"]
-    done = subprocess.run(command + list(args), cwd=cwd, capture_output=True, text=True)
-    assert done.returncode == 0, f"overtakezoo {' '.join(args)}:\n{done.stdout}\n{done.stderr}"
-    return done.stdout
 
 
 def test_cleanrl_guide_trains_past_rule_fsm_then_submits_and_verifies(tmp_path):
