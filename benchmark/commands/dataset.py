@@ -93,6 +93,7 @@ def run_build(args: Any) -> int:
 def run_list(args: Any) -> int:
     from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
     from overtakezoo.benchmark.datasets.store import datasets_dir, list_datasets
+    from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
 
     found = list_datasets()
     registry = load_registry()
@@ -102,7 +103,9 @@ def run_list(args: Any) -> int:
     for name, e in sorted(registry.items()):
         recipe = e.get("recipe") or {}
         deciders = "+".join(p["decider"] for p in recipe.get("policies", [])) or "?"
-        shares = "  ".join(f"{k} {100 * v:.1f} %" for k, v in e.get("outcomes", {}).items()) or "outcomes ?"
+        order = {name: i for i, name in enumerate(OUTCOME_NAMES)}  # success, crash, timeout, offroad
+        shares = "  ".join(f"{k} {100 * v:.1f} %" for k, v in sorted(e.get("outcomes", {}).items(),
+                                                                    key=lambda kv: order.get(kv[0], 99))) or "outcomes ?"
         print(f"  {name}  suite {recipe.get('suite', '?')}  {deciders}  episodes {e.get('episodes', '?')}  "
               f"steps {e.get('steps', '?')}  {shares}  {(e.get('size') or 0) / 1e6:.1f} MB  "
               f"{'installed' if name in found else 'not installed'}")
