@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.run.perf import eval_process_times, highway_version
 from test_benchmark_cli import one_line_error, small_suite_file
@@ -10,7 +12,7 @@ from test_benchmark_cli import one_line_error, small_suite_file
 def test_perf_writes_every_figure_with_median_and_range(tmp_path, capsys):
     out = tmp_path / "perf"
     assert main(["perf", "--sizes", "1", "4", "--seconds", "0.05", "--repeats", "2", "--batch", "2",
-                 "--no-suites", "--out", str(out)]) == 0
+                 "--no-suites", "--no-training", "--out", str(out)]) == 0
     report = json.loads((tmp_path / "perf.json").read_text())
     markdown = (tmp_path / "perf.md").read_text()
     ids = [row["id"] for row in report["figures"]]
@@ -37,3 +39,24 @@ def test_eval_process_time_is_a_whole_process_run(tmp_path):
 def test_perf_rejects_bad_sizes(capsys):
     assert "--sizes" in one_line_error(capsys, ["perf", "--sizes", "0"])
     assert "--repeats" in one_line_error(capsys, ["perf", "--repeats", "0"])
+
+
+@pytest.mark.slow
+def test_training_rows_time_whole_processes_to_the_paper_level(tmp_path, monkeypatch):
+    """The training rows at a toy scale: one throughput process, one seed at one budget (real
+    `overtakezoo train` processes; the paper level is most likely not reached, which reads inf)."""
+    from overtakezoo.benchmark.run import perf_training
+
+    monkeypatch.setattr(perf_training, "SEEDS", (0,))
+    monkeypatch.setattr(perf_training, "LADDER", (1,))
+    monkeypatch.setattr(perf_training, "THROUGHPUT_ITERATIONS", 1)
+    out = tmp_path / "perf"
+    assert main(["perf", "--only-training", "--repeats", "1", "--out", str(out)]) == 0
+    report = json.loads((tmp_path / "perf.json").read_text())
+    rows = {row["id"]: row for row in report["figures"]}
+    assert list(rows) == ["train-throughput-core-train", "train-throughput-core-train-wall", "time-to-paper-level",
+                          "time-to-paper-level-cpu"]
+    assert rows["train-throughput-core-train"]["median"] > 1000  # env-steps per CPU second
+    ttp = rows["time-to-paper-level"]
+    assert ttp["median"] > 2 and "seed 0:" in ttp["what"]  # a whole process: imports, training, the table1 eval
+    assert "`time-to-paper-level`" in (tmp_path / "perf.md").read_text()

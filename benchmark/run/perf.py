@@ -271,13 +271,28 @@ class Report:
 
 
 def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, eval_runs: int = 5,
-            suites: bool = True, progress: Callable[[str], None] = print) -> dict[str, Any]:
-    dt = EnvConfig().dt
+            suites: bool = True, progress: Callable[[str], None] = print, training: bool = True,
+            only_training: bool = False) -> dict[str, Any]:
     started = time.perf_counter()
     meta: dict[str, Any] = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
                             "load_average_at_start": load_average(), "repeats": repeats,
                             "seconds_per_window": seconds}
     r = Report(progress)
+    if not only_training:
+        _simulation_rows(r, meta, sizes, seconds, repeats, batch, eval_runs, suites, progress)
+    if training:
+        from overtakezoo.benchmark.run.perf_training import add_training_rows
+
+        add_training_rows(r, repeats, progress)
+    meta["load_average_at_end"] = load_average()
+    meta["report_wall_time_s"] = round(time.perf_counter() - started, 1)
+    return {**meta, "figures": r.rows}
+
+
+def _simulation_rows(r: Report, meta: dict[str, Any], sizes: list[int], seconds: float, repeats: int, batch: int,
+                     eval_runs: int, suites: bool, progress: Callable[[str], None]) -> None:
+    """Every row but the training ones: the core, the faces, highway-env, table1 runs, archives."""
+    dt = EnvConfig().dt
     for n in sizes:
         r.add(f"core-{n}", f"batched core, N = {n}, planner included", "env-steps/s",
               core_rates(n, seconds, repeats), dt, n=n)
@@ -335,9 +350,6 @@ def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, 
             progress(f"archive and replay rows: not measured: {exc}")
         from overtakezoo.benchmark.failures.perf_rows import add_failure_search_rows  # failure search (issue 23)
         add_failure_search_rows(r, progress)
-    meta["load_average_at_end"] = load_average()
-    meta["report_wall_time_s"] = round(time.perf_counter() - started, 1)
-    return {**meta, "figures": r.rows}
 
 
 def _fmt(x: float) -> str:
