@@ -363,7 +363,8 @@ def to_markdown(report: dict[str, Any]) -> str:
              f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.",
              f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
              f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
-             f"windows of {report['seconds_per_window']} s (whole runs for the `runner-` and `eval-` rows) with "
+             f"windows of {report['seconds_per_window']} s (whole runs for the `runner-`, `eval-`, `train-` and "
+             f"`time-to-` rows) with "
              f"the range; the report took {report['report_wall_time_s']} s."]
     loads = [x for key in ("load_average_at_start", "load_average_at_end") for x in (report[key] or [])[:1]]
     if loads and max(loads) > m["cores"]:
