@@ -184,7 +184,7 @@ class FuzzyDecider(Decider):
         has_lead = np.isfinite(key[rows, li])
         lead_dx = np.where(has_lead, key[rows, li], np.inf)
         v_1 = v_e + ego_slots[rows, li, 3] * oc.speed_scale
-        lead_gap = np.where(has_lead, lead_from_obs(obs, cfg)["gap"], np.inf)
+        lead_gap = np.where(has_lead, lead_from_obs(obs, cfg, self.layout, dist)["gap"], np.inf)
         # Nearest oncoming vehicle ahead.
         opp = obs[:, self.layout["opposite_lane"]].reshape(n, -1, SLOT_FEATURES).astype(float)
         ox = opp[:, :, 1] * oc.position_scale

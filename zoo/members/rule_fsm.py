@@ -39,10 +39,14 @@ from overtakezoo.zoo.base import Decider, register
 EVIDENCE_TRUST_NUMBER = 3  # OpenPlanner launch default (op_behavior_selector/evidence_trust_number)
 
 
-def lead_from_obs(obs: np.ndarray, cfg: EnvConfig) -> dict[str, np.ndarray]:
+def lead_from_obs(obs: np.ndarray, cfg: EnvConfig, layout: dict[str, Any] | None = None,
+                  dist: ScenarioDistribution | None = None) -> dict[str, np.ndarray]:
     """The nearest perceived ego-lane vehicle ahead of the ego (OpenPlanner's ``distanceToNext``):
-    bumper gap (inf if none), relative speed (m/s, ego frame) and slot index (-1 if none)."""
-    lay, dist = _layout_and_sizes(cfg)
+    bumper gap (inf if none), relative speed (m/s, ego frame) and slot index (-1 if none).
+    ``layout`` and ``dist``: ``cfg``'s, built once by a decider (validating the distribution at every
+    decision cost as much as the decision)."""
+    lay = layout if layout is not None else observation_layout(cfg)
+    dist = dist if dist is not None else ScenarioDistribution.from_dict(cfg.scenario)
     oc = cfg.observation
     slots = obs[:, lay["ego_lane"]].reshape(len(obs), -1, SLOT_FEATURES).astype(float)
     x = slots[:, :, 1] * oc.position_scale
@@ -54,20 +58,6 @@ def lead_from_obs(obs: np.ndarray, cfg: EnvConfig) -> dict[str, np.ndarray]:
     gap = dx - (dist.ego_length + dist.vehicle_length) / 2
     rel_v = np.where(np.isfinite(dx), slots[rows, idx, 3] * oc.speed_scale, 0.0)
     return {"gap": gap, "rel_v": rel_v, "slot": np.where(np.isfinite(dx), idx, -1)}
-
-
-def _layout_and_sizes(cfg: EnvConfig) -> tuple[dict[str, Any], ScenarioDistribution]:
-    """The observation layout and the scenario distribution of ``cfg``, built once per config object
-    (validating the distribution every decision cost as much as the decision itself)."""
-    cached = _CACHE.get(id(cfg))
-    if cached is None or cached[0] is not cfg:
-        if len(_CACHE) > 32:  # (a few configs live at a time; the entries keep theirs alive)
-            _CACHE.clear()
-        cached = _CACHE[id(cfg)] = (cfg, observation_layout(cfg), ScenarioDistribution.from_dict(cfg.scenario))
-    return cached[1], cached[2]
-
-
-_CACHE: dict[int, tuple[EnvConfig, dict[str, Any], ScenarioDistribution]] = {}
 
 
 class RuleFSM(Decider):
@@ -84,6 +74,7 @@ class RuleFSM(Decider):
         super().__init__(config)
         self.evidence = int(evidence)
         self.layout = observation_layout(self.config)
+        self.dist = ScenarioDistribution.from_dict(self.config.scenario)
         self.avoid = self.config.planner.modes["overtake"].avoiding_distance  # minDistanceToAvoid
         self.mode = np.zeros(0, np.int64)
         self.count = np.zeros(0, np.int64)
@@ -109,7 +100,7 @@ class RuleFSM(Decider):
         blocked = obs[:, self.layout["blocked"]] > 0.5  # (N, n + 1); 0 = ego-lane centre
         fully_blocked = blocked.all(axis=1)  # bFullyBlock: even the best rollout is blocked
         side_free = ~blocked[:, 1:].all(axis=1)  # some rollout towards the opposite lane is free
-        gap = lead_from_obs(obs, self.config)["gap"]
+        gap = lead_from_obs(obs, self.config, self.layout, self.dist)["gap"]
         lead_near = gap <= self.avoid  # distanceToNext <= minDistanceToAvoid
         lateral = obs[:, self.layout["ego"]][:, 2]  # y / lane width
 
