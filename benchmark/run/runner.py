@@ -159,9 +159,11 @@ class Compaction:
     def compact(self, obs: np.ndarray) -> tuple[OvertakeCore, np.ndarray] | None:
         """After a hold: drop the finished rows when at most half the batch still runs; returns the
         smaller core and its rows' observations, or None to go on with the same batch."""
+        if not self.enabled or self.core.num < MIN_COMPACT_ROWS:
+            return None
         done = np.asarray(self.core.done)
         keep = np.flatnonzero(~done)
-        if not self.enabled or done.size < MIN_COMPACT_ROWS or 2 * keep.size > done.size or not keep.size:
+        if 2 * keep.size > done.size or not keep.size:
             return None
         gone = np.ones(done.size, bool)
         gone[keep] = False
