@@ -203,7 +203,8 @@ def gae(reward: np.ndarray, value: np.ndarray, done: np.ndarray, last: np.ndarra
 # ----------------------------------------------------------------------------- model selection
 def greedy_score(layers: tuple, sets: list[tuple[Any, Any]], repeat: int) -> float:
     """Success rate minus crash rate of the greedy (argmax) actor over ``(config, scenarios)`` sets,
-    each set weighted equally."""
+    each set weighted equally. Finished rows are dropped once at most half the batch runs (as the
+    benchmark runner does; rows never interact), which halves the cost of a scoring."""
     from overtakezoo.envs import OvertakeCore
     from overtakezoo.envs.hold import hold_steps, run_to_end
     from overtakezoo.zoo.members.mlp import NumpyMLP
@@ -211,11 +212,26 @@ def greedy_score(layers: tuple, sets: list[tuple[Any, Any]], repeat: int) -> flo
     net = NumpyMLP(layers, "tanh")
     scores = []
     for config, scenarios in sets:
-        core = OvertakeCore(config)
-        obs = core.reset(scenarios)
-        run_to_end(core, obs, lambda o, _: net(speed_relative(o, config)).argmax(axis=1),
-                   hold_steps(config.decision_interval, repeat))
-        scores.append(np.mean(core.outcome == SUCCESS) - np.mean(core.outcome == CRASH))
+        live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
+
+        def count(outcome: np.ndarray) -> None:
+            live["success"] += int((outcome == SUCCESS).sum())
+            live["crash"] += int((outcome == CRASH).sum())
+
+        def compact(obs: np.ndarray) -> Any:
+            done = np.asarray(live["core"].done)
+            keep = np.flatnonzero(~done)
+            if 2 * keep.size > done.size or not keep.size:
+                return None
+            count(live["core"].outcome[done])
+            live["core"] = live["core"].clone(keep)
+            return live["core"], obs[keep]
+
+        obs = live["core"].reset(scenarios)
+        run_to_end(live["core"], obs, lambda o, _: net(speed_relative(o, config)).argmax(axis=1),
+                   hold_steps(config.decision_interval, repeat), compact=compact)
+        count(live["core"].outcome)
+        scores.append((live["success"] - live["crash"]) / scenarios.num)
     return float(np.mean(scores))
 
 
@@ -261,11 +277,14 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
     obs = speed_relative(core.observe(), config).astype(DTYPE)
     t0 = time.perf_counter()
     log_rows = []
+    cpu = {"rollout": 0.0, "update": 0.0, "select": 0.0}  # process CPU seconds by phase (the card records them)
+    clock = time.process_time
     for it in range(iterations):
         T = p.num_steps_per_env
         b_obs, b_act = np.empty((T, n, dim), DTYPE), np.empty((T, n), np.int64)
         b_logp, b_val, b_rew, b_done = (np.empty((T, n)) for _ in range(4))
         counts = np.zeros(4, np.int64)  # episodes, successes, crashes, timeouts
+        c0 = clock()
         for t in range(T):
             logits, _ = actor.forward(obs)
             logp = log_softmax(logits)
@@ -279,10 +298,14 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
                 counts += [len(outcome), (outcome == SUCCESS).sum(), (outcome == CRASH).sum(),
                            (outcome == TIMEOUT).sum()]
             obs = speed_relative(res.obs, config).astype(DTYPE)
+        c1 = clock()
         adv, ret = gae(b_rew, b_val, b_done, critic.forward(obs)[0][:, 0], p.gamma, p.lam)
         batch = {"obs": b_obs.reshape(-1, dim), "act": b_act.reshape(-1), "logp": b_logp.reshape(-1).astype(DTYPE),
                  "adv": adv.reshape(-1).astype(DTYPE), "ret": ret.reshape(-1).astype(DTYPE)}
         update(actor, critic, batch, p, rng)
+        c2 = clock()
+        cpu["rollout"] += c1 - c0
+        cpu["update"] += c2 - c1
         score = None
         last = it + 1 == iterations
         every = hp.train.select_every
@@ -291,6 +314,7 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
             score = greedy_score(layers, select_sets, repeat)
             if score > best["score"]:
                 best = {"score": score, "iteration": it + 1, "layers": layers}
+            cpu["select"] += clock() - c2
         eps = max(int(counts[0]), 1)
         log_rows.append([it + 1, (it + 1) * per_iter, f"{time.perf_counter() - t0:.2f}", int(counts[0]),
                          f"{counts[1] / eps:.4f}", f"{counts[2] / eps:.4f}", f"{counts[3] / eps:.4f}",
@@ -302,11 +326,11 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
     with open(out / "train_log.csv", "w", newline="") as f:
         csv.writer(f).writerows([LOG_COLUMNS, *log_rows])
     return _finish(best, hp, hp_file, source, iterations * per_iter, seed, wall, iterations, select_sets, out,
-                   steps)
+                   steps, {k: round(v, 3) for k, v in cpu.items()})
 
 
 def _finish(best: dict[str, Any], hp: FastPPOHyperparams, hp_file: str, source: dict[str, Any], steps: int, seed: int,
-            wall: float, iterations: int, select_sets: list, out: Path, asked: int) -> Any:
+            wall: float, iterations: int, select_sets: list, out: Path, asked: int, cpu: dict[str, float]) -> Any:
     from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes, read_npz
     from overtakezoo.zoo.train.contract import Trained, model_card, write_outputs
     from overtakezoo.zoo.train.export import npz_card
@@ -320,7 +344,8 @@ def _finish(best: dict[str, Any], hp: FastPPOHyperparams, hp_file: str, source: 
     card = model_card("ppo", algorithm=ALGORITHM, architecture={"kind": "policy"}, hp=hp, hp_file=hp_file,
                       action_repeat=hp.env.action_repeat, action_mask=False, source=source, steps=steps,
                       steps_unit=STEPS_UNIT, seed=seed, wall_time_s=wall,
-                      training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)"},
+                      training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)",
+                                "cpu_s": cpu},
                       reproduce=f"overtakezoo train ppo {what} --hyperparams zoo/hyperparams/{hp_file} "
                                 f"--steps {asked} --seed {seed}",
                       versions={"numpy": np.__version__}, torch=False)
