@@ -236,7 +236,11 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
         raise TrainError(f"train/ppo.py trains ppo, not {member!r}")
     if read_toml(hyperparams or hyperparams_file("ppo")).get("trainer") == "numpy":
         return _train_numpy(suites, suite_name, steps, seed, out, resume, hyperparams, overrides, progress)
-    import torch
+    try:
+        import torch
+        import rsl_rl  # noqa: F401
+    except ModuleNotFoundError as exc:  # the same line as for a trainer module that imports it at the top
+        raise TrainError(f"training ppo needs {exc.name} (pip install -e '.[train]')") from None
 
     from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
