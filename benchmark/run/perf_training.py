@@ -31,7 +31,8 @@ PAPER_SUCCESS, PAPER_CRASH = 0.922, 0.05
 HOLD = 10  # core steps per decision (both hyperparameter files' action_repeat)
 FAST_FILE = "zoo/hyperparams/ppo-fast.toml"  # (passed as an absolute path: the processes run in a temporary folder)
 FAST = ["--hyperparams", str(Path(__file__).resolve().parents[2] / FAST_FILE)]
-FAST_ITERATION = 512 * 4  # decisions per iteration (ppo-fast.toml: num_envs x num_steps_per_env)
+FAST_STEPS_PER_ENV = 4  # ppo-fast.toml: num_steps_per_env
+FAST_ITERATION = 512 * FAST_STEPS_PER_ENV  # decisions per iteration (ppo-fast.toml: num_envs x num_steps_per_env)
 FAST_LADDER = (8, 12, 16, 24, 32)  # iterations tried in turn
 FAST_THROUGHPUT_ENVS = 4096  # rows on core-train (9 suites): the core's cost per row falls with the batch
 FAST_THROUGHPUT_ITERATIONS = 8
@@ -65,14 +66,20 @@ def _shown(args: list[str]) -> str:
     return " ".join(args).replace(FAST[1], FAST_FILE)
 
 
-def _throughput(report: Any, row: str, who: str, args: list[str], steps: int, repeats: int, tmp: str) -> None:
-    runs = [_train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
-            for s in range(repeats)]
-    report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none {_shown(args)}`, "
-               f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second", "env-steps/s",
-               [steps * HOLD / cpu for _, cpu, _ in runs])
-    report.add(f"{row}-wall", "the same processes, env-steps per wall second", "env-steps/s",
-               [steps * HOLD / wall for wall, _, _ in runs])
+def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], repeats: int, tmp: str) -> None:
+    """``trainers``: (row, who, extra args, decisions); their processes interleaved (A B A B ...),
+    so a change in the machine's load falls on both alike."""
+    runs: dict[str, list[tuple[float, float]]] = {row: [] for row, *_ in trainers}
+    for s in range(repeats):
+        for row, _, args, steps in trainers:
+            wall, cpu, _ = _train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
+            runs[row].append((wall, cpu))
+    for row, who, args, steps in trainers:
+        report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none {_shown(args)}`, "
+                   f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
+                   f"with the other trainer's runs)", "env-steps/s", [steps * HOLD / cpu for _, cpu in runs[row]])
+        report.add(f"{row}-wall", "the same processes, env-steps per wall second", "env-steps/s",
+                   [steps * HOLD / wall for wall, _ in runs[row]])
 
 
 def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: int, ladder: tuple[int, ...],
@@ -105,18 +112,19 @@ def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: 
 
 
 def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], None] = print) -> None:
+    try:
+        import torch  # noqa: F401  (the [train] extra: rsl-rl)
+        rsl_rl = True
+    except ImportError:
+        progress("rsl-rl rows: not measured: torch is not installed (pip install -e '.[train]')")
+        rsl_rl = False
+    fast, rsl = "numpy PPO (zoo/train/fastppo.py)", "rsl-rl PPO (zoo/train/ppo.py, ppo.toml)"
     with tempfile.TemporaryDirectory() as tmp:
-        fast = "numpy PPO (zoo/train/fastppo.py)"
-        _throughput(report, "train-throughput-core-train", fast, [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
-                    FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * 4, repeats, tmp)
-        _time_to_level(report, "time-to-paper-level", fast, FAST,
-                       FAST_ITERATION, FAST_LADDER, tmp, progress)
-        try:
-            import torch  # noqa: F401  (the [train] extra)
-        except ImportError:
-            progress("rsl-rl rows: not measured: torch is not installed (pip install -e '.[train]')")
-            return
-        rsl = "rsl-rl PPO (zoo/train/ppo.py, ppo.toml)"
-        _throughput(report, "train-throughput-core-train-rsl-rl", rsl, [], THROUGHPUT_ITERATIONS * RSL_ITERATION,
-                    repeats, tmp)
-        _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, [], RSL_ITERATION, RSL_LADDER, tmp, progress)
+        trainers = [("train-throughput-core-train", fast, [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
+                     FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV)]
+        if rsl_rl:
+            trainers.append(("train-throughput-core-train-rsl-rl", rsl, [], THROUGHPUT_ITERATIONS * RSL_ITERATION))
+        _throughput(report, trainers, repeats, tmp)
+        _time_to_level(report, "time-to-paper-level", fast, FAST, FAST_ITERATION, FAST_LADDER, tmp, progress)
+        if rsl_rl:
+            _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, [], RSL_ITERATION, RSL_LADDER, tmp, progress)
