@@ -63,7 +63,7 @@ def _paper_level(out: Path, tmp: str) -> tuple[bool, str, float, float]:
 
 
 def _shown(args: list[str]) -> str:
-    return " ".join(args).replace(FAST[1], FAST_FILE)
+    return "".join(f" {a}" for a in args).replace(FAST[1], FAST_FILE)
 
 
 def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], repeats: int, tmp: str) -> None:
@@ -75,7 +75,7 @@ def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], re
             wall, cpu, _ = _train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
             runs[row].append((wall, cpu))
     for row, who, args, steps in trainers:
-        report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none {_shown(args)}`, "
+        report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none{_shown(args)}`, "
                    f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
                    f"with the other trainer's runs)", "env-steps/s", [steps * HOLD / cpu for _, cpu in runs[row]])
         report.add(f"{row}-wall", "the same processes, env-steps per wall second", "env-steps/s",
@@ -102,7 +102,7 @@ def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: 
         cpus.append(cpu)
         with_eval.append(total)
     what = (f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
-            f"process `overtakezoo train ppo --suite table1-train --eval-suite none {_shown(args)}` at "
+            f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
             f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
             f"policy gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds")
     report.add(row, what + ", wall time of the training process", "s", walls, digits=2)
