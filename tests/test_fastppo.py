@@ -104,3 +104,5 @@ def test_bad_hyperparameters_are_one_error_naming_the_key(tmp_path):
 
         ppo.train(load_training("table1-train"), steps=2048, out=tmp_path / "r", hyperparams=FAST,
                   resume=tmp_path / "x.pt", progress=False)
+    with pytest.raises(TrainError, match="single-AV"):
+        ppo.train(load_training("multi-train"), steps=2048, out=tmp_path / "m", hyperparams=FAST, progress=False)

@@ -261,6 +261,11 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
     source = suite_source(suites, suite_name)
     config = suites[0].config
     pools = [s.scenarios() for s in suites]
+    multi = [s.name for s, q in zip(suites, pools) if q.num_avs > 1]
+    if multi:  # (waiting AVs of a multi-AV road would need their transitions dropped; rsl-rl's face has none)
+        from overtakezoo.zoo.train.contract import TrainError
+
+        raise TrainError(f"the numpy ppo trains single-AV suites; {', '.join(multi)} has several AVs per road")
 
     def pool_source(pool: Any) -> Any:  # rows drawn uniformly from the suite (rsl_rl.pool_source, without torch)
         return lambda k, g: pool.take(g.integers(0, pool.num, k))
