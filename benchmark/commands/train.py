@@ -30,6 +30,7 @@ EXAMPLES = """examples:
 
   overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
   overtakezoo train ppo --out runs/ppo --set train.select_every=10
+  overtakezoo train ppo --hyperparams zoo/hyperparams/ppo-fast.toml --out runs/ppo-fast   # numpy PPO, no torch
 """
 
 

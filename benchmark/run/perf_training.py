@@ -1,16 +1,21 @@
 """The training rows of the performance report (``overtakezoo perf``; benchmark/run/perf.py).
 
-- ``train-throughput-core-train``: env-steps (core steps: decisions x the 1 s hold) per CPU second of
-  ``overtakezoo train ppo --suite core-train`` for a fixed budget, as a process (imports, the
-  trainer's model selection and checkpoints included; no final eval), and the same per wall second.
-- ``time-to-paper-level``: from scratch on ``table1-train`` to the paper's DQN figure on ``table1``
-  (success >= 92.2 %, crash <= 5 %). Per seed, ``overtakezoo train ppo --suite table1-train
-  --eval-suite table1`` is run as a whole process at the budgets of :data:`LADDER` in turn; the
-  seed's figure is the wall (and CPU) time of the first process whose shipped policy reaches the
-  level (``inf``: none did). The median is over :data:`SEEDS`. Nothing is chosen from these runs:
-  table1 is only the yardstick the figure is defined by.
+Two trainers of the ppo member, side by side: the numpy PPO (:mod:`overtakezoo.zoo.train.fastppo`,
+``--hyperparams zoo/hyperparams/ppo-fast.toml``, no torch) and rsl-rl's ``OnPolicyRunner``
+(``zoo/train/ppo.py`` with ``zoo/hyperparams/ppo.toml``, what the shipped ppo was trained with).
 
-The trainer is ppo through rsl-rl's ``OnPolicyRunner`` (``zoo/train/ppo.py``), the zoo's fastest.
+- ``train-throughput-core-train`` (numpy PPO, ``--set env.num_envs=`` :data:`FAST_THROUGHPUT_ENVS`)
+  and ``train-throughput-core-train-rsl-rl``: env-steps (core steps: decisions x the 1 s hold) per
+  CPU second of ``overtakezoo train ppo --suite core-train --eval-suite none`` for a fixed budget,
+  as a process (imports, model selection and outputs included), and the same per wall second.
+- ``time-to-paper-level`` (numpy PPO) and ``time-to-paper-level-rsl-rl``: from scratch on
+  ``table1-train`` to the paper's DQN figure on ``table1`` (success >= 92.2 %, crash <= 5 %). Per
+  seed, the training process ``overtakezoo train ppo --suite table1-train --eval-suite none`` is run
+  at the budgets of its ladder in turn; the shipped policy of each is then evaluated on table1 by a
+  separate ``overtakezoo eval --policy`` process (the yardstick, not part of training; its time is
+  in the ``-with-eval`` row); the seed's figure is the time of the first training process whose
+  policy reaches the level (``inf``: none did). The median is over :data:`SEEDS`. Nothing is chosen
+  from these runs: table1 is only the yardstick the figure is defined by.
 """
 
 from __future__ import annotations
@@ -22,55 +27,104 @@ from pathlib import Path
 from typing import Any, Callable
 
 SEEDS = (0, 1, 2)
-ITERATION = 256 * 32  # decisions per ppo iteration (zoo/hyperparams/ppo.toml: num_envs x num_steps_per_env)
-LADDER = (4, 8, 16, 32, 64)  # iterations tried in turn
-THROUGHPUT_ITERATIONS = 8
-HOLD = 10  # core steps per decision (ppo.toml action_repeat)
 PAPER_SUCCESS, PAPER_CRASH = 0.922, 0.05
+HOLD = 10  # core steps per decision (both hyperparameter files' action_repeat)
+FAST_FILE = "zoo/hyperparams/ppo-fast.toml"  # (passed as an absolute path: the processes run in a temporary folder)
+FAST = ["--hyperparams", str(Path(__file__).resolve().parents[2] / FAST_FILE)]
+FAST_STEPS_PER_ENV = 4  # ppo-fast.toml: num_steps_per_env
+FAST_ITERATION = 512 * FAST_STEPS_PER_ENV  # decisions per iteration (ppo-fast.toml: num_envs x num_steps_per_env)
+FAST_LADDER = (8, 12, 16, 24, 32)  # iterations tried in turn
+FAST_THROUGHPUT_ENVS = 4096  # rows on core-train (9 suites): the core's cost per row falls with the batch
+FAST_THROUGHPUT_ITERATIONS = 8
+RSL_ITERATION = 256 * 32  # ppo.toml: num_envs x num_steps_per_env
+RSL_LADDER = (4, 8, 16, 32, 64)
+THROUGHPUT_ITERATIONS = 8  # rsl-rl
 
 
-def _train(args: list[str], tmp: str) -> tuple[float, float, dict[str, Any]]:
+def _train(args: list[str], tmp: str) -> tuple[float, float, Path]:
     from overtakezoo.benchmark.run.perf import _cli
 
     out = Path(tmp) / f"run{len(list(Path(tmp).iterdir()))}"
-    wall, cpu = _cli(["train", "ppo", *args, "--out", str(out)], tmp)
-    return wall, cpu, json.loads((out / "ppo.json").read_text())
+    wall, cpu = _cli(["train", "ppo", *args, "--eval-suite", "none", "--out", str(out)], tmp)
+    return wall, cpu, out
+
+
+def _paper_level(out: Path, tmp: str) -> tuple[bool, str, float, float]:
+    """Evaluate the run's shipped policy on table1 in its own process: (reached, summary, wall, CPU)."""
+    from overtakezoo.benchmark.run.perf import _cli
+
+    results = out / "table1.results.json"
+    wall, cpu = _cli(["eval", "--suite", "table1", "--policy", str(out / "ppo.npz"), "--out", str(results),
+                      "--no-safety"], tmp)
+    summary = json.loads(results.read_text())["summary"]
+    success, crash = summary["success_rate"]["value"], summary["crash_rate"]["value"]
+    return (success >= PAPER_SUCCESS and crash <= PAPER_CRASH, f"{100 * success:.1f} % / {100 * crash:.1f} %",
+            wall, cpu)
+
+
+def _shown(args: list[str]) -> str:
+    return "".join(f" {a}" for a in args).replace(FAST[1], FAST_FILE)
+
+
+def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], repeats: int, tmp: str) -> None:
+    """``trainers``: (row, who, extra args, decisions); their processes interleaved (A B A B ...),
+    so a change in the machine's load falls on both alike."""
+    runs: dict[str, list[tuple[float, float]]] = {row: [] for row, *_ in trainers}
+    for s in range(repeats):
+        for row, _, args, steps in trainers:
+            wall, cpu, _ = _train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
+            runs[row].append((wall, cpu))
+    for row, who, args, steps in trainers:
+        report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none{_shown(args)}`, "
+                   f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
+                   f"with the other trainer's runs)", "env-steps/s", [steps * HOLD / cpu for _, cpu in runs[row]])
+        report.add(f"{row}-wall", "the same processes, env-steps per wall second", "env-steps/s",
+                   [steps * HOLD / wall for wall, _ in runs[row]])
+
+
+def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: int, ladder: tuple[int, ...],
+                   tmp: str, progress: Callable[[str], None]) -> None:
+    walls, cpus, with_eval, reached = [], [], [], []
+    for seed in SEEDS:
+        wall = cpu = total = math.inf
+        for k in ladder:
+            w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed),
+                                *args], tmp)
+            ok, summary, ew, _ = _paper_level(out, tmp)
+            progress(f"{row}: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; table1 {summary}")
+            if ok:
+                wall, cpu, total = w, c, w + ew
+                reached.append(f"seed {seed}: {k} iterations ({summary}, {w:.2f} s)")
+                break
+        else:
+            reached.append(f"seed {seed}: not within {ladder[-1]} iterations")
+        walls.append(wall)
+        cpus.append(cpu)
+        with_eval.append(total)
+    what = (f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
+            f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
+            f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
+            f"policy gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds")
+    report.add(row, what + ", wall time of the training process", "s", walls, digits=2)
+    report.add(f"{row}-cpu", "the same processes' user + sys CPU time", "s", cpus, digits=2)
+    report.add(f"{row}-with-eval", "the same plus the `overtakezoo eval --suite table1 --policy` process that "
+               "checks it, wall", "s", with_eval, digits=2)
 
 
 def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], None] = print) -> None:
     try:
-        import torch  # noqa: F401  (the [train] extra)
+        import torch  # noqa: F401  (the [train] extra: rsl-rl)
+        rsl_rl = True
     except ImportError:
-        progress("training rows: not measured: torch is not installed (pip install -e '.[train]')")
-        return
+        progress("rsl-rl rows: not measured: torch is not installed (pip install -e '.[train]')")
+        rsl_rl = False
+    fast, rsl = "numpy PPO (zoo/train/fastppo.py)", "rsl-rl PPO (zoo/train/ppo.py, ppo.toml)"
     with tempfile.TemporaryDirectory() as tmp:
-        steps = THROUGHPUT_ITERATIONS * ITERATION
-        runs = [_train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), "--eval-suite", "none"], tmp)
-                for s in range(repeats)]
-        report.add("train-throughput-core-train", f"`overtakezoo train ppo --suite core-train`, {steps} decisions "
-                   f"({THROUGHPUT_ITERATIONS} iterations) as a process: env-steps (decisions x {HOLD}) per CPU second",
-                   "env-steps/s", [steps * HOLD / cpu for _, cpu, _ in runs])
-        report.add("train-throughput-core-train-wall", "the same processes, env-steps per wall second", "env-steps/s",
-                   [steps * HOLD / wall for wall, _, _ in runs])
-        walls, cpus, reached = [], [], []
-        for seed in SEEDS:
-            wall = cpu = math.inf
-            for k in LADDER:
-                w, c, card = _train(["--suite", "table1-train", "--steps", str(k * ITERATION), "--seed", str(seed),
-                                     "--eval-suite", "table1"], tmp)
-                res = card["results"]["table1"]
-                if res["success_rate"] >= PAPER_SUCCESS and res["crash_rate"] <= PAPER_CRASH:
-                    wall, cpu = w, c
-                    reached.append(f"seed {seed}: {k} iterations ({100 * res['success_rate']:.1f} % / "
-                                   f"{100 * res['crash_rate']:.1f} %)")
-                    break
-            else:
-                reached.append(f"seed {seed}: not within {LADDER[-1]} iterations")
-            walls.append(wall)
-            cpus.append(cpu)
-        what = ("from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1, "
-                "`overtakezoo train ppo --suite table1-train --eval-suite table1` as a whole process at "
-                f"{', '.join(map(str, LADDER))} iterations in turn, the first that gets there "
-                f"({'; '.join(reached)}); median of {len(SEEDS)} seeds")
-        report.add("time-to-paper-level", what + ", wall time", "s", walls, digits=2)
-        report.add("time-to-paper-level-cpu", "the same processes' user + sys CPU time", "s", cpus, digits=2)
+        trainers = [("train-throughput-core-train", fast, [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
+                     FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV)]
+        if rsl_rl:
+            trainers.append(("train-throughput-core-train-rsl-rl", rsl, [], THROUGHPUT_ITERATIONS * RSL_ITERATION))
+        _throughput(report, trainers, repeats, tmp)
+        _time_to_level(report, "time-to-paper-level", fast, FAST, FAST_ITERATION, FAST_LADDER, tmp, progress)
+        if rsl_rl:
+            _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, [], RSL_ITERATION, RSL_LADDER, tmp, progress)

@@ -161,19 +161,23 @@ def reproduce(name: str, source: dict[str, Any], steps: int, seed: int) -> str:
 def model_card(name: str, *, algorithm: str, architecture: dict[str, Any], hp: Any, hp_file: str, action_repeat: int,
                action_mask: bool, source: dict[str, Any], steps: int, steps_unit: str, seed: int,
                wall_time_s: float, training: dict[str, Any], reproduce: str,
-               versions: dict[str, str] | None = None) -> dict[str, Any]:
+               versions: dict[str, str] | None = None, torch: bool = True) -> dict[str, Any]:
     """The keys every model card has (``card.schema.json`` says what each means). ``architecture``
     holds ``kind`` (and ``dueling``: how to read a dqn's torch weights); :func:`finish` adds the rest,
-    read from the network, and the weights' names and hashes."""
-    import torch  # every trainer trains with it; the card records which
+    read from the network, and the weights' names and hashes. ``torch``: the trainer trained with
+    torch, whose version the card records (all but the numpy ppo, :mod:`.fastppo`)."""
+    used = {}
+    if torch:
+        import torch as _torch
 
+        used["torch"] = _torch.__version__
     return {
         "name": name, "version": "1", "algorithm": algorithm, "architecture": dict(architecture),
         "features": FEATURES_VERSION, "action_repeat": int(action_repeat), "action_mask": bool(action_mask),
         **({"action_mask_version": MASK_VERSION} if action_mask else {}),
         "hyperparameters": {"file": hp_file, **as_dict(hp)}, **source,
         "steps": int(steps), "steps_unit": steps_unit, "seed": int(seed), "wall_time_s": round(float(wall_time_s), 1),
-        "training": training, "versions": {"torch": torch.__version__, **(versions or {})},
+        "training": training, "versions": {**used, **(versions or {})},
         "results": {}, "reproduce": reproduce,
     }
 

@@ -29,11 +29,9 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
-from tensordict import TensorDict
 
 from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
 from overtakezoo.envs.config import unknown_key
@@ -41,11 +39,16 @@ from overtakezoo.envs.io import atomic_path, check_writable_dir
 
 from overtakezoo.zoo.base import Decider
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
-                       suite_source)
+from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, read_toml,
+                       reproduce, suite_source)
 from overtakezoo.zoo.train.export import PPO_FORMAT
 from overtakezoo.zoo.train.typed import HyperparameterError, param
 
+if TYPE_CHECKING:
+    import torch
+
+# torch, tensordict and rsl-rl are imported where they are used: a hyperparameter file naming the
+# numpy trainer (trainer = "numpy", ppo-fast.toml) is handed to .fastppo without importing them.
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
 LEARNS_FROM = "suites"  # what train() takes: loaded training suites, or a loaded dataset
@@ -128,7 +131,9 @@ def train_cfg(hp: PPOHyperparams) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- policy
 def build_actor(obs_dim: int, actor_cfg: dict[str, Any]) -> torch.nn.Module:
     """rsl-rl's ``MLPModel`` as the runner builds it (one observation group, one action column)."""
+    import torch
     from rsl_rl.utils import resolve_class
+    from tensordict import TensorDict
 
     cls, kwargs = resolve_class(actor_cfg)
     obs = TensorDict({"policy": torch.zeros(1, obs_dim)}, batch_size=[1])
@@ -136,6 +141,8 @@ def build_actor(obs_dim: int, actor_cfg: dict[str, Any]) -> torch.nn.Module:
 
 
 def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]) -> bytes:
+    import torch
+
     buf = io.BytesIO()
     torch.save({"format": PPO_FORMAT, "obs_dim": obs_dim, "actor_cfg": actor_cfg,
                 "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()}}, buf)
@@ -152,6 +159,8 @@ class TorchPolicy(Decider):
         self.actor, self.action_repeat = actor.eval(), int(action_repeat)
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        import torch
+
         x = speed_relative(np.asarray(obs), self.config)
         with torch.inference_mode():
             x = self.actor.obs_normalizer(torch.as_tensor(x, dtype=torch.float32))
@@ -199,6 +208,8 @@ def _library_version() -> str:
 def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
     """Restore ``runner`` from a checkpoint ``runner.save`` wrote and return its ``infos``. Read with
     ``weights_only=True`` (rsl-rl's own ``load`` unpickles anything): resuming never runs code."""
+    import torch
+
     try:
         loaded = torch.load(str(path), map_location="cpu", weights_only=True)
         if not isinstance(loaded, dict):
@@ -223,6 +234,14 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
     file (default ``zoo/hyperparams/ppo.toml``)."""
     if member != "ppo":
         raise TrainError(f"train/ppo.py trains ppo, not {member!r}")
+    if read_toml(hyperparams or hyperparams_file("ppo")).get("trainer") == "numpy":
+        return _train_numpy(suites, suite_name, steps, seed, out, resume, hyperparams, overrides, progress)
+    try:
+        import torch
+        import rsl_rl  # noqa: F401
+    except ModuleNotFoundError as exc:  # the same line as for a trainer module that imports it at the top
+        raise TrainError(f"training ppo needs {exc.name} (pip install -e '.[train]')") from None
+
     from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
 
@@ -318,6 +337,22 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
                       training={"iterations": iterations, "selection": selection},
                       reproduce=reproduce("ppo", source, steps, seed), versions={"rsl-rl-lib": _library_version()})
     return finish(card, weights=blob, module=actor, out=out)
+
+
+def _train_numpy(suites: list[Any], suite_name: str | None, steps: int | None, seed: int | None,
+                 out: str | Path | None, resume: Any, hyperparams: str | Path, overrides: dict[str, Any] | None,
+                 progress: bool) -> Trained:
+    """A hyperparameter file with ``trainer = "numpy"`` (``zoo/hyperparams/ppo-fast.toml``): PPO in
+    numpy, :mod:`.fastppo` (no torch, no rsl-rl)."""
+    from overtakezoo.zoo.train import fastppo
+
+    if resume is not None:
+        raise TrainError("--resume: the numpy ppo trainer (trainer = \"numpy\") keeps no checkpoints")
+    hp, hp_file = load_hyperparams(fastppo.FastPPOHyperparams, hyperparams, overrides)
+    seed = 0 if seed is None else int(seed)
+    out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
+    return fastppo.train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out,
+                         progress=progress)
 
 
 ALGORITHM = ("PPO (Schulman et al. 2017: clipped surrogate, GAE, adaptive KL learning rate) through rsl-rl-lib's "

@@ -1,0 +1,56 @@
+"""Greedy success and crash rates of ppo runs and of the shipped ppo on held-back training scenarios.
+
+    python scripts/train_split_scores.py RUN_DIR... [--suite core-train] [--from 500]
+
+Each training suite of ``--suite`` (a mixture such as core-train) is run from scenario ``--from`` to
+its end (the trainers' model selection scores the first ones) by every run's ``ppo.npz`` and by the
+shipped ``zoo/pretrained/ppo``; the mean over the suites is what compares a run with the shipped
+member on training splits only (no test suite is read). Used for the numpy PPO on core-train
+(README, "PPO in numpy").
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore
+from overtakezoo.envs.hold import hold_steps, run_to_end
+from overtakezoo.envs.suites import load_training
+from overtakezoo.zoo.members.learned import MLPDecider, load_pretrained, load_weights, read_card
+
+
+def scores(decider: MLPDecider, suites: list, start: int) -> list[tuple[str, float, float]]:
+    out = []
+    for suite in suites:
+        pool = suite.scenarios()
+        decider.config = suite.config
+        core = OvertakeCore(suite.config)
+        run_to_end(core, core.reset(pool.take(np.arange(start, pool.num))), lambda o, _: decider.act_batch(o),
+                   hold_steps(suite.config.decision_interval, decider.action_repeat))
+        outcome = np.asarray(core.outcome).reshape(-1)
+        out.append((suite.name, float(np.mean(outcome == SUCCESS)), float(np.mean(outcome == CRASH))))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="*", help="run directories holding ppo.npz and ppo.json")
+    ap.add_argument("--suite", default="core-train")
+    ap.add_argument("--from", dest="start", type=int, default=500)
+    args = ap.parse_args()
+    suites = load_training(args.suite)
+    deciders = [("shipped ppo", load_pretrained("ppo", suites[0].config))]
+    for run in args.runs:
+        card = read_card(Path(run) / "ppo.json", "ppo")
+        deciders.append((run, MLPDecider(load_weights(Path(run) / "ppo.npz", card), "ppo", suites[0].config, card)))
+    for name, decider in deciders:
+        rows = scores(decider, suites, args.start)
+        print(f"{name}: mean success {np.mean([r[1] for r in rows]):.3f}, crash {np.mean([r[2] for r in rows]):.3f} "
+              f"over {len(rows)} suites; " + ", ".join(f"{n} {s:.3f}/{c:.3f}" for n, s, c in rows))
+
+
+if __name__ == "__main__":
+    main()
