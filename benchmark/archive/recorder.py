@@ -463,7 +463,7 @@ class ArchiveRecorder:
         times.append([t_ for _, t_, _ in tails])
         lens.append([len(x) for *_, x in tails])
         cat = lambda xs: np.concatenate([np.asarray(x, np.int64) for x in xs])  # noqa: E731
-        self._file.write_chunk(b"".join(parts), cat(chans), cat(times), cat(lens))
+        self._file.write_chunk(parts, cat(chans), cat(times), cat(lens))
         for r, start, end, steps in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist()):
             self._file.add_metadata("episode", {
                 "episode": str(int(ch.index[r])), "start_ns": str(start), "end_ns": str(end), "steps": str(steps),
