@@ -177,7 +177,7 @@ def test_messages_follow_their_schemas_and_times_are_monotonic(run):
     steps = sum(r["steps"] + 1 for r in tee.episodes.values())
     assert len(by_topic["/tf"]) == steps and len(by_topic["/scene/road"]) == len(tee.episodes)
     frames = [tf.child_frame_id for tf in by_topic["/tf"][0][1].transforms]
-    assert frames == ["ego", "ego_road", "npc1", "npc2"]
+    assert frames == ["ego", "npc1", "npc2"]
 
 
 def test_cdr_templates_match_an_independent_encoder(run):
@@ -433,7 +433,7 @@ def test_scene_at_every_step_ends_with_the_outcome(run):
         tf = sc["/tf"]
         assert [t for t, _ in tf] == [e.start_ns + k * 100_000_000 for k in range(e.steps + 1)]
         for k in (0, e.steps // 2, e.steps):  # the frames follow the recorded state
-            ego, road_frame, *npcs = tf[k][1].transforms
+            ego, *npcs = tf[k][1].transforms
             assert (ego.translation.x, ego.translation.y) == (ep.ego["x"][k], ep.ego["y"][k])
             assert ego.rotation.z == pytest.approx(np.sin(ep.ego["psi"][k] / 2))
             assert [n.translation.x for n in npcs] == ep.npc_s[k].tolist()

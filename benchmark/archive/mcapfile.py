@@ -25,7 +25,9 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
                           Statistics, SummaryOffset)
 from mcap.writer import MCAP0_MAGIC
 
-ZSTD_LEVEL = 1  # measured in docs/archive-overhead.md: level 3 costs more CPU for a few % smaller files
+# zstd's fast levels (docs/archive-overhead.md, on this format's chunks): level 3 (mcap's Writer)
+# 371 MB/s at ratio 0.212, level 1 733 MB/s at 0.223, level -3 1255 MB/s at 0.234.
+ZSTD_LEVEL = -3
 
 
 def _string(text: str) -> bytes:

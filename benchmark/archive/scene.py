@@ -2,14 +2,14 @@
 ``/scene/*`` topics (``foxglove_msgs/SceneUpdate``), CDR-encoded from numpy (:mod:`.cdr`).
 
 Static geometry is drawn once in its own frame, and only the frames move: at every scene step
-``/tf`` places ``ego`` (with its yaw), ``ego_road`` (the ego's position, road-aligned: the rollouts
-are drawn in it) and ``npc1..npcM``. The SceneUpdates are written when what they show changes:
+``/tf`` places ``ego`` (with its yaw) and ``npc1..npcM``. The SceneUpdates are written when what they show changes:
 ``/scene/road`` at the episode's first step; ``/scene/vehicles`` (one cube per vehicle, locked to
 its frame) at the first step, when the sensor starts or stops seeing an NPC, and at the final step
-(the vehicle hit in magenta); ``/scene/rollouts`` at the first and final steps, when the chosen
-rollout or a blocked flag changes, and otherwise every ``ROLLOUT_EVERY`` steps (their shape follows
-the ego's lateral offset and speed, which change at almost every step: drawing them at every step
-would be most of the archive's bytes); ``/scene/label`` when the mode changes; ``/scene/outcome``
+(the vehicle hit in magenta); ``/scene/rollouts`` (in the ``ego`` frame, so they move with the ego
+at every step) at the first and final steps, when the chosen rollout or a blocked flag changes, and
+otherwise every ``ROLLOUT_EVERY`` steps (their shape follows the ego's lateral offset, speed and
+heading, which change at almost every step: redrawing them at every step would be most of the
+archive's bytes; between redraws they turn with the ego); ``/scene/label`` when the mode changes; ``/scene/outcome``
 clears the previous episode's outcome at the first step and shows this one's at the final step.
 Foxglove keeps each entity until it is replaced (same id on the same topic), so after a seek every
 topic's latest message is the whole picture. Display precision only: the state topic is exact.
@@ -119,7 +119,7 @@ def vehicles_layout(ch: int, m: int) -> Layout:
 
 def rollouts_layout(ch: int, r: int) -> Layout:
     lay = Layout(ch).u4(0).u4(1)
-    _entity(lay, 0, "ego_road", "rollouts", locked=True)
+    _entity(lay, 0, "ego", "rollouts", locked=True)
     _after_cubes(lay, r)
     for j in range(r):
         lay.u1(0)  # LINE_STRIP
@@ -157,8 +157,8 @@ def clear_layout(ch: int) -> Layout:
 
 
 def tf_layout(ch: int, m: int) -> Layout:
-    lay = Layout(ch).u4(2 + m)
-    for k, child in enumerate(["ego", "ego_road"] + [f"npc{j + 1}" for j in range(m)]):
+    lay = Layout(ch).u4(1 + m)
+    for k, child in enumerate(["ego"] + [f"npc{j + 1}" for j in range(m)]):
         _time(lay, f"t{k}")
         lay.string("map").string(child)
         lay.slot(f"t{k}_xy", "<f8", 2).f8(0.0)
@@ -214,11 +214,11 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     out = []
 
     tf = lay.tf.fill(n)
-    _times(lay.tf, tf, s["ns"], [f"t{k}" for k in range(2 + m)])
-    tf["t0_xy"] = tf["t1_xy"] = np.stack([x, y], 1)
+    _times(lay.tf, tf, s["ns"], [f"t{k}" for k in range(1 + m)])
+    tf["t0_xy"] = np.stack([x, y], 1)
     tf["yaw_zw"] = np.stack([np.sin(s["psi"] / 2), np.cos(s["psi"] / 2)], 1)
     for j in range(m):
-        tf[f"t{2 + j}_xy"] = np.stack([s["npc_s"][:, j], e["npc_lane"][ep, j] * w], 1)
+        tf[f"t{1 + j}_xy"] = np.stack([s["npc_s"][:, j], e["npc_lane"][ep, j] * w], 1)
     out.append((tf, np.arange(n)))
 
     rows = np.flatnonzero(first)
@@ -265,11 +265,14 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     _times(lay.rollouts, ro, s["ns"][rows], ["e0"])
     is_chosen = np.arange(r)[None, :] == chosen[rows, None]
     style = np.where(is_chosen, 0, np.where(blocked[rows], 1, 2))
+    dx, dy = rx - x[rows, None, None], ry - y[rows, None, None]  # into the ego frame (its yaw at this step)
+    c, sn = np.cos(s["psi"][rows])[:, None, None], np.sin(s["psi"][rows])[:, None, None]
+    px, py = c * dx + sn * dy, c * dy - sn * dx
     for j in range(r):
         ro[f"l{j}_thick"] = np.where(is_chosen[:, j], 0.25, 0.10)
         ro[f"l{j}_rgba"] = _LINE[style[:, j]]
         for p in range(4):
-            ro[f"l{j}_p{p}"] = np.stack([rx[:, j, p] - x[rows], ry[:, j, p] - y[rows]], 1)
+            ro[f"l{j}_p{p}"] = np.stack([px[:, j, p], py[:, j, p]], 1)
     out.append((ro, rows))
 
     mode = s["mode"]
