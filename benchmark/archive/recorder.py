@@ -444,9 +444,11 @@ class ArchiveRecorder:
                 "outcome_name": OUTCOME_NAMES[int(info["outcome"][r])]}, separators=(",", ":")))
         heads = self._json
         self._json = []
-        for r, start, end, steps, t in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), t_end.tolist()):
-            summary = {key: json_ready(info[key][r]) for key in SUMMARY_FIELDS}
-            summary.update(episode=int(ch.index[r]), step=steps, t=json_ready(t),
+        stats = {key: _json_rows(info[key][rows]) for key in SUMMARY_FIELDS}
+        for j, (r, start, end, steps, t) in enumerate(zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(),
+                                                          _json_rows(t_end))):
+            summary = {key: col[j] for key, col in stats.items()}
+            summary.update(episode=int(ch.index[r]), step=steps, t=t,
                            outcome_name=OUTCOME_NAMES[int(info["outcome"][r])], start_ns=start, end_ns=end)
             self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
         tails, self._json = self._json, []

@@ -234,26 +234,26 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
         road[f"c{j}_size"] = np.stack([sx, sy, np.full(len(rows), 0.1 if j < 2 else 0.02)], 1)
     out.append((road, rows))
 
-    # Vehicles: own lane orange, oncoming red, out of the ego's sight grey and translucent.
+    # Vehicles: own lane orange, oncoming red, out of the ego's sight grey and translucent; the
+    # colours are worked out for the rows written only (where the sight of some NPC changes).
     reach = np.minimum(e["sensor_range"][:, None], e["npc_reveal"])[ep]
     seen = np.abs(s["npc_s"] - x[:, None]) <= reach
-    present = e["npc_present"][ep]
-    own = (e["npc_lane"][ep] == 0)[..., None]
-    rgba = np.where(seen[..., None], np.where(own, np.array(_ORANGE), np.array(_RED_CAR)), np.array(_UNSEEN))
-    hit = final & (e["outcome"][ep] == CRASH)
-    hit_slot = np.zeros((n, m), bool)
-    hit_slot[hit] = np.arange(m)[None, :] == e["crash_npc"][ep[hit], None]
-    rgba = np.where(hit_slot[..., None], np.array(_HIT), rgba)
-    rgba = np.where(present[..., None], rgba, np.array(_NONE))
     rows = np.flatnonzero(first | final | (seen != seen[prev]).any(axis=1))
+    ee, seen = ep[rows], seen[rows, :, None]
+    own = (e["npc_lane"][ee] == 0)[..., None]
+    rgba = np.where(seen, np.where(own, np.array(_ORANGE), np.array(_RED_CAR)), np.array(_UNSEEN))
+    hit = final[rows] & (e["outcome"][ee] == CRASH)
+    hit_slot = np.zeros((len(rows), m), bool)
+    hit_slot[hit] = np.arange(m)[None, :] == e["crash_npc"][ee[hit], None]
+    rgba = np.where(hit_slot[..., None], np.array(_HIT), rgba)
+    rgba = np.where(e["npc_present"][ee][..., None], rgba, np.array(_NONE))
     veh = lay.vehicles.fill(len(rows))
     _times(lay.vehicles, veh, s["ns"][rows], [f"e{k}" for k in range(1 + m)])
-    ee = ep[rows]
     veh["v0_size"] = np.stack([e["ego_length"][ee], e["ego_width"][ee]], 1)
     veh["v0_rgba"] = _BLUE
     for j in range(m):
         veh[f"v{j + 1}_size"] = np.stack([e["npc_length"][ee, j], e["npc_width"][ee, j]], 1)
-        veh[f"v{j + 1}_rgba"] = rgba[rows, j]
+        veh[f"v{j + 1}_rgba"] = rgba[:, j]
     out.append((veh, rows))
 
     chosen, blocked = s["chosen"], s["blocked"]
