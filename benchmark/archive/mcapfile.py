@@ -5,8 +5,9 @@ an archive of table1 has millions of messages) and compresses chunks with ``zsta
 at level 3, with no way to choose. The archive's messages are built by numpy as whole Message
 records (:mod:`.cdr`), so this writer takes a block of records with their channels, times and
 sizes, and writes chunks, message indexes and the summary itself, with mcap's own record classes
-(``mcap.records``) for every record but the message indexes (packed by numpy: little-endian
-(log time, offset) u64 pairs, as the spec lays them out, https://mcap.dev/spec). The file is a
+(``mcap.records``) for the few records per file, and packs the many ones itself (chunks, message
+indexes as numpy little-endian (log time, offset) u64 pairs, metadata), as the spec lays them out
+(https://mcap.dev/spec). The file is a
 plain MCAP file: mcap's readers (Python and TypeScript, CRCs checked) read it; tests/test_archive.py
 checks that.
 """
@@ -21,7 +22,7 @@ import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, MetadataIndex, Schema,
+from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, MetadataIndex, Schema,
                           Statistics, SummaryOffset)
 from mcap.writer import MCAP0_MAGIC
 
@@ -95,8 +96,14 @@ class McapFile:
             crc = zlib.crc32(part, crc)
             packed.append(z.compress(part))
         packed.append(z.flush())
-        start = self._record(Chunk(compression="zstd", data=b"".join(packed), message_start_time=lo,
-                                   message_end_time=hi, uncompressed_crc=crc, uncompressed_size=total))
+        # The Chunk record, packed here so the compressed pieces go out without being joined
+        # (https://mcap.dev/spec#chunk-op0x06): start, end, uncompressed size and CRC, compression, records.
+        size_c = sum(map(len, packed))
+        head = struct.pack("<QQQI", lo, hi, total, crc) + _string("zstd") + struct.pack("<Q", size_c)
+        start = self._pos
+        self._write(struct.pack("<BQ", Opcode.CHUNK, len(head) + size_c) + head)
+        for piece in packed:
+            self._write(piece)
         chunk_length = self._pos - start
         index_offsets: dict[int, int] = {}
         # Message indexes, per channel in id order, entries by log time (stable: file order on ties).
@@ -117,7 +124,7 @@ class McapFile:
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=lo, message_end_time=hi, chunk_start_offset=start, chunk_length=chunk_length,
             message_index_offsets=index_offsets, message_index_length=len(blob), compression="zstd",
-            compressed_size=chunk_length - 9 - 8 - 8 - 8 - 4 - 4 - len("zstd") - 8,
+            compressed_size=size_c,
             uncompressed_size=total))
         st = self._stats
         st[0] += len(size)

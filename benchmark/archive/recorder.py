@@ -311,17 +311,26 @@ class ArchiveRecorder:
             j = 0
         blk = ch.blocks[-1]
         r, cols = blk.src, blk.cols
-        f = [core.t, core.x, core.y, core.psi, core.v, core.a, core.steer]
-        f = np.stack([x[r] for x in f], axis=1)
+        m = core.npc_s.shape[1]
+        full = len(r) == blk.f.shape[1]  # every column of the block still fed (cols is then 0..n-1)
+        fv = blk.f[j] if full else np.empty((len(r), blk.f.shape[2]))
+        iv = blk.i[j] if full else np.empty((len(r), blk.i.shape[2]), np.int8)
+        for c, x in enumerate((core.t, core.x, core.y, core.psi, core.v, core.a, core.steer)):
+            fv[:, c] = x[r]  # column by column into the block (no stacked temporaries)
+        fv[:, 7:7 + m] = core.npc_s[r]
+        fv[:, 7 + m:7 + 2 * m] = core.npc_v[r]
+        iv[:, 0], iv[:, 1] = core.mode[r], core.rollout[r]
         plan = core.last_plan
         if plan is None:  # step 0: no decision, plan or reward yet (padded with zeros, as before)
-            zf, zi = np.zeros((len(r), 1 + ch.m_r)), np.zeros((len(r), 1 + ch.m_r), np.int8)
-            pf, pi = zf, zi
+            fv[:, 7 + 2 * m:] = 0.0
+            iv[:, 2:] = 0
         else:
-            pf = np.concatenate([np.asarray(reward)[r, None], plan.offsets[r]], axis=1)
-            pi = np.concatenate([plan.rollout[r, None], plan.blocked[r]], axis=1)
-        blk.f[j, cols] = np.concatenate([f, core.npc_s[r], core.npc_v[r], pf], axis=1)
-        blk.i[j, cols] = np.concatenate([core.mode[r, None], core.rollout[r, None], pi], axis=1)
+            fv[:, 7 + 2 * m] = np.asarray(reward)[r]
+            fv[:, 8 + 2 * m:] = plan.offsets[r]
+            iv[:, 2] = plan.rollout[r]
+            iv[:, 3:] = plan.blocked[r]
+        if not full:
+            blk.f[j, cols], blk.i[j, cols] = fv, iv
 
     def _finished(self, core: Any, ch: _Chunk, rows: np.ndarray) -> None:
         """Rows (of the current core) that just finished: their final step and summary values."""
