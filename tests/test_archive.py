@@ -512,6 +512,15 @@ def test_eval_archive_end_to_end(tmp_path, capsys):
     assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(out),
                  "--archive", str(mcap), "--no-progress"]) == 0
     results = json.loads(out.read_text())
+    plain = tmp_path / "plain.json"
+    assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(plain),
+                 "--no-progress"]) == 0
+
+    def untimed(tree):  # the results without when the run started and how long it took
+        if isinstance(tree, dict):
+            return {k: untimed(v) for k, v in tree.items() if k not in ("started", "wall_time_s")}
+        return [untimed(v) for v in tree] if isinstance(tree, list) else tree
+    assert untimed(json.loads(plain.read_text())) == untimed(results)  # the archive changes no result
     outcomes = [OUTCOME_NAMES[o] for o in results["scenarios"]["outcome"]]
     assert [e.outcome for e in list_episodes(mcap)] == outcomes
     meta = read_archive_meta(mcap)
