@@ -443,11 +443,12 @@ class ArchiveRecorder:
         info = ch.info
         self._json = []
         ends = base + last * self._dt_ns
-        scen = {name: _json_rows(arr[rows]) for name, arr in ch.scen.items()}  # one conversion per field
-        for j, (r, start, end, steps) in enumerate(zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist())):
+        # The specs through one template: each field's JSON for all episodes from one dumps call.
+        spec_t = '{"episode":%d,"step":0,"t":0.0,"scenario":{' + ",".join(f'"{name}":%s' for name in ch.scen) + "}}"
+        cols = [_json_texts(arr[rows]) for arr in ch.scen.values()]
+        for r, start, end, steps, texts in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), zip(*cols)):
             ep = int(ch.index[r])
-            self._add("/episode/spec", start, json.dumps({"episode": ep, "step": 0, "t": 0.0, "scenario": {
-                name: col[j] for name, col in scen.items()}}, separators=(",", ":")))
+            self._add("/episode/spec", start, spec_t % (ep, *texts))
             self._add("/episode/index", start, json.dumps({
                 "episode": ep, "step": 0, "start_ns": start, "end_ns": end, "steps": steps,
                 "outcome_name": OUTCOME_NAMES[int(info["outcome"][r])]}, separators=(",", ":")))
@@ -496,6 +497,17 @@ def _json_rows(arr: np.ndarray) -> list:
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         return np.where(np.isfinite(arr), arr, None).tolist()
     return arr.tolist()
+
+
+def _json_texts(arr: np.ndarray) -> list[str]:
+    """Each row of ``arr`` (1-D: scalars, 2-D: flat lists) as compact JSON, from one ``json.dumps``
+    of all rows split at the row boundaries (numbers, booleans and null hold no commas or brackets)."""
+    text = json.dumps(_json_rows(arr), separators=(",", ":"))
+    if arr.ndim == 1:
+        return text[1:-1].split(",") if len(arr) else []
+    if arr.shape[1] == 0:
+        return ["[]"] * len(arr)
+    return ["[" + x + "]" for x in text[2:-2].split("],[")]
 
 
 def state_layout(channel: int, m: int, r: int) -> Layout:
