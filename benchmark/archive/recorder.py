@@ -376,9 +376,10 @@ class ArchiveRecorder:
                 if blk.start > ch.last[group].max():
                     break
                 cols = np.minimum(np.searchsorted(blk.ids, group), len(blk.ids) - 1)
-                f_parts.append(blk.f[:, cols])
-                i_parts.append(blk.i[:, cols])
-            self._write_group(ch, group, np.concatenate(f_parts), np.concatenate(i_parts))
+                f_parts.append(blk.f[:, cols].transpose(1, 0, 2))
+                i_parts.append(blk.i[:, cols].transpose(1, 0, 2))
+            # (episodes, steps, fields), contiguous: one copy out of the blocks, episode-major
+            self._write_group(ch, group, np.concatenate(f_parts, axis=1), np.concatenate(i_parts, axis=1))
             ch.written[group] = True
         self._compact(ch)
 
@@ -388,12 +389,12 @@ class ArchiveRecorder:
         return self._lay
 
     def _write_group(self, ch: _Chunk, group: np.ndarray, f: np.ndarray, i: np.ndarray) -> None:
-        """Episodes ``group`` (f, i: their captures, (steps, episodes, fields)) as records: one
+        """Episodes ``group`` (f, i: their captures, (episodes, steps, fields)) as records: one
         numpy pass per message kind over all their steps, then sliced into chunks of whole episodes."""
         last = ch.last[group]
         n_ep, m, r = len(group), (f.shape[2] - 8 - ch.m_r) // 2, ch.m_r
-        valid = (np.arange(f.shape[0])[:, None] <= last[None, :]).T  # (episodes, steps)
-        fr, ir = f.transpose(1, 0, 2)[valid], i.transpose(1, 0, 2)[valid]  # (rows, fields), episode-major
+        valid = np.arange(f.shape[1])[None, :] <= last[:, None]  # (episodes, steps)
+        fr, ir = f[valid], i[valid]  # (rows, fields), episode-major
         steps = last + 1
         row0 = np.concatenate([[0], np.cumsum(steps)[:-1]])
         ep = np.repeat(np.arange(n_ep), steps)
