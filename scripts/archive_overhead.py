@@ -2,6 +2,12 @@
 
     python scripts/archive_overhead.py [--suite table1] [--decider rule-fsm] [--repeats 3] [--out docs/archive-overhead.md]
                                        [-- extra eval arguments, e.g. --scene-every 10]
+    python scripts/archive_overhead.py --breakdown   # where the archive's CPU time goes, and zstd levels
+
+``--breakdown`` runs one archived eval in this process with CPU-time counters around the
+recorder's stages (capture per step; per group of episodes: the scene, the record templates, the
+JSON heads and summaries, the chunk writes), then compresses the archive's own chunks at several
+zstd levels (CPU time and ratio, median of 3).
 
 Each run is a fresh `overtakezoo eval` process; plain and archived runs alternate (so load drift
 hits both alike). CPU is the child's user + sys time and peak RSS its ru_maxrss, both from
@@ -43,14 +49,90 @@ def cpu_name() -> str:
     return platform.processor() or "unknown CPU"
 
 
+def breakdown(suite_name: str, decider_name: str) -> str:
+    """CPU seconds per recorder stage of one in-process archived run, and zstd levels on its chunks."""
+    import collections
+
+    import zstandard
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import Chunk
+
+    from overtakezoo import zoo
+    from overtakezoo.benchmark.archive import cdr, mcapfile, recorder
+    from overtakezoo.benchmark.run.runner import run_suite
+    from overtakezoo.envs.suites import load_suite
+
+    spent: dict[str, float] = collections.defaultdict(float)
+
+    def count(owner, name, key):
+        inner = getattr(owner, name)
+
+        def timed(*a, **k):
+            t = time.process_time()
+            try:
+                return inner(*a, **k)
+            finally:
+                spent[key] += time.process_time() - t
+        setattr(owner, name, timed)
+
+    stages = [(recorder.ArchiveRecorder, "_capture", "capture (per step)"),
+              (recorder.ArchiveRecorder, "_write_episodes", "writing episodes (all below)"),
+              (recorder, "scene_records", "  scene records (/tf, /scene/*)"),
+              (cdr.Layout, "fill", "  record templates filled (all kinds)"),
+              (recorder.ArchiveRecorder, "_write_chunk", "  chunks: JSON heads and summaries, chunk, metadata"),
+              (mcapfile.McapFile, "write_chunk", "    chunk: compress, CRC, message indexes")]
+    for owner, name, key in stages:
+        count(owner, name, key)
+    suite = load_suite(suite_name)
+    decider = zoo.load(decider_name, config=suite.config)
+    lines = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "run.mcap"
+        t0 = time.process_time()
+        with recorder.ArchiveRecorder(path) as rec:
+            run_suite(suite, decider, progress=False, recorder=rec)
+        total = time.process_time() - t0
+        lines += [f"In-process `run_suite` of {suite_name} with {decider_name} and the archive: {total:.2f} CPU s.", "",
+                  "| stage | CPU s |", "|---|---|"]
+        lines += [f"| {key} | {spent[key]:.2f} |" for _, _, key in stages]
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+            chunks = []
+            for c in summary.chunk_indexes[::8]:
+                f.seek(c.chunk_start_offset + 9)
+                ch = Chunk.read(ReadDataStream(f))
+                chunks.append(zstandard.decompress(ch.data, max_output_size=ch.uncompressed_size))
+    raw = sum(map(len, chunks))
+    lines += ["", f"zstd on every 8th chunk of that archive ({raw / 1e6:.0f} MB of records), median of 3:", "",
+              "| level | MB/s (CPU) | compressed / raw |", "|---|---|---|"]
+    for level in (3, 1, -1, -3, -5):
+        z = zstandard.ZstdCompressor(level=level)
+        runs = []
+        for _ in range(3):
+            t = time.process_time()
+            out = sum(len(z.compress(c)) for c in chunks)
+            runs.append(time.process_time() - t)
+        lines.append(f"| {level} | {raw / statistics.median(runs) / 1e6:.0f} | {out / raw:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default="table1")
     ap.add_argument("--decider", default="rule-fsm")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", help="also write the table (markdown) to this file")
+    ap.add_argument("--breakdown", action="store_true", help="CPU time per recorder stage (one in-process run) "
+                    "and zstd levels on its chunks, instead of the A/B")
     ap.add_argument("extra", nargs="*", help="extra arguments for the archived eval (after --)")
     a = ap.parse_args()
+    if a.breakdown:
+        text = breakdown(a.suite, a.decider)
+        print(text)
+        if a.out:
+            Path(a.out).write_text(text)
+        return
     cpu: dict[str, list[float]] = {"plain": [], "archive": []}
     rss: dict[str, list[float]] = {"plain": [], "archive": []}
     size = 0

@@ -1,5 +1,7 @@
-"""The OvertakeZoo MCAP archive format: topics, constants and the JSON Schemas registered per channel
-(the layout is described in :mod:`overtakezoo.benchmark.archive.recorder`)."""
+"""The OvertakeZoo MCAP archive format: topics, constants and the schemas registered per channel
+(the layout is described in :mod:`overtakezoo.benchmark.archive.recorder`): JSON with JSON Schemas
+for the per-episode topics, CDR with ROS 2 message definitions (``ros2msg``) for the per-step ones,
+Foxglove's own ``foxglove_msgs`` definitions for the scene (Foxglove decodes both natively)."""
 
 from __future__ import annotations
 
@@ -9,8 +11,8 @@ from typing import Any
 import numpy as np
 
 EPISODE_GAP_NS = 1 * 10**9  # episodes follow each other on the timeline with this gap (the last scene stays up)
-FORMAT_VERSION = "2"
-STATE_TOPICS = ("/episode/spec", "/ego", "/npcs", "/decision", "/planner", "/reward", "/episode/summary")
+FORMAT_VERSION = "3"  # 3: per-step topics in CDR (ros2msg schemas); 2 (JSON throughout) is not read
+STATE_TOPICS = ("/episode/spec", "/state", "/episode/summary")  # what the reader needs
 SUMMARY_FIELDS = ("outcome", "crash_npc", "crash_lane", "t", "episode_return", "episode_steps", "completion_time",
                   "aborts", "switches", "opposite_time", "min_ttc", "peak_lat_accel", "peak_jerk")
 INF_FIELDS = {"min_ttc", "npc_reveal"}  # null means +inf for these, NaN for every other field
@@ -36,12 +38,6 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/episode/spec": ("overtakezoo.EpisodeSpec", _obj({**_HEAD, **_T, "scenario": {
         "type": "object", "description": "one row of overtakezoo.envs.Scenarios: scalars and per-NPC arrays",
         "additionalProperties": {"type": ["number", "boolean", "null", "array"]}}})),
-    "/ego": ("overtakezoo.Ego", _obj({**_HEAD, **_T, **{k: _NUM for k in ("x", "y", "psi", "v", "a", "steer")}})),
-    "/npcs": ("overtakezoo.Npcs", _obj({**_HEAD, "s": _ARR(_NUM), "v": _ARR(_NUM), "lane": _ARR(_INT)})),
-    "/decision": ("overtakezoo.Decision", _obj({**_HEAD, "mode": _INT, "mode_name": _STR})),
-    "/planner": ("overtakezoo.Planner", _obj({**_HEAD, "offsets": _ARR(_NUM), "blocked": _ARR(_BOOL),
-                                              "rollout": _INT})),
-    "/reward": ("overtakezoo.Reward", _obj({**_HEAD, "reward": _NUM})),
     "/episode/index": ("overtakezoo.EpisodeIndex", _obj({
         **_HEAD, "start_ns": _INT, "end_ns": _INT, "steps": _INT, "outcome_name": _STR})),
     "/episode/summary": ("overtakezoo.EpisodeSummary", _obj({
@@ -49,33 +45,86 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         **{k: _NUM_NULL for k in SUMMARY_FIELDS}})),
 }
 
-# Foxglove well-known schemas, written out field by field (Foxglove keys on the schema name).
-_TIME = _obj({"sec": _INT, "nsec": _INT}, "time")
-_VEC3 = _obj({"x": _NUM, "y": _NUM, "z": _NUM}, "foxglove.Vector3")
-_QUAT = _obj({"x": _NUM, "y": _NUM, "z": _NUM, "w": _NUM}, "foxglove.Quaternion")
-_POSE = _obj({"position": _VEC3, "orientation": _QUAT}, "foxglove.Pose")
-_COLOR = _obj({"r": _NUM, "g": _NUM, "b": _NUM, "a": _NUM}, "foxglove.Color")
-_CUBE = _obj({"pose": _POSE, "size": _VEC3, "color": _COLOR}, "foxglove.CubePrimitive")
-_LINE = _obj({"type": {"type": "integer", "description": "0 LINE_STRIP, 1 LINE_LOOP, 2 LINE_LIST"},
-              "pose": _POSE, "thickness": _NUM, "scale_invariant": _BOOL, "points": _ARR(_VEC3),
-              "color": _COLOR, "colors": _ARR(_COLOR), "indices": _ARR(_INT)}, "foxglove.LinePrimitive")
-_TEXT = _obj({"pose": _POSE, "billboard": _BOOL, "font_size": _NUM, "scale_invariant": _BOOL,
-              "color": _COLOR, "text": _STR}, "foxglove.TextPrimitive")
-_ENTITY = _obj({"timestamp": _TIME, "frame_id": _STR, "id": _STR,
-                "lifetime": _obj({"sec": _INT, "nsec": _INT}, "duration"), "frame_locked": _BOOL,
-                "metadata": _ARR(_obj({"key": _STR, "value": _STR}, "foxglove.KeyValuePair")),
-                "arrows": _ARR({"type": "object"}), "cubes": _ARR(_CUBE), "spheres": _ARR({"type": "object"}),
-                "cylinders": _ARR({"type": "object"}), "lines": _ARR(_LINE),
-                "triangles": _ARR({"type": "object"}), "texts": _ARR(_TEXT), "models": _ARR({"type": "object"})},
-               "foxglove.SceneEntity")
-FOXGLOVE_SCHEMAS = {
-    "/scene": ("foxglove.SceneUpdate", _obj({
-        "deletions": _ARR(_obj({"timestamp": _TIME, "type": _INT, "id": _STR}, "foxglove.SceneEntityDeletion")),
-        "entities": _ARR(_ENTITY)}, "foxglove.SceneUpdate")),
-    "/tf": ("foxglove.FrameTransform", _obj({"timestamp": _TIME, "parent_frame_id": _STR, "child_frame_id": _STR,
-                                             "translation": _VEC3, "rotation": _QUAT}, "foxglove.FrameTransform")),
+# ---------------------------------------------------------------------------- ROS 2 message definitions
+# Per-step topics are CDR-encoded with these definitions (MCAP schema encoding "ros2msg": the main
+# definition, then each dependency after a line of 80 "=" and "MSG: pkg/Name"). The foxglove_msgs
+# ones are Foxglove's (github.com/foxglove/schemas, ros_foxglove_msgs/ros2), comments dropped.
+STATE_MSG = """uint32 episode
+uint32 step
+float64 t
+float64 x
+float64 y
+float64 psi
+float64 v
+float64 a
+float64 steer
+float64 reward
+uint8 mode
+uint8 rollout
+float64[] npc_s
+float64[] npc_v
+float64[] offsets
+bool[] blocked
+"""
+_DEFS = {
+    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
+    "geometry_msgs/Pose": "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+    "foxglove_msgs/Color": "float64 r\nfloat64 g\nfloat64 b\nfloat64 a\n",
+    "foxglove_msgs/KeyValuePair": "string key\nstring value\n",
+    "foxglove_msgs/FrameTransform": ("builtin_interfaces/Time timestamp\nstring parent_frame_id\nstring child_frame_id\n"
+                                     "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n"),
+    "foxglove_msgs/SceneEntityDeletion": "builtin_interfaces/Time timestamp\nuint8 MATCHING_ID=0\nuint8 ALL=1\nuint8 type\nstring id\n",
+    "foxglove_msgs/ArrowPrimitive": ("geometry_msgs/Pose pose\nfloat64 shaft_length\nfloat64 shaft_diameter\n"
+                                     "float64 head_length\nfloat64 head_diameter\nfoxglove_msgs/Color color\n"),
+    "foxglove_msgs/CubePrimitive": "geometry_msgs/Pose pose\ngeometry_msgs/Vector3 size\nfoxglove_msgs/Color color\n",
+    "foxglove_msgs/SpherePrimitive": "geometry_msgs/Pose pose\ngeometry_msgs/Vector3 size\nfoxglove_msgs/Color color\n",
+    "foxglove_msgs/CylinderPrimitive": ("geometry_msgs/Pose pose\ngeometry_msgs/Vector3 size\nfloat64 bottom_scale\n"
+                                        "float64 top_scale\nfoxglove_msgs/Color color\n"),
+    "foxglove_msgs/LinePrimitive": ("uint8 LINE_STRIP=0\nuint8 LINE_LOOP=1\nuint8 LINE_LIST=2\nuint8 type\n"
+                                    "geometry_msgs/Pose pose\nfloat64 thickness\nbool scale_invariant\n"
+                                    "geometry_msgs/Point[] points\nfoxglove_msgs/Color color\nfoxglove_msgs/Color[] colors\n"
+                                    "uint32[] indices\n"),
+    "foxglove_msgs/TriangleListPrimitive": ("geometry_msgs/Pose pose\ngeometry_msgs/Point[] points\n"
+                                            "foxglove_msgs/Color color\nfoxglove_msgs/Color[] colors\nuint32[] indices\n"),
+    "foxglove_msgs/TextPrimitive": ("geometry_msgs/Pose pose\nbool billboard\nfloat64 font_size\nbool scale_invariant\n"
+                                    "foxglove_msgs/Color color\nstring text\n"),
+    "foxglove_msgs/ModelPrimitive": ("geometry_msgs/Pose pose\ngeometry_msgs/Vector3 scale\nfoxglove_msgs/Color color\n"
+                                     "bool override_color\nstring url\nstring media_type\nuint8[] data\n"),
+    "foxglove_msgs/SceneEntity": ("builtin_interfaces/Time timestamp\nstring frame_id\nstring id\n"
+                                  "builtin_interfaces/Duration lifetime\nbool frame_locked\n"
+                                  "foxglove_msgs/KeyValuePair[] metadata\nfoxglove_msgs/ArrowPrimitive[] arrows\n"
+                                  "foxglove_msgs/CubePrimitive[] cubes\nfoxglove_msgs/SpherePrimitive[] spheres\n"
+                                  "foxglove_msgs/CylinderPrimitive[] cylinders\nfoxglove_msgs/LinePrimitive[] lines\n"
+                                  "foxglove_msgs/TriangleListPrimitive[] triangles\nfoxglove_msgs/TextPrimitive[] texts\n"
+                                  "foxglove_msgs/ModelPrimitive[] models\n"),
 }
+_SEP = "=" * 80 + "\n"
 
+
+def _msgdef(main: str, deps: list[str]) -> str:
+    return main + "".join(f"{_SEP}MSG: {d}\n{_DEFS[d]}" for d in deps)
+
+
+_GEOM = ["geometry_msgs/Pose", "geometry_msgs/Point", "geometry_msgs/Quaternion", "geometry_msgs/Vector3"]
+SCENE_MSG = _msgdef("foxglove_msgs/SceneEntityDeletion[] deletions\nfoxglove_msgs/SceneEntity[] entities\n", [
+    "foxglove_msgs/SceneEntityDeletion", "foxglove_msgs/SceneEntity", "foxglove_msgs/KeyValuePair",
+    "foxglove_msgs/ArrowPrimitive", "foxglove_msgs/CubePrimitive", "foxglove_msgs/SpherePrimitive",
+    "foxglove_msgs/CylinderPrimitive", "foxglove_msgs/LinePrimitive", "foxglove_msgs/TriangleListPrimitive",
+    "foxglove_msgs/TextPrimitive", "foxglove_msgs/ModelPrimitive", *_GEOM, "foxglove_msgs/Color"])
+TF_MSG = _msgdef("foxglove_msgs/FrameTransform[] transforms\n", [
+    "foxglove_msgs/FrameTransform", "geometry_msgs/Vector3", "geometry_msgs/Quaternion"])
+
+# topic -> (schema name, ros2msg definition). The scene is split by what changes when: the road
+# (once per episode), the vehicles (their colours change when the sensor sees them), the rollouts,
+# the label and the outcome; /tf moves the vehicle frames at every scene step.
+SCENE_TOPICS = ("/scene/road", "/scene/vehicles", "/scene/rollouts", "/scene/label", "/scene/outcome")
+ROS2_SCHEMAS: dict[str, tuple[str, str]] = {
+    "/state": ("overtakezoo_msgs/msg/State", STATE_MSG),
+    "/tf": ("foxglove_msgs/msg/FrameTransforms", TF_MSG),
+    **{t: ("foxglove_msgs/msg/SceneUpdate", SCENE_MSG) for t in SCENE_TOPICS},
+}
 
 # ---------------------------------------------------------------------------- JSON values
 def json_number(x: float) -> str:

@@ -9,6 +9,7 @@ after the episode's last chunk), and :attr:`ArchiveIndex.note` says in one line 
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -20,7 +21,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from overtakezoo.benchmark.archive.format import INF_FIELDS, STATE_TOPICS
+from overtakezoo.benchmark.archive.cdr import RECORD_HEAD
+from overtakezoo.benchmark.archive.format import FORMAT_VERSION, INF_FIELDS, STATE_TOPICS
 from overtakezoo.benchmark.errors import UserError
 
 
@@ -106,6 +108,7 @@ class _Archive:
             raise UserError(f"cannot read archive {self.path}: {exc.strerror or exc}") from None
         self.note: str | None = None
         self._chunks: list[tuple[int, int, int]] | None = None  # scanned (offset, start, end): no summary
+        self._topics: dict[int, str] = {}  # scanned channels
         try:
             self.reader = make_reader(self._f, validate_crcs=True, decoder_factories=[_JsonDecoderFactory()])
             try:
@@ -130,6 +133,10 @@ class _Archive:
         if "format_version" not in meta:
             self._f.close()
             raise UserError(f"{self.path}: not an OvertakeZoo archive (no overtakezoo metadata record)")
+        if meta["format_version"] != FORMAT_VERSION:  # 2 (JSON per step) is not read: re-record it
+            self._f.close()
+            raise UserError(f"{self.path}: archive format {meta['format_version']} is not readable by this version "
+                            f"(it reads format {FORMAT_VERSION}; record the run again with eval --archive)")
         self.meta = meta
         self.entries = sorted(entries, key=lambda e: e.index)
         self.by_index = {e.index: e for e in self.entries}
@@ -138,7 +145,7 @@ class _Archive:
         """Index a file without a summary section record by record (chunks are skipped, not read)."""
         from mcap.data_stream import ReadDataStream
         from mcap.opcode import Opcode
-        from mcap.records import Metadata
+        from mcap.records import Channel, Metadata
         from mcap.stream_reader import read_magic
 
         f, size = self._f, os.fstat(self._f.fileno()).st_size
@@ -159,6 +166,9 @@ class _Archive:
             if opcode == Opcode.CHUNK:
                 chunks.append((pos, *struct.unpack("<QQ", f.read(16))))
                 f.seek(pos + 9 + length)
+            elif opcode == Opcode.CHANNEL:  # the writer puts them before the first chunk
+                rec = Channel.read(ReadDataStream(io.BytesIO(f.read(length))))
+                self._topics[rec.id] = rec.topic
             elif opcode == Opcode.METADATA:
                 rec = Metadata.read(ReadDataStream(io.BytesIO(f.read(length))))
                 if rec.name == "episode":
@@ -188,40 +198,36 @@ class _Archive:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def messages(self, start: int | None = None, end: int | None = None) -> Iterator[tuple[str, dict]]:
-        """Decoded state messages in file order (the writer wrote them in time order)."""
-        loads = json.loads
+    def messages(self, start: int | None = None, end: int | None = None) -> Iterator[tuple[str, bytes]]:
+        """The reader's topics' messages (their data), in time order per topic."""
         try:
             if self._chunks is not None:
                 yield from self._scanned_messages(start, end)
                 return
             for _, channel, msg in self.reader.iter_messages(
                     topics=list(STATE_TOPICS), starting_at=start, ending_before=end, log_time_order=False):
-                yield channel.topic, loads(msg.data)
+                yield channel.topic, msg.data
         except UserError:
             raise
         except Exception as exc:
             raise _corrupt(self.path, exc) from None
 
-    def _scanned_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, dict]]:
+    def _scanned_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, bytes]]:
         """:meth:`messages` of a scanned file: the chunks overlapping [start, end), CRCs checked."""
         from mcap.data_stream import ReadDataStream
-        from mcap.records import Channel, Chunk, Message
+        from mcap.records import Chunk, Message
         from mcap.stream_reader import breakup_chunk
 
         lo, hi = (start or 0), (end if end is not None else 1 << 64)
-        topics: dict[int, str] = {}
+        topics = self._topics
         wanted = set(STATE_TOPICS)
-        for k, (pos, first, last) in enumerate(self._chunks):
-            # Channels are defined in the first chunk; later chunks overlapping the range hold the data.
-            if k and (last < lo or first >= hi):
+        for pos, first, last in self._chunks:
+            if last < lo or first >= hi:
                 continue
             self._f.seek(pos + 9)
             for rec in breakup_chunk(Chunk.read(ReadDataStream(self._f)), validate_crc=True):
-                if isinstance(rec, Channel):
-                    topics[rec.id] = rec.topic
-                elif isinstance(rec, Message) and lo <= rec.log_time < hi and topics.get(rec.channel_id) in wanted:
-                    yield topics[rec.channel_id], json.loads(rec.data)
+                if isinstance(rec, Message) and lo <= rec.log_time < hi and topics.get(rec.channel_id) in wanted:
+                    yield topics[rec.channel_id], rec.data
 
     def episode_range(self, k: int) -> tuple[int, int]:
         if k not in self.by_index:
@@ -232,42 +238,70 @@ class _Archive:
 
 
 class _Builder:
+    """One episode's messages: the spec and summary (JSON), the /state records (CDR)."""
+
     def __init__(self, index: int) -> None:
         self.index = index
         self.spec: dict | None = None
         self.summary: dict | None = None
-        self.lists: dict[str, list[dict]] = {t: [] for t in ("/ego", "/npcs", "/decision", "/planner", "/reward")}
-        self.ego, self.npcs, self.dec, self.plan, self.rew = self.lists.values()
+        self.state: list[bytes] = []
 
-    def add(self, topic: str, msg: dict) -> None:
-        if topic == "/episode/spec":
-            self.spec = msg
+    def add(self, topic: str, data: bytes) -> None:
+        if topic == "/state":
+            self.state.append(data)
+        elif topic == "/episode/spec":
+            self.spec = json.loads(data)
         elif topic == "/episode/summary":
-            self.summary = msg
-        else:
-            self.lists[topic].append(msg)
+            self.summary = json.loads(data)
 
     def build(self, path: Path) -> Episode:
-        if self.spec is None or self.summary is None or not self.ego:
+        if self.spec is None or self.summary is None or not self.state:
             raise UserError(f"{path}: episode {self.index} is incomplete (truncated or corrupt archive)")
-        # Per-step floats are finite unless written as null (then NaN); float() keeps them exact.
-        col = lambda rows, key: np.array([r[key] for r in rows], dtype=float)  # noqa: E731
         scen = {k: _restore(k, v) for k, v in self.spec["scenario"].items()}
         summary = {k: _restore(k, v) for k, v in self.summary.items()}
-        m = len(scen["npc_s"])
-        r = len(self.plan[0]["offsets"]) if self.plan else 0
+        st = _decode_state(path, self.state, len(scen["npc_s"]))
+        if not (st["episode"] == self.index).all() or not np.array_equal(st["step"], np.arange(len(st))):
+            raise UserError(f"{path}: episode {self.index} has misplaced state messages (corrupt archive)")
         return Episode(
-            index=self.index, scenario=scen, summary=summary, t=col(self.ego, "t"),
-            ego={k: col(self.ego, k) for k in ("x", "y", "psi", "v", "a", "steer")},
-            npc_s=np.array([n["s"] for n in self.npcs], dtype=float).reshape(-1, m),
-            npc_v=np.array([n["v"] for n in self.npcs], dtype=float).reshape(-1, m),
-            npc_lane=np.array(self.npcs[0]["lane"], dtype=np.int8),
-            mode=np.array([d["mode"] for d in self.dec], dtype=np.int64),
-            rollout=np.array([p["rollout"] for p in self.plan], dtype=np.int64),
-            offsets=np.array([p["offsets"] for p in self.plan], dtype=float).reshape(-1, r),
-            blocked=np.array([p["blocked"] for p in self.plan], dtype=bool).reshape(-1, r),
-            reward=col(self.rew, "reward"),
-        )
+            index=self.index, scenario=scen, summary=summary, t=st["t"].copy(),
+            ego={k: st[k].copy() for k in ("x", "y", "psi", "v", "a", "steer")},
+            npc_s=st["npc_s"].copy(), npc_v=st["npc_v"].copy(), npc_lane=np.array(scen["npc_lane"], dtype=np.int8),
+            mode=st["mode"][1:].astype(np.int64), rollout=st["rollout"][1:].astype(np.int64),
+            offsets=st["offsets"][1:].copy(), blocked=st["blocked"][1:].astype(bool), reward=st["reward"][1:].copy())
+
+
+@functools.lru_cache(maxsize=16)
+def _state_template(m: int, size: int) -> tuple[np.dtype, bytes, np.ndarray]:
+    """The /state layout for M NPC slots whose messages are ``size`` bytes (R follows from it): its
+    dtype, template and which bytes are constants (sequence lengths, padding, the CDR header)."""
+    from overtakezoo.benchmark.archive.recorder import state_layout
+
+    for r in range(64):
+        lay = state_layout(0, m, r)
+        if lay.size - RECORD_HEAD == size:
+            dt = lay.payload_dtype()
+            const = np.ones(size, bool)
+            for name in dt.names:
+                fmt, off = dt.fields[name][:2]
+                const[off:off + fmt.itemsize] = False
+            return dt, lay.payload(), const
+    raise ValueError(f"no /state layout of {size} bytes for {m} NPC slots")
+
+
+def _decode_state(path: Path, msgs: list[bytes], m: int) -> np.ndarray:
+    """The /state messages of one episode as one structured array (fixed layout: numpy, no per-message work)."""
+    size = len(msgs[0])
+    blob = b"".join(msgs)
+    try:
+        dt, template, const = _state_template(m, size)
+        if len(blob) != size * len(msgs):
+            raise ValueError("messages of different sizes")
+        raw = np.frombuffer(blob, np.uint8).reshape(len(msgs), size)
+        if not (raw[:, const] == np.frombuffer(template, np.uint8)[const]).all():
+            raise ValueError("not the /state layout")
+    except ValueError as exc:
+        raise UserError(f"{path}: unreadable /state messages ({exc})") from None
+    return np.frombuffer(blob, dt)
 
 
 def _entry(m: dict[str, str]) -> EpisodeEntry:
@@ -297,9 +331,8 @@ def read_episode(path: str | os.PathLike, k: int) -> Episode:
     with _Archive(path) as ar:
         start, end = ar.episode_range(int(k))
         b = _Builder(int(k))
-        for topic, msg in ar.messages(start, end):
-            if msg.get("episode") == k:
-                b.add(topic, msg)
+        for topic, data in ar.messages(start, end):
+            b.add(topic, data)
         return b.build(ar.path)
 
 
@@ -307,16 +340,22 @@ def read_archive(path: str | os.PathLike) -> list[Episode]:
     """Every (whole) episode of the archive, in scenario order."""
     with _Archive(path) as ar:
         builders: dict[int, _Builder] = {}
-        for topic, msg in ar.messages():
-            ep = msg["episode"]
+        for topic, data in ar.messages():
+            ep = _episode_of(topic, data)
             if ep not in ar.by_index:  # the part of an episode a cut file lost
                 continue
             if ep not in builders:
                 builders[ep] = _Builder(ep)
-            builders[ep].add(topic, msg)
+            builders[ep].add(topic, data)
         missing = set(ar.by_index) - set(builders)
         if missing:
             raise UserError(f"{ar.path}: episodes {sorted(missing)[:5]} listed but have no data (corrupt archive)")
         return [builders[k].build(ar.path) for k in sorted(builders)]
 
 
+
+
+def _episode_of(topic: str, data: bytes) -> int:
+    if topic == "/state":  # the first field after the CDR header
+        return struct.unpack_from("<I", data, 4)[0]
+    return json.loads(data)["episode"]

@@ -1,41 +1,48 @@
 """MCAP episode archives: a recorder the runner drives, and a reader that rebuilds episodes.
 
-File layout (JSON messages, ``jsonschema`` schemas, zstd-compressed chunks):
+File layout (format 3; zstd-compressed chunks). Per-episode topics are JSON (``jsonschema``
+schemas); per-step topics are CDR with ROS 2 message definitions (``ros2msg``), which Foxglove
+and mcap's readers decode natively (:mod:`.format` holds the definitions):
 
 - ``/episode/spec``    one message per episode at its start: the scenario row (every ``Scenarios`` field).
 - ``/episode/index``   one message per episode at its start: its time range, steps and outcome.
-- ``/ego``             per step: x, y, psi, v, a, steer (step 0 is the state after reset).
-- ``/npcs``            per step: s, v, lane of every NPC slot (padding slots have ``present`` false in the spec).
-- ``/decision``        per step >= 1: the mode applied during the step that ended at this time.
-- ``/planner``         per step >= 1: rollout end offsets, blocked flags, chosen rollout.
-- ``/reward``          per step >= 1: reward of that step (the return is in the summary).
+- ``/state``           per step (``overtakezoo_msgs/msg/State``): episode, step, t, x, y, psi, v, a,
+  steer, reward, mode, rollout, npc_s, npc_v (every NPC slot; padding slots have ``present`` false
+  in the spec), offsets, blocked. Step 0 is the state after reset (its decision, plan and reward
+  fields are zero); step k >= 1 carries the mode, plan and reward of the step that ended there.
 - ``/episode/summary`` one message per episode at its end: outcome and episode statistics.
-- ``/scene`` (``foxglove.SceneUpdate``) and ``/tf`` (``foxglove.FrameTransform``) at steps 0,
-  K, 2K, ... (``scene_every`` = K, default 1: every step) and always at the episode's final step,
-  so Foxglove's 3D panel shows road, vehicles and rollouts; vehicles the sensor does not see are
-  grey and translucent, and the final update shows the outcome (a text, the vehicle hit in magenta).
+- ``/tf`` (``foxglove_msgs/msg/FrameTransforms``) at steps 0, K, 2K, ... (``scene_every`` = K,
+  default 1: every step) and always at the episode's final step: the frames of the ego and NPCs;
+  ``/scene/*`` (``foxglove_msgs/msg/SceneUpdate``) when what they draw changes (:mod:`.scene`), so
+  Foxglove's 3D panel shows road, vehicles and rollouts; vehicles the sensor does not see are grey
+  and translucent, and the final update shows the outcome (a text, the vehicle hit in magenta).
 
 Times: episodes lie back to back on one simulated-time line in the order they are written, each
 starting ``EPISODE_GAP_NS`` after the previous one ends: ``log_time = start_ns + step * dt_ns``.
-Every message carries ``episode`` (the global scenario index) and ``step``. Episode boundaries are
-findable without reading any chunk: one ``episode`` metadata record per episode (index, time
-range, outcome) sits in the summary section's metadata index; ``/episode/index`` and
-``/episode/summary`` repeat them in the data.
+Episode boundaries are findable without reading any chunk: one ``episode`` metadata record per
+episode (index, time range, outcome) sits in the summary section's metadata index;
+``/episode/index`` and ``/episode/summary`` repeat them in the data.
 
-Cut files: every episode is closed by a chunk of its own (``Writer.flush``) followed by its
-``episode`` metadata record, so a file cut anywhere (a killed writer) holds whole episodes up to
-the last metadata record; :mod:`.reader` recovers them. The recorder writes to a temp file
+Encoding: the per-step messages of a group of finished episodes are built by numpy, one pass per
+message kind (fixed-shape CDR templates, :mod:`.cdr`), and written by :mod:`.mcapfile` in chunks
+of whole episodes: within a chunk, messages are grouped by topic (each topic in time order; MCAP
+readers order by time through the message indexes). No Python runs per step or per message.
+
+Cut files: every chunk holds whole episodes and is followed by their ``episode`` metadata records,
+so a file cut anywhere (a killed writer) holds whole episodes up to the last metadata record;
+:mod:`.reader` recovers them. The recorder writes to a temp file
 beside the target and renames it when finished (also on Ctrl-C or SIGTERM, with the whole
 episodes), so the target is always either absent, the previous file, or complete. Writing a chunk's
 episodes and finishing the file are not cut by SIGTERM or Ctrl-C (a second one included): the signal
 waits until they are done. A full disk drops the temp file and raises a ``WriteError``.
 
-Modules: this one records (capture per step, serialize per finished episode); :mod:`.reader` reads;
-:mod:`.format` holds topics and schemas; :mod:`.scene` builds the Foxglove scene; :mod:`.sink` is the
-batched write path into mcap's Writer.
+Modules: this one records (capture per step, encode per group of finished episodes); :mod:`.reader`
+reads; :mod:`.format` holds topics and schemas; :mod:`.scene` builds the Foxglove scene; :mod:`.cdr`
+the message templates; :mod:`.mcapfile` writes the MCAP records.
 
-Non-finite numbers (an infinite reveal distance, ``min_ttc`` without a conflict, ``completion_time``
-of a failure) are written as ``null``; the reader maps them back (inf or NaN by field).
+Floats are stored as float64 (exact). In the JSON topics, non-finite numbers (an infinite reveal
+distance, ``min_ttc`` without a conflict, ``completion_time`` of a failure) are written as
+``null``; the reader maps them back (inf or NaN by field).
 
 The recorder is one class because capture, chunk serialization and the signal-safe file lifecycle
 share its state; the Foxglove scene is in :mod:`.scene`, the reading side in :mod:`.reader`.
@@ -44,30 +51,32 @@ share its state; the Foxglove scene is in :mod:`.scene`, the reading side in :mo
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import os
 import signal
+import struct
 import sys
 import threading
 from dataclasses import dataclass, field
-from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
+from overtakezoo.envs import OUTCOME_NAMES
 
-from overtakezoo.benchmark.archive.format import (EPISODE_GAP_NS, FORMAT_VERSION, FOXGLOVE_SCHEMAS, SCHEMAS, SUMMARY_FIELDS, json_number, json_ready)
+from overtakezoo.benchmark.archive.cdr import Layout
+from overtakezoo.benchmark.archive.format import (EPISODE_GAP_NS, FORMAT_VERSION, ROS2_SCHEMAS, SCHEMAS, SUMMARY_FIELDS,
+                                                  json_number, json_ready)
+from overtakezoo.benchmark.archive.mcapfile import McapFile
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import WriteError, atomic_output
-from overtakezoo.benchmark.archive.scene import rollout_geometry, scene_messages
-from overtakezoo.benchmark.archive.sink import MessageSink
+from overtakezoo.benchmark.archive.scene import SceneLayouts, scene_records
 
 
 # ---------------------------------------------------------------------------- recorder
 BLOCK_STEPS = 32  # steps per capture block (one preallocated array per block)
+GROUP = 64  # episodes encoded together (one numpy pass per message kind)
 FLUSH_ROW_STEPS = 1 << 18  # a chunk buffering more (row, step) captures writes its finished episodes early
 
 
@@ -104,9 +113,8 @@ class ArchiveRecorder:
     ``core.step`` and :meth:`end_chunk` when the chunk is done; :meth:`keep_rows` when it compacts
     finished rows away mid-chunk. Per step the state of the rows still running is copied into
     preallocated numpy blocks (``BLOCK_STEPS`` steps each, no per-row Python); messages are
-    serialized per episode, in bulk (one %-template per topic and episode), at :meth:`end_chunk` in
-    scenario order, so each episode's messages are contiguous (reading one episode decompresses only
-    the chunks it spans). A big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its
+    encoded per group of ``GROUP`` episodes, one numpy pass per message kind, at :meth:`end_chunk` in
+    scenario order, in chunks of whole episodes (reading one episode decompresses only its chunk). A big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its
     finished episodes early, in scenario order within each batch, and frees their captures: memory
     is bounded by the history of the rows still running. ``scene_every`` thins the Foxglove scene
     (0: none).
@@ -123,8 +131,6 @@ class ArchiveRecorder:
 
     def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
                  metadata: dict[str, Any] | None = None, progress: bool = False) -> None:
-        from mcap.writer import CompressionType, Writer
-
         self.path = Path(path)
         self.scene_every = int(scene_every)
         if self.scene_every < 0:
@@ -137,14 +143,16 @@ class ArchiveRecorder:
         except WriteError as exc:
             raise UserError(f"cannot write archive {self.path}: {exc.strerror}") from None
         self.tmp_path = Path(self._stream.name)  # what a killed run leaves: readable up to its last whole episode
-        self._writer = Writer(_Offsets(self._stream), compression=CompressionType.ZSTD, chunk_size=chunk_size)
-        self._writer.start(profile="", library="overtakezoo")
+        self._file = McapFile(_Offsets(self._stream))
+        self._chunk_size = int(chunk_size)
         self._channels: dict[str, int] = {}
-        for topic, (name, schema) in {**SCHEMAS, **FOXGLOVE_SCHEMAS}.items():
-            sid = self._writer.register_schema(name=name, encoding="jsonschema",
-                                               data=json.dumps(schema, separators=(",", ":")).encode())
-            self._channels[topic] = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-        self._sink = MessageSink(self._writer)
+        for topic, (name, schema) in SCHEMAS.items():
+            self._channels[topic] = self._file.register(topic, name, "jsonschema", json.dumps(
+                schema, separators=(",", ":")).encode(), "json")
+        for topic, (name, text) in ROS2_SCHEMAS.items():
+            self._channels[topic] = self._file.register(topic, name, "ros2msg", text.encode(), "cdr")
+        self._lay: tuple[Layout, SceneLayouts] | None = None
+        self._json: list[tuple[int, int, bytes]] = []
         self._meta = {k: str(v) for k, v in (metadata or {}).items()}
         self._chunk: _Chunk | None = None
         self._core: Any = None
@@ -165,7 +173,7 @@ class ArchiveRecorder:
             self._meta.setdefault("config", json.dumps(_clean_tree(core.cfg.to_dict()), sort_keys=True))
             self._meta.update({"format_version": FORMAT_VERSION, "episode_gap_ns": str(EPISODE_GAP_NS),
                                "dt_ns": str(self._dt_ns), "scene_every": str(self.scene_every)})
-            self._writer.add_metadata("overtakezoo", self._meta)
+            self._file.add_metadata("overtakezoo", self._meta)
         if getattr(core, "auto_reset", False):
             raise ValueError("archives record evaluation cores (auto_reset=False): rows must not be replaced")
         self._core = core
@@ -238,8 +246,7 @@ class ArchiveRecorder:
                           "the open chunk", file=sys.stderr, flush=True)
                 self._write_episodes(ch, todo)
                 self._chunk = None
-            self._sink.flush()
-            self._writer.finish()
+            self._file.finish()
             self._closed = True
             self._output.close()  # renames the finished file into place
 
@@ -304,17 +311,26 @@ class ArchiveRecorder:
             j = 0
         blk = ch.blocks[-1]
         r, cols = blk.src, blk.cols
-        f = [core.t, core.x, core.y, core.psi, core.v, core.a, core.steer]
-        f = np.stack([x[r] for x in f], axis=1)
+        m = core.npc_s.shape[1]
+        full = len(r) == blk.f.shape[1]  # every column of the block still fed (cols is then 0..n-1)
+        fv = blk.f[j] if full else np.empty((len(r), blk.f.shape[2]))
+        iv = blk.i[j] if full else np.empty((len(r), blk.i.shape[2]), np.int8)
+        for c, x in enumerate((core.t, core.x, core.y, core.psi, core.v, core.a, core.steer)):
+            fv[:, c] = x[r]  # column by column into the block (no stacked temporaries)
+        fv[:, 7:7 + m] = core.npc_s[r]
+        fv[:, 7 + m:7 + 2 * m] = core.npc_v[r]
+        iv[:, 0], iv[:, 1] = core.mode[r], core.rollout[r]
         plan = core.last_plan
         if plan is None:  # step 0: no decision, plan or reward yet (padded with zeros, as before)
-            zf, zi = np.zeros((len(r), 1 + ch.m_r)), np.zeros((len(r), 1 + ch.m_r), np.int8)
-            pf, pi = zf, zi
+            fv[:, 7 + 2 * m:] = 0.0
+            iv[:, 2:] = 0
         else:
-            pf = np.concatenate([np.asarray(reward)[r, None], plan.offsets[r]], axis=1)
-            pi = np.concatenate([plan.rollout[r, None], plan.blocked[r]], axis=1)
-        blk.f[j, cols] = np.concatenate([f, core.npc_s[r], core.npc_v[r], pf], axis=1)
-        blk.i[j, cols] = np.concatenate([core.mode[r, None], core.rollout[r, None], pi], axis=1)
+            fv[:, 7 + 2 * m] = np.asarray(reward)[r]
+            fv[:, 8 + 2 * m:] = plan.offsets[r]
+            iv[:, 2] = plan.rollout[r]
+            iv[:, 3:] = plan.blocked[r]
+        if not full:
+            blk.f[j, cols], blk.i[j, cols] = fv, iv
 
     def _finished(self, core: Any, ch: _Chunk, rows: np.ndarray) -> None:
         """Rows (of the current core) that just finished: their final step and summary values."""
@@ -344,132 +360,166 @@ class ArchiveRecorder:
             keep_blocks.append(blk)
         ch.blocks[:] = keep_blocks
 
-    # -- serialization
+    # -- serialization (numpy over a group of episodes; Python per episode only for its JSON and metadata)
     def _write_episodes(self, ch: _Chunk, ids: np.ndarray) -> None:
-        """Write the finished rows ``ids`` contiguously, in global scenario order, each closed by its
-        own chunk and metadata record; then free their captures."""
+        """Write the finished rows ``ids`` in global scenario order, in chunks of whole episodes,
+        each chunk followed by its episodes' metadata records; then free their captures."""
         ids = ids[np.argsort(ch.index[ids], kind="stable")]
-        for g in range(0, len(ids), 128):  # gather a group's captures at once (bounded copies)
-            group = ids[g:g + 128]
+        for g in range(0, len(ids), GROUP):  # gather a group's captures at once (bounded copies)
+            group = ids[g:g + GROUP]
+            if self._pending is not None and self.progress and not self._told:  # a held signal: say why
+                self._told = True
+                print(f"finishing {self.path}: writing the {len(ids) - g} remaining episodes of this "
+                      "chunk first", file=sys.stderr, flush=True)
             f_parts, i_parts = [], []
             for blk in ch.blocks:
                 if blk.start > ch.last[group].max():
                     break
                 cols = np.minimum(np.searchsorted(blk.ids, group), len(blk.ids) - 1)
-                f_parts.append(blk.f[:, cols])
-                i_parts.append(blk.i[:, cols])
-            f, i = np.concatenate(f_parts), np.concatenate(i_parts)  # (steps, group, fields)
-            for k, r in enumerate(group.tolist()):
-                if self._pending is not None and self.progress and not self._told:  # a held signal: say why
-                    self._told = True
-                    print(f"finishing {self.path}: writing the {len(ids) - g - k} remaining episodes of this "
-                          "chunk first", file=sys.stderr, flush=True)
-                last = int(ch.last[r])
-                self._write_episode(ch, r, f[:last + 1, k], i[:last + 1, k])
-                ch.written[r] = True
+                f_parts.append(blk.f[:, cols].transpose(1, 0, 2))
+                i_parts.append(blk.i[:, cols].transpose(1, 0, 2))
+            # (episodes, steps, fields), contiguous: one copy out of the blocks, episode-major
+            self._write_group(ch, group, np.concatenate(f_parts, axis=1), np.concatenate(i_parts, axis=1))
+            ch.written[group] = True
         self._compact(ch)
 
-    def _write_episode(self, ch: _Chunk, r: int, f: np.ndarray, i: np.ndarray) -> None:
-        ep = int(ch.index[r])
-        base = self._clock_ns
-        last = len(f) - 1  # the final step of this episode
-        end = base + last * self._dt_ns
-        info, scen = ch.info, ch.scen
-        outcome = int(info["outcome"][r])
-        m = (f.shape[1] - 8 - ch.m_r) // 2
-        t, ego, npc_s, npc_v = f[:, 0], f[:, 1:7], f[:, 7:7 + m], f[:, 7 + m:7 + 2 * m]
-        reward, offsets = f[:, 7 + 2 * m], f[:, 8 + 2 * m:]
-        mode, rollout, blocked = i[:, 0].copy(), i[:, 2], i[:, 3:].astype(bool)
-        mode[0] = 0  # step 0 has no decision (padding, as the state topics always had)
-        spec = {"episode": ep, "step": 0, "t": 0.0,
-                "scenario": {name: json_ready(arr[r]) for name, arr in scen.items()}}
-        self._add("/episode/spec", base, json.dumps(spec, separators=(",", ":")))
-        self._add("/episode/index", base, json.dumps({
-            "episode": ep, "step": 0, "start_ns": base, "end_ns": end, "steps": last,
-            "outcome_name": OUTCOME_NAMES[outcome]}, separators=(",", ":")))
-        msgs = self._state_messages(ep, base, ch.lanes[r], t, ego, npc_s, npc_v, mode, rollout, offsets,
-                                    blocked, reward)
+    def _layouts(self, m: int, r: int) -> tuple[Layout, SceneLayouts]:
+        if self._lay is None or self._lay[1].m != m or self._lay[1].r != r:
+            self._lay = (state_layout(self._channels["/state"], m, r), SceneLayouts(self._channels, m, r))
+        return self._lay
+
+    def _write_group(self, ch: _Chunk, group: np.ndarray, f: np.ndarray, i: np.ndarray) -> None:
+        """Episodes ``group`` (f, i: their captures, (episodes, steps, fields)) as records: one
+        numpy pass per message kind over all their steps, then sliced into chunks of whole episodes."""
+        last = ch.last[group]
+        n_ep, m, r = len(group), (f.shape[2] - 8 - ch.m_r) // 2, ch.m_r
+        valid = np.arange(f.shape[1])[None, :] <= last[:, None]  # (episodes, steps)
+        fr, ir = f[valid], i[valid]  # (rows, fields), episode-major
+        steps = last + 1
+        row0 = np.concatenate([[0], np.cumsum(steps)[:-1]])
+        ep = np.repeat(np.arange(n_ep), steps)
+        k = np.arange(len(ep)) - row0[ep]
+        dt = self._dt_ns
+        base = self._clock_ns + np.concatenate([[0], np.cumsum(last * dt + EPISODE_GAP_NS)[:-1]])
+        ns = base[ep] + k * dt
+        state_lay, scene_lay = self._layouts(m, r)
+        mode = np.where(k == 0, 0, ir[:, 0])  # step 0 has no decision (padding)
+        st = state_lay.fill(len(ep), log_time=ns, publish_time=ns, episode=ch.index[group][ep], step=k,
+                            t=fr[:, 0], x=fr[:, 1], y=fr[:, 2], psi=fr[:, 3], v=fr[:, 4], a=fr[:, 5],
+                            steer=fr[:, 6], npc_s=fr[:, 7:7 + m], npc_v=fr[:, 7 + m:7 + 2 * m],
+                            reward=fr[:, 7 + 2 * m], offsets=fr[:, 8 + 2 * m:], mode=mode, rollout=ir[:, 2],
+                            blocked=ir[:, 3:])
+        kinds = [(st, ep)]
         if self.scene_every:  # every K-th step, and the final step
-            ks = np.unique(np.append(np.arange(0, last + 1, self.scene_every), last))
-            rx, ry = rollout_geometry(self._core.cfg.planner, ego[ks, 0], ego[ks, 1], ego[ks, 3],
-                                      np.full(len(ks), scen["lane_width"][r]))
-            cap = {"rollout_x": rx, "rollout_y": ry, "blocked": blocked[ks], "mode": i[ks, 0], "rollout": i[ks, 1]}
-            msgs.extend(scene_messages(ep, base, r, scen, ks, ego[ks], npc_s[ks], cap,
-                                       (outcome, int(info["crash_npc"][r])) if ks[-1] == last else None,
-                                       self._dt_ns, self._channels["/scene"], self._channels["/tf"]))
-            # Time order, stable: a step's scene and tf after its state messages (numpy, no key calls).
-            order = np.argsort(np.fromiter(map(itemgetter(1), msgs), np.int64, len(msgs)), kind="stable")
-            msgs = list(itemgetter(*order.tolist())(msgs)) if len(msgs) > 1 else msgs
-        sink = self._sink
-        sink.pending.extend(msgs)
-        sink.flush()
-        summary = {k: json_ready(info[k][r]) for k in SUMMARY_FIELDS}
-        summary.update(episode=ep, step=last, t=json_ready(t[-1]), outcome_name=OUTCOME_NAMES[outcome],
-                       start_ns=base, end_ns=end)
-        self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
-        sink.flush()
-        self._writer.flush()  # the episode's last chunk is on disk before its metadata record
-        self._writer.add_metadata("episode", {
-            "episode": str(ep), "start_ns": str(base), "end_ns": str(end), "steps": str(last),
-            "outcome": OUTCOME_NAMES[outcome], "episode_return": json_number(float(info["episode_return"][r]))})
-        self._stream.flush()  # the episode is whole on disk (a killed writer keeps it)
-        self.episodes += 1
-        self._clock_ns = end + EPISODE_GAP_NS
+            sel = np.flatnonzero((k % self.scene_every == 0) | (k == last[ep]))
+            s = {"ep": ep[sel], "ns": ns[sel], "k": k[sel], "first": k[sel] == 0, "final": k[sel] == last[ep[sel]],
+                 "x": fr[sel, 1], "y": fr[sel, 2], "psi": fr[sel, 3], "v": fr[sel, 4], "npc_s": fr[sel, 7:7 + m],
+                 "mode": ir[sel, 0], "chosen": ir[sel, 1], "blocked": ir[sel, 3:].astype(bool)}
+            sc = ch.scen
+            e = {key: sc[key][group] for key in ("lane_width", "road_length", "goal_s", "ego_length", "ego_width",
+                                                 "npc_lane", "npc_length", "npc_width", "npc_present",
+                                                 "sensor_range", "npc_reveal")}
+            e.update(npc_s0=sc["npc_s"][group], outcome=ch.info["outcome"][group],
+                     crash_npc=ch.info["crash_npc"][group], index=ch.index[group])
+            kinds += [(recs, s["ep"][rows]) for recs, rows in
+                      scene_records(scene_lay, self._core.cfg.planner, s, e)]
+        # Per kind: its records' bytes, and where each episode's records start.
+        blobs = [memoryview(recs.view(np.uint8)) for recs, _ in kinds]  # sliced per chunk without copies
+        starts = [np.concatenate([[0], np.cumsum(np.bincount(eps, minlength=n_ep))]) for _, eps in kinds]
+        sizes = np.array([recs.dtype.itemsize for recs, _ in kinds])
+        ep_bytes = sum(np.diff(st_) * size for st_, size in zip(starts, sizes))
+        a = 0
+        while a < n_ep:  # chunks of whole episodes, about chunk_size bytes each
+            b = a + max(1, int(np.searchsorted(np.cumsum(ep_bytes[a:]), self._chunk_size, side="right")))
+            b = min(b, n_ep)
+            self._write_chunk(ch, group[a:b], base[a:b], last[a:b], fr[row0[a:b] + last[a:b], 0], kinds, blobs,
+                              [(int(st_[a]), int(st_[b])) for st_ in starts], sizes)
+            a = b
+        self._clock_ns = int(base[-1] + last[-1] * dt + EPISODE_GAP_NS)
 
-    def _state_messages(self, ep: int, base: int, lanes: list[int], t: np.ndarray, ego: np.ndarray,
-                        npc_s: np.ndarray, npc_v: np.ndarray, mode: np.ndarray, rollout: np.ndarray,
-                        offsets: np.ndarray, blocked: np.ndarray, reward: np.ndarray) -> list[tuple[int, int, bytes]]:
-        """/ego, /npcs (steps 0..T) and /decision, /planner, /reward (steps 1..T) of one episode.
-
-        All steps go through one %-format call, the per-step values interleaved in template order.
-        Floats are shortest round-trip reprs (exact); an episode holding a
-        non-finite value (none seen in practice) writes those as null through ``%s``.
-        """
-        steps = len(t)
-        m_n, m_o = npc_s.shape[1], offsets.shape[1]
-        head = f'{{"episode":{ep},"step":%d,'
-        lane = ",".join(map(str, lanes))
-        ego_t = head + '"t":%r,"x":%r,"y":%r,"psi":%r,"v":%r,"a":%r,"steer":%r}\n'
-        npc_t = head + '"s":[' + ",".join(["%r"] * m_n) + '],"v":[' + ",".join(["%r"] * m_n) + \
-            f'],"lane":[{lane}]}}\n'
-        dec_t = head + '%s\n'
-        plan_t = head + '"offsets":[' + ",".join(["%r"] * m_o) + '],"blocked":%s,"rollout":%d}\n'
-        rew_t = head + '"reward":%r}\n'
-        floats = [t[:, None], ego, npc_s, npc_v, offsets, reward[:, None]]
-        fixed_offsets = bool(np.isfinite(offsets).all() and (offsets == offsets[:1]).all())
-        if fixed_offsets:  # the usual case (they depend on the lane width only): format them once
-            plan_t = plan_t.replace(",".join(["%r"] * m_o), ",".join(map(repr, offsets[0].tolist())))
-            offsets = offsets[:, :0]
-        if all(np.isfinite(x).all() for x in floats):
-            num = lambda x: x.T.tolist()  # noqa: E731  (one list per column)
-        else:
-            ego_t, npc_t, plan_t, rew_t = (x.replace("%r", "%s") for x in (ego_t, npc_t, plan_t, rew_t))
-            num = lambda x: [[json_number(v) for v in col] for col in x.T.tolist()]  # noqa: E731
-        weights = 1 << np.arange(blocked.shape[1])
-        codes = (blocked.astype(np.int64) @ weights).tolist()
-        bl_json = {c: _ENCODE(((c & weights) > 0).tolist()) for c in set(codes)}
-        ks = list(range(steps))
-        # One list per template field, in template order; zip + chain interleave them in C.
-        cols = [ks, *num(t[:, None]), *num(ego), ks, *num(npc_s), *num(npc_v),
-                ks, [_MODE_JSON[m] for m in mode.tolist()],
-                ks, *num(offsets), [bl_json[c] for c in codes], rollout.tolist(), ks, *num(reward[:, None])]
-        split = 1 + 7 + 1 + 2 * m_n  # the ego and npc fields; step 0 has only these
-        first = ((ego_t + npc_t) % tuple(c[0] for c in cols[:split])).encode().split(b"\n")[:-1]
-        rest = ((ego_t + npc_t + dec_t + plan_t + rew_t) * (steps - 1) % tuple(
-            itertools.chain.from_iterable(itertools.islice(zip(*cols), 1, None)))).encode().split(b"\n")[:-1]
-        chan = self._channels
-        step_chans = [chan[x] for x in ("/ego", "/npcs", "/decision", "/planner", "/reward")]
-        times = (base + np.repeat(np.arange(1, steps), 5) * self._dt_ns).tolist()
-        out = [(step_chans[0], base, first[0]), (step_chans[1], base, first[1])]
-        out.extend(zip(step_chans * (steps - 1), times, rest))
-        return out
+    def _write_chunk(self, ch: _Chunk, rows: np.ndarray, base: np.ndarray, last: np.ndarray, t_end: np.ndarray,
+                     kinds: list, blobs: list[memoryview], spans: list[tuple[int, int]], sizes: np.ndarray) -> None:
+        """One MCAP chunk: the episodes' JSON heads, each kind's records for them (by topic, each in
+        time order), the summaries; then one metadata record per episode."""
+        info = ch.info
+        self._json = []
+        ends = base + last * self._dt_ns
+        # The specs through one template: each field's JSON for all episodes from one dumps call.
+        spec_t = '{"episode":%d,"step":0,"t":0.0,"scenario":{' + ",".join(f'"{name}":%s' for name in ch.scen) + "}}"
+        cols = [_json_texts(arr[rows]) for arr in ch.scen.values()]
+        for r, start, end, steps, texts in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), zip(*cols)):
+            ep = int(ch.index[r])
+            self._add("/episode/spec", start, spec_t % (ep, *texts))
+            self._add("/episode/index", start, json.dumps({
+                "episode": ep, "step": 0, "start_ns": start, "end_ns": end, "steps": steps,
+                "outcome_name": OUTCOME_NAMES[int(info["outcome"][r])]}, separators=(",", ":")))
+        heads = self._json
+        self._json = []
+        stats = {key: _json_rows(info[key][rows]) for key in SUMMARY_FIELDS}
+        for j, (r, start, end, steps, t) in enumerate(zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(),
+                                                          _json_rows(t_end))):
+            summary = {key: col[j] for key, col in stats.items()}
+            summary.update(episode=int(ch.index[r]), step=steps, t=t,
+                           outcome_name=OUTCOME_NAMES[int(info["outcome"][r])], start_ns=start, end_ns=end)
+            self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
+        tails, self._json = self._json, []
+        parts = [rec for _, _, rec in heads]
+        chans, times, lens = [[c for c, _, _ in heads]], [[t_ for _, t_, _ in heads]], [[len(x) for *_, x in heads]]
+        for (recs, _), blob, (lo, hi), size in zip(kinds, blobs, spans, sizes):  # the per-step kinds
+            if hi > lo:
+                parts.append(blob[lo * size:hi * size])
+                chans.append(np.full(hi - lo, recs["channel"][0]))
+                times.append(recs["log_time"][lo:hi])
+                lens.append(np.full(hi - lo, size))
+        parts += [rec for _, _, rec in tails]
+        chans.append([c for c, _, _ in tails])
+        times.append([t_ for _, t_, _ in tails])
+        lens.append([len(x) for *_, x in tails])
+        cat = lambda xs: np.concatenate([np.asarray(x, np.int64) for x in xs])  # noqa: E731
+        self._file.write_chunk(parts, cat(chans), cat(times), cat(lens))
+        for r, start, end, steps in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist()):
+            self._file.add_metadata("episode", {
+                "episode": str(int(ch.index[r])), "start_ns": str(start), "end_ns": str(end), "steps": str(steps),
+                "outcome": OUTCOME_NAMES[int(info["outcome"][r])],
+                "episode_return": json_number(float(info["episode_return"][r]))})
+        self._file.flush()  # the episodes are whole on disk (a killed writer keeps them)
+        self.episodes += len(rows)
 
     def _add(self, topic: str, log_time: int, text: str) -> None:
-        self._sink.append((self._channels[topic], log_time, text.encode()))
+        """A JSON message of this chunk, as a whole Message record."""
+        data = text.encode()
+        chan = self._channels[topic]
+        self._json.append((chan, log_time, struct.pack("<BQHIQQ", 0x05, 22 + len(data), chan, 0, log_time, log_time)
+                           + data))
 
 
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode  # C-accelerated lists of floats
-_MODE_JSON = [f'"mode":{m},"mode_name":"{name}"}}' for m, name in enumerate(MODE_NAMES)]
+def _json_rows(arr: np.ndarray) -> list:
+    """Rows of ``arr`` as JSON-ready lists (non-finite floats as None), converted in one call."""
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        return np.where(np.isfinite(arr), arr, None).tolist()
+    return arr.tolist()
+
+
+def _json_texts(arr: np.ndarray) -> list[str]:
+    """Each row of ``arr`` (1-D: scalars, 2-D: flat lists) as compact JSON, from one ``json.dumps``
+    of all rows split at the row boundaries (numbers, booleans and null hold no commas or brackets)."""
+    text = json.dumps(_json_rows(arr), separators=(",", ":"))
+    if arr.ndim == 1:
+        return text[1:-1].split(",") if len(arr) else []
+    if arr.shape[1] == 0:
+        return ["[]"] * len(arr)
+    return ["[" + x + "]" for x in text[2:-2].split("],[")]
+
+
+def state_layout(channel: int, m: int, r: int) -> Layout:
+    """/state (overtakezoo_msgs/msg/State, format.STATE_MSG) for M NPC slots and R rollouts."""
+    lay = Layout(channel).slot("episode", "<u4").slot("step", "<u4")
+    for name in ("t", "x", "y", "psi", "v", "a", "steer", "reward"):
+        lay.slot(name, "<f8")
+    lay.slot("mode", "u1").slot("rollout", "u1")
+    for name in ("npc_s", "npc_v", "offsets"):
+        lay.u4(m if name != "offsets" else r).slot(name, "<f8", m if name != "offsets" else r)
+    return lay.u4(r).slot("blocked", "u1", r)
 
 
 class _Offsets:
