@@ -14,6 +14,8 @@ recipes fixed beforehand (each variant's threshold is chosen, as the member's, o
   first stage without the DAgger step;
 - ``no-threshold``: the ``dagger`` runs with the OVERTAKE logit offset taken out again (argmax of
   the fitted classifier: the oracle's label copied as it is, the score's crash weight ignored);
+- ``stack``: memory for partial observability: the student's input is the features of its last 4
+  decisions (a frame stack; :class:`overtakezoo.zoo.members.learned.StackedMLPDecider`);
 - ``wide``: domain randomisation (Tobin et al. 2017): trained on ``core-wide-train``, each core
   suite's own file with every scenario range widened by a quarter of its width on each side
   (speeds at most the speed limit, every bound positive), drawn with the training split's seed;
@@ -52,6 +54,9 @@ VARIANTS = {
                               "privileged teacher, no DAgger)"},
     "no-threshold": {"from": "dagger", "what": "the dagger runs with the OVERTAKE offset removed (argmax of the "
                                               "oracle-label classifier)"},
+    "stack": {"train": "stack", "set": ["frame_stack=4"],
+              "what": "DAgger with memory: the student reads its last 4 decisions' observations (a frame stack, "
+                      "4 s), where sensors hide oncoming cars"},
     "wide": {"train": "wide", "suite": "wide",
              "what": "DAgger on core-wide-train: every core suite's scenario ranges widened by 25 % of their "
                      "width on each side (domain randomisation)"},
@@ -138,7 +143,7 @@ def train(variant: str, runs: Path, seeds: list[int]) -> list[Path]:
 def decider(run: Path, config, remove_offset: bool):
     """The run's member as it ships, or (``remove_offset``) with its OVERTAKE offset taken out."""
     from overtakezoo.envs import OVERTAKE
-    from overtakezoo.zoo.members.learned import MLPDecider, load_weights, read_card
+    from overtakezoo.zoo.members.learned import MLPDecider, StackedMLPDecider, load_weights, read_card
     from overtakezoo.zoo.members.mlp import NumpyMLP
 
     card = read_card(run / "dagger.json", "dagger")
@@ -150,7 +155,8 @@ def decider(run: Path, config, remove_offset: bool):
         b[OVERTAKE] -= card["training"]["overtake_logit_offset"]
         layers[-1] = (w, b)
         net = NumpyMLP(tuple(layers), net.activation, net.dueling)
-    return MLPDecider(net, "dagger", config, card)
+    cls = StackedMLPDecider if int(card.get("frame_stack", 1)) > 1 else MLPDecider
+    return cls(net, "dagger", config, card)
 
 
 def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
@@ -165,6 +171,13 @@ def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
         got = json.loads(cache.read_text()) if cache.is_file() else {}
         if got.get("weights_sha256") != card["weights_sha256"]:
             got = {"weights_sha256": card["weights_sha256"], "seed": card["seed"], "suites": {}}
+        seed_eval = run / "seed-eval.json"  # scripts/seed_results.py's runs of the same weights, reused
+        if variant != "no-threshold" and seed_eval.is_file():
+            done = json.loads(seed_eval.read_text())
+            if done.get("weights_sha256") == card["weights_sha256"]:
+                for name in CORE:
+                    if name in done and not got["suites"].get(name):
+                        got["suites"][name] = {k: done[name][k] for k in ("suite_sha256", "n", "success", "crash")}
         for name in CORE:
             suite = load_suite(name)
             if got["suites"].get(name, {}).get("suite_sha256") == suite.hash:
@@ -216,6 +229,9 @@ def report(results: dict[str, list[dict]], command: str) -> tuple[str, dict]:
         "leaderboard's (mean over suites of success - 2 x crash, %, mean over seeds, 95 % bootstrap CI over seeds "
         "and scenarios). Cells: success / crash (%), mean over seeds. Nothing was chosen from these numbers.", "",
         *(f"- `{k}`: {v['what']}" for k, v in doc["variants"].items()), "",
+        *([f"Not in this table (defined in the script, not run here): "
+           + "; ".join(f"`{k}` ({v['what']})" for k, v in VARIANTS.items() if k not in results), ""]
+          if set(VARIANTS) - set(results) else []),
         *head, "",
         "Chosen OVERTAKE offsets (on training splits) and training CPU seconds per seed: " + "; ".join(
             f"{k}: offsets {d['offsets']}, {d['train_cpu_s']} s" for k, d in doc["variants"].items()), "",
