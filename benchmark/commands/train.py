@@ -80,7 +80,7 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
 
 def register(subparsers: Any) -> None:
     summary, epilog = _summary(_learned())
-    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100)
+    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100, break_on_hyphens=False)  # (suite names whole)
     p = subparsers.add_parser("train", help=summary, description=description,
                               epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")
