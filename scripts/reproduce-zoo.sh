@@ -10,6 +10,8 @@
 #    rewritten with their content hashes.
 # 3. bc and cql: 3 seeds each on the official medium dataset (rule-fsm, epsilon 0.1, table1-train),
 #    shipped by the same rule.
+# 4. dagger: the privileged oracle distilled by DAgger, 3 seeds on core-train, shipped by the same rule;
+#    then its ablation (scripts/ablation.py: docs/ablation.md), which reuses those 3 runs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs="${1:-runs/zoo}"
@@ -37,3 +39,6 @@ done
 for algo in bc cql; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
 done
+overtakezoo train dagger --suite core-train --seeds 0,1,2 --out "$runs/dagger" --eval-suite none --no-progress
+python scripts/seed_results.py dagger "$runs/dagger-s0" "$runs/dagger-s1" "$runs/dagger-s2" --ship
+python scripts/ablation.py --runs "$runs"

@@ -35,7 +35,7 @@ def test_every_shipped_card_passes_the_schema(name):
     assert arch["layers"] == [list(w.shape) for w, _ in net.layers] and arch["dueling"] == net.dueling
     assert card["weights_bytes"] == (PRETRAINED / card["weights_file"]).stat().st_size
     kind = zoo.load(name).model_card["architecture"]["kind"]
-    assert kind == {"ppo": "policy", "bc": "classifier"}.get(name, "q-network")
+    assert kind == {"ppo": "policy", "bc": "classifier", "dagger": "classifier"}.get(name, "q-network")
 
 
 def _dqn_card():

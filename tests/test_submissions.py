@@ -73,10 +73,10 @@ def test_sample_indices_are_seeded_sorted_and_per_row():
 # ------------------------------------------------------------------ the shipped leaderboard
 def test_every_shipped_row_reproduces_on_a_sample():
     # CI: every row new or changed against the base of the change in full, one scenario of each other
-    # row (9 core suites x (11 zoo members + 8 shielded), 3 multi-agent suites x 11 non-privileged members) drawn from the
+    # row (9 core suites x (12 zoo members + 9 shielded), 3 multi-agent suites x 12 non-privileged members) drawn from the
     # submissions' tree hash, re-run exactly (two worker processes): what `leaderboard --verify --sample 1` does.
     rows = len(list(REPO.glob("submissions/*/*.json")))
-    assert rows == 204  # + the 8 shielded members on the 9 core suites
+    assert rows == 225  # + the 9 shielded members on the 9 core suites
     base = default_base(REPO)
     changed = changed_rows(REPO, base) if base else set()
     t0 = time.perf_counter()

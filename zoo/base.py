@@ -227,7 +227,8 @@ class Member:
 
 
 def _builtin() -> dict[str, Member]:
-    learned = {"dqn": "dqn", "double-dqn": "dqn", "ps-dqn": "dqn", "ppo": "ppo", "bc": "bc", "cql": "cql"}
+    learned = {"dqn": "dqn", "double-dqn": "dqn", "ps-dqn": "dqn", "ppo": "ppo", "bc": "bc", "cql": "cql",
+               "dagger": "dagger"}
     own = [Member("always-follow", "rule"), Member("always-overtake", "rule"), Member("always-abort", "rule"),
            Member("rule-fsm", "rule", "rule_fsm", shieldable=True), Member("fuzzy", "rule", "fuzzy", shieldable=True),
            Member("oracle", "privileged", "oracle"),

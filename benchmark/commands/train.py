@@ -25,6 +25,7 @@ EXAMPLES = """examples:
   overtakezoo train dqn --suite table1-train --out runs/dqn --resume runs/dqn/checkpoint.pt
   overtakezoo train bc --dataset overtakezoo/table1/rule-fsm-v0 --out runs/bc
   overtakezoo train cql --dataset overtakezoo/table1/rule-fsm-v0 --seed 1 --out runs/cql
+  overtakezoo train dagger --suite core-train --out runs/dagger   # the oracle distilled (DAgger)
 
   overtakezoo train dqn --suite core-train --seeds 0,1,2 --out runs/dqn   # runs/dqn-s0, -s1, -s2 (on Ray if installed)
 
@@ -80,7 +81,7 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
 
 def register(subparsers: Any) -> None:
     summary, epilog = _summary(_learned())
-    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100)
+    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100, break_on_hyphens=False)  # (suite names whole)
     p = subparsers.add_parser("train", help=summary, description=description,
                               epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")

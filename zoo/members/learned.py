@@ -1,7 +1,7 @@
-"""The learned members at inference (dqn, double-dqn, ps-dqn, ppo, bc, cql): a numpy MLP over the observation.
+"""The learned members at inference (dqn, double-dqn, ps-dqn, ppo, bc, cql, dagger): a numpy MLP over the observation.
 
 One decider for every learned member: the network's scores (Q-values for dqn / double-dqn / ps-dqn
-/ cql, policy logits for ppo, class logits for bc) over follow / overtake / abort, argmax over the
+/ cql, policy logits for ppo, class logits for bc and dagger) over follow / overtake / abort, argmax over the
 modes the action mask allows. No torch here (it is for training only, :mod:`overtakezoo.zoo.train`):
 the weights are a ``.npz`` (:mod:`.mlp`) beside a model card ``<name>.json`` that holds the
 architecture, the input features, the action repeat and mask, the provenance and the sha256 of the
@@ -10,8 +10,8 @@ differs (truncated, modified) with :class:`WeightsError`. Loading reads local fi
 is in float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
 argmax; in float64 a result does not depend on how rows happen to be batched.
 
-Each decision is held ``action_repeat`` core steps (the card's: 10 for dqn, double-dqn, ps-dqn and
-ppo, 1 for bc and cql, whose datasets hold one transition per step); the decider only declares it,
+Each decision is held ``action_repeat`` core steps (the card's: 10 for dqn, double-dqn, ps-dqn, ppo
+and dagger, 1 for bc and cql, whose datasets hold one transition per step); the decider only declares it,
 whoever steps the core applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the
 trainers), combined with the configuration's ``decision_interval``.
 
@@ -129,9 +129,11 @@ class MLPDecider(Decider):
     def __init__(self, net: NumpyMLP, name: str, config: EnvConfig | None = None,
                  card: dict[str, Any] | None = None) -> None:
         super().__init__(config)
-        if net.in_features != observation_size(self.config):
+        self.stack = int((card or {}).get("frame_stack", 1))  # decisions of input (StackedMLPDecider)
+        if net.in_features != self.stack * observation_size(self.config):
             raise WeightsError(f"{name}: network expects {net.in_features} observation features, the configuration "
-                               f"gives {observation_size(self.config)} (different planner/observation settings)")
+                               f"gives {self.stack} x {observation_size(self.config)} (different planner/observation "
+                               "settings)")
         if net.out_features != NUM_MODES:
             raise WeightsError(f"{name}: network gives {net.out_features} scores, expected {NUM_MODES}")
         self.net, self.name = net, name
@@ -160,6 +162,32 @@ class MLPDecider(Decider):
 
     def card(self) -> str:
         return describe(self.name, self.model_card)
+
+
+class StackedMLPDecider(MLPDecider):
+    """A learned member with memory: its input is the features of its last ``frame_stack``
+    decisions' observations, newest first (zeros before a row's episode began), as it was trained
+    (``train dagger --set frame_stack=K``). Each call of :meth:`act_batch` is one decision."""
+
+    row_state = ("history",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.history = np.zeros((0, self.stack, observation_size(self.config)))
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        if mask is None or self.history.shape[0] != len(mask):
+            self.history = np.zeros((0 if mask is None else len(mask), *self.history.shape[1:]))
+        else:
+            self.history[np.asarray(mask, bool)] = 0.0
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        x = np.asarray(obs, np.float64)
+        if self.history.shape[0] != x.shape[0]:
+            self.history = np.zeros((x.shape[0], *self.history.shape[1:]))
+        self.history = np.concatenate([speed_relative(x, self.config)[:, None], self.history[:, :-1]], axis=1)
+        mask = action_mask(obs, self.config, self.mask_version) if self.use_mask else None
+        return masked_argmax(self.net(self.history.reshape(x.shape[0], -1)), mask)
 
 
 def describe(name: str, c: dict[str, Any]) -> str:
@@ -206,7 +234,8 @@ def describe(name: str, c: dict[str, Any]) -> str:
 
 
 def from_card(name: str, card: dict[str, Any], weights: str | Path, config: EnvConfig | None = None) -> MLPDecider:
-    return MLPDecider(load_weights(weights, card, name), name, config, card)
+    cls = StackedMLPDecider if int(card.get("frame_stack", 1)) > 1 else MLPDecider
+    return cls(load_weights(weights, card, name), name, config, card)
 
 
 def load_pretrained(name: str, config: EnvConfig | None = None, directory: str | Path | None = None) -> MLPDecider:

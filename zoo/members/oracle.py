@@ -101,6 +101,14 @@ class Oracle(Decider):
             self._replan(rows)
         return self.decision.copy()
 
+    def plan(self, rows: np.ndarray) -> np.ndarray:
+        """Re-plan rows ``rows`` of the bound core now (whatever was verified) and return their
+        decisions: the oracle as a labeller of states another decider drove to (``train dagger``)."""
+        rows = np.asarray(rows, np.int64)
+        if rows.size:
+            self._replan(rows)
+        return self.decision[rows].copy()
+
     def _replan(self, rows: np.ndarray) -> None:
         core = self.core
         lane_w = core.scen.lane_width[rows]

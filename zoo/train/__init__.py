@@ -4,7 +4,8 @@
   JSON Schema (``card.schema.json``), the outputs;
 - ``dqn.py`` (dqn, double-dqn, ps-dqn) with ``qlearning.py`` (the network, the replay buffer, the
   TD target); ``ppo.py`` (ppo, through rsl-rl, with ``categorical.py``, its action distribution);
-  ``bc.py`` and ``cql.py`` (offline, from a dataset's transitions, ``offline.py``);
+  ``bc.py`` and ``cql.py`` (offline, from a dataset's transitions, ``offline.py``); ``dagger.py``
+  (the privileged oracle distilled into an observation-only classifier, DAgger);
 - ``export.py``: torch weights -> the numpy ``.npz`` the zoo loads; ``typed.py``: the typed
   dataclasses the hyperparameter files are read into.
 

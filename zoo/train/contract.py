@@ -50,7 +50,7 @@ class TrainError(ConfigError):
 # What each trainer (its module under zoo/train) writes into the run directory beside the outputs of
 # write_outputs (the trainers use these names; `overtakezoo train --help` lists them).
 RUN_FILES = {"dqn": ("log.csv", "checkpoint.pt"), "ppo": ("train_log.csv", "checkpoints/ppo_<iteration>.pt"),
-             "bc": (), "cql": ()}
+             "bc": (), "cql": (), "dagger": ("log.csv",)}
 TORCH_WEIGHTS = ("dqn", "ppo")  # trainers whose member is exported from torch weights, <name>.pt
 
 
@@ -229,7 +229,10 @@ class Trained:
 
     def decider(self, config: Any = None) -> MLPDecider:
         """The member as it ships: the numpy network acting through the card."""
-        return MLPDecider(self.net, self.name, config, self.card)
+        from overtakezoo.zoo.members.learned import StackedMLPDecider
+
+        cls = StackedMLPDecider if int(self.card.get("frame_stack", 1)) > 1 else MLPDecider
+        return cls(self.net, self.name, config, self.card)
 
 
 def finish(card: dict[str, Any], *, weights: bytes | None = None, module: Any = None,
