@@ -62,6 +62,18 @@ def accuracy(net: nn.Module, x: np.ndarray, y: np.ndarray) -> float | None:
         return float((net(torch.from_numpy(x)).argmax(1).numpy() == y).mean())
 
 
+def cross_entropy_step(net: nn.Module, optim: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor,
+                       rng: np.random.Generator, batch_size: int) -> torch.Tensor:
+    """One Adam step of cross-entropy on a minibatch drawn (with replacement) by ``rng``: the
+    supervised update of bc and of dagger's classifier; returns the minibatch loss."""
+    idx = torch.from_numpy(rng.integers(0, len(y), batch_size))
+    loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
+    optim.zero_grad(set_to_none=True)
+    loss.backward()
+    optim.step()
+    return loss
+
+
 def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn.Sequential, dict[str, Any]]:
     """Train the classifier; returns it with training statistics (accuracies, wall time)."""
     torch.manual_seed(hp.seed)
@@ -74,11 +86,7 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     t0, cpu0 = time.perf_counter(), time.process_time()
     bar = progress_bar(hp.steps, "bc", progress)
     for step in range(hp.steps):
-        idx = torch.from_numpy(rng.integers(0, len(y), hp.batch_size))
-        loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
-        optim.zero_grad(set_to_none=True)
-        loss.backward()
-        optim.step()
+        loss = cross_entropy_step(net, optim, x, y, rng, hp.batch_size)
         if bar is not None:
             bar.update(1)
             if step % 500 == 0:

@@ -59,6 +59,7 @@ from overtakezoo.envs.io import check_writable_dir
 from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.members.learned import action_mask, masked_argmax
 from overtakezoo.zoo.members.oracle import Oracle
+from overtakezoo.zoo.train.bc import cross_entropy_step
 from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card,
                                             reproduce, suite_source)
 from overtakezoo.zoo.train.qlearning import QNetwork  # the zoo's torch MLP (Linear / ReLU layers)
@@ -167,11 +168,7 @@ def fit(net: nn.Module, optim: torch.optim.Optimizer, x: torch.Tensor, y: torch.
     net.train()
     loss = torch.zeros(())
     for _ in range(hp.grad_steps):
-        idx = torch.from_numpy(rng.integers(0, len(y), hp.batch_size))
-        loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
-        optim.zero_grad(set_to_none=True)
-        loss.backward()
-        optim.step()
+        loss = cross_entropy_step(net, optim, x, y, rng, hp.batch_size)
     net.eval()
     return float(loss.detach())
 
