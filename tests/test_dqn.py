@@ -239,3 +239,40 @@ def test_train_command_writes_log_weights_and_card(tmp_path, capsys):
     assert "trained dqn" in capsys.readouterr().out
     assert main(["train", "dqn", "--resume", str(tmp_path / "missing.pt"), "--out", str(out)]) == 2
     assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_model_selection_ships_the_best_greedy_network_and_survives_resume(tmp_path):
+    """With select_every the network that ships is the best scored one: its recorded score is what
+    the shipped decider (numpy, masked, loaded from the run's files) scores on the same training
+    scenarios, and no scored network, the last one included, scored higher."""
+    from overtakezoo.zoo.members.learned import from_card
+    from overtakezoo.zoo.train.selection import greedy_score, selection_sets
+
+    suites = load_training("table1-train")
+    ov = {"num_envs": 64, "learning_starts": 1000, "checkpoint_every": 6000, "log_every": 2000, "eps_fraction": 0.5,
+          "select_every": 3000, "select_from": 3000, "select_scenarios": 64}
+    first = train(suites, member="dqn", steps=6000, seed=0, out=tmp_path, progress=False, overrides=ov)
+    done = train(suites, member="dqn", steps=12000, seed=0, out=tmp_path, resume=tmp_path / "checkpoint.pt",
+                 progress=False, overrides=ov)
+    sel, sel_first = done.card["training"]["selection"], first.card["training"]["selection"]
+    assert sel["scenarios"] == 64 and sel["every"] == 3000 and sel["score"] >= sel_first["score"]
+    assert 3000 <= sel["transitions"] <= done.card["steps"]
+    sets = selection_sets(suites, [s.scenarios() for s in suites], 64)
+    shipped = from_card("dqn", json.loads((tmp_path / "dqn.json").read_text()), tmp_path / "dqn.npz", suites[0].config)
+
+    def act(obs, config):
+        shipped.config = config
+        return shipped.act_batch(obs)
+
+    assert greedy_score(act, sets, shipped.action_repeat) == pytest.approx(sel["score"], abs=1e-9)
+    last = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    assert last["best"]["score"] == pytest.approx(sel["score"]) and last["counters"][0] == done.card["steps"]
+    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
+    net = QNetwork(observation_size(suites[0].config), hp.hidden, hp.dueling)
+    net.load_state_dict(last["net"])
+    last_net = net.to_numpy()
+
+    def act_last(obs, config):
+        return np.where(action_mask(obs, config), last_net(speed_relative(obs, config)), -np.inf).argmax(axis=1)
+
+    assert greedy_score(act_last, sets, shipped.action_repeat) <= sel["score"] + 1e-12

@@ -64,10 +64,11 @@ from overtakezoo.envs.mixture import MixedCore, split_rows
 
 from overtakezoo.zoo.base import member as registry_member, names
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.members.learned import NUM_MODES, action_mask
+from overtakezoo.zoo.members.learned import NUM_MODES, action_mask, masked_argmax as numpy_masked_argmax
 from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
                        suite_source)
 from overtakezoo.zoo.train.qlearning import QNetwork, ReplayBuffer, masked_argmax, td_targets
+from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 from overtakezoo.zoo.train.typed import as_dict, param
 
 LEARNS_FROM = "suites"  # what train() takes: loaded training suites, or a loaded dataset
@@ -112,6 +113,12 @@ class DQNHyperparams:
     stats_window: int = param(1000, 1)  # episodes in the logged success / crash rates
     # Share of `num_envs` on the multi-AV suites of a mixture (None: rows split evenly over suites).
     multi_av_share: float | None = param(None, 0.0, 1.0)
+    # Model selection (zoo/train/selection.py): every `select_every` transitions from `select_from` on,
+    # and at the end, the greedy masked policy on the first `select_scenarios` training scenarios; the
+    # best success - crash is shipped (0: no selection, the last network ships). Single-AV suites only.
+    select_every: int = param(0, 0)
+    select_from: int = param(0, 0)
+    select_scenarios: int = param(900, 1)
 
 
 # ----------------------------------------------------------------------------- acting
@@ -145,6 +152,7 @@ class Trainer:
         self.last_loss = float("nan")
         self._core_seed = self.seed + 1
         self.multi_av = False  # any training suite with several AVs per road (set by _start_core)
+        self.best: dict[str, Any] = {"score": -np.inf, "transitions": None, "net": None}  # model selection
 
     def _start_core(self) -> None:
         """The parallel rows: ``num_envs`` split over the training suites, each refilled from its own."""
@@ -155,6 +163,9 @@ class Trainer:
         roads = [max(1, r // p.num_avs) for r, p in zip(rows, pools)]
         self.core = MixedCore([s.config for s in self.suites], sources, roads, seed=self._core_seed)
         self.multi_av = any(p.num_avs > 1 for p in pools)
+        if self.multi_av and self.hp.select_every:
+            raise TrainError("select_every scores single-AV suites only; set it to 0 for multi-AV training")
+        self.select_sets = selection_sets(self.suites, pools, self.hp.select_scenarios)
         self.obs = self._features(self.core.observe())
 
     def row_counts(self) -> dict[str, dict[str, int]]:
@@ -220,6 +231,30 @@ class Trainer:
         if self.updates % hp.target_update == 0:  # hard target sync
             self.target.load_state_dict(self.net.state_dict())
 
+    def select(self) -> float:
+        """Score the greedy masked policy (as the shipped decider acts: float64 numpy, the action
+        mask) on the selection scenarios; keep its weights when it beats the best so far."""
+        net, use_mask = self.net.to_numpy(), self.hp.action_mask
+
+        def act(obs: np.ndarray, config: Any) -> np.ndarray:
+            return numpy_masked_argmax(net(speed_relative(obs, config)), action_mask(obs, config) if use_mask else None)
+
+        score = greedy_score(act, self.select_sets, self.hp.action_repeat)
+        if score > self.best["score"]:
+            self.best = {"score": score, "transitions": self.transitions,
+                         "net": {k: v.detach().clone() for k, v in self.net.state_dict().items()}}
+        return score
+
+    def selection(self) -> dict[str, Any] | None:
+        """The card's record of the model selection (None without one)."""
+        hp = self.hp
+        if not hp.select_every:
+            return None
+        return {"rule": "greedy success rate minus crash rate on the first training scenarios",
+                "scenarios": int(sum(sc.num for _, sc in self.select_sets)), "every": hp.select_every,
+                "from": hp.select_from, "transitions": self.best["transitions"],
+                "score": round(float(self.best["score"]), 4)}
+
     def rates(self) -> tuple[float, float]:
         if not self.recent:
             return float("nan"), float("nan")
@@ -232,6 +267,8 @@ class Trainer:
         self._start_core()
         next_log = (self.transitions // hp.log_every + 1) * hp.log_every
         next_ckpt = (self.transitions // hp.checkpoint_every + 1) * hp.checkpoint_every
+        every = hp.select_every
+        next_select = max(hp.select_from, (self.transitions // every + 1) * every) if every else None
         bar = None
         if progress:
             from tqdm import tqdm
@@ -261,11 +298,19 @@ class Trainer:
                                "crash_rate": round(c, 4), "loss": round(self.last_loss, 5),
                                "epsilon": round(self.epsilon(), 4), "updates": self.updates,
                                "wall_time_s": round(self.wall, 2)})
+            if next_select is not None and self.transitions >= next_select and self.transitions < steps:
+                next_select = (self.transitions // every + 1) * every
+                score = self.select()
+                if bar is not None:
+                    bar.write(f"{self.transitions} transitions: greedy success - crash {score:.3f} "
+                              f"(best {self.best['score']:.3f} at {self.best['transitions']})")
             if out and self.transitions >= next_ckpt:
                 next_ckpt += hp.checkpoint_every
                 self.checkpoint(out / RUN_FILES["dqn"][1])
         if bar is not None:
             bar.close()
+        if every and self.best["transitions"] != self.transitions:  # the last network is a candidate too
+            self.select()
         if out:
             self.checkpoint(out / RUN_FILES["dqn"][1])
 
@@ -276,6 +321,8 @@ class Trainer:
                  "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
                  "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
                  "torch_rng": torch.get_rng_state(), "core_seed": self._core_seed + 1,
+                 "best": {"score": float(self.best["score"]), "transitions": self.best["transitions"],
+                          "net": self.best["net"]},
                  "buffer": {k: torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v
                             for k, v in self.buffer.state().items()}}  # tensors: loadable with weights_only
         buf = io.BytesIO()
@@ -300,6 +347,7 @@ class Trainer:
         self.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
         self._core_seed = state["core_seed"]  # episodes in flight restart with fresh draws
+        self.best = dict(state.get("best") or self.best)
         self.buffer.load({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["buffer"].items()})
 
 
@@ -353,7 +401,9 @@ def algorithm(hp: DQNHyperparams, multi_av: bool = False) -> str:
 def card(trainer: Trainer, hp_file: str) -> dict[str, Any]:
     """The training card of ``trainer``'s network (:func:`.contract.model_card`)."""
     hp, source = trainer.hp, suite_source(trainer.suites, trainer.train_name)
+    selection = trainer.selection()
     training = {"core_steps": trainer.core_steps, "gradient_updates": trainer.updates, "episodes": trainer.episodes,
+                **({"selection": selection} if selection else {}),
                 **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {})}
     return model_card(trainer.algo, algorithm=algorithm(hp, trainer.multi_av),
                       architecture={"kind": "q-network", "dueling": hp.dueling}, hp=hp, hp_file=hp_file,
@@ -380,6 +430,8 @@ def train(suites: list[Any], *, member: str = "dqn", suite_name: str | None = No
     if resume:
         trainer.restore(resume)
     trainer.run(hp.steps, out_dir, progress)
+    if trainer.best["net"] is not None:  # model selection: the best greedy network ships
+        trainer.net.load_state_dict(trainer.best["net"])
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
     return finish(card(trainer, hp_file), weights=buf.getvalue(), module=trainer.net, out=out_dir)

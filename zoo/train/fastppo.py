@@ -200,41 +200,6 @@ def gae(reward: np.ndarray, value: np.ndarray, done: np.ndarray, last: np.ndarra
     return adv, adv + value
 
 
-# ----------------------------------------------------------------------------- model selection
-def greedy_score(layers: tuple, sets: list[tuple[Any, Any]], repeat: int) -> float:
-    """Success rate minus crash rate of the greedy (argmax) actor over ``(config, scenarios)`` sets,
-    each set weighted equally. Finished rows are dropped once at most half the batch runs (as the
-    benchmark runner does; rows never interact), which halves the cost of a scoring."""
-    from overtakezoo.envs import OvertakeCore
-    from overtakezoo.envs.hold import hold_steps, run_to_end
-    from overtakezoo.zoo.members.mlp import NumpyMLP
-
-    net = NumpyMLP(layers, "tanh")
-    scores = []
-    for config, scenarios in sets:
-        live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
-
-        def count(outcome: np.ndarray) -> None:
-            live["success"] += int((outcome == SUCCESS).sum())
-            live["crash"] += int((outcome == CRASH).sum())
-
-        def compact(obs: np.ndarray) -> Any:
-            done = np.asarray(live["core"].done)
-            keep = np.flatnonzero(~done)
-            if 2 * keep.size > done.size or not keep.size:
-                return None
-            count(live["core"].outcome[done])
-            live["core"] = live["core"].clone(keep)
-            return live["core"], obs[keep]
-
-        obs = live["core"].reset(scenarios)
-        run_to_end(live["core"], obs, lambda o, _: net(speed_relative(o, config)).argmax(axis=1),
-                   hold_steps(config.decision_interval, repeat), compact=compact)
-        count(live["core"].outcome)
-        scores.append((live["success"] - live["crash"]) / scenarios.num)
-    return float(np.mean(scores))
-
-
 # ----------------------------------------------------------------------------- training
 def train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_name: str | None, steps: int | None,
           seed: int, out: Path, progress: bool) -> Any:
@@ -250,7 +215,9 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
            seed: int, out: Path, progress: bool) -> Any:
     from overtakezoo.envs.hold import hold
     from overtakezoo.envs.mixture import MixedCore, split_rows
+    from overtakezoo.zoo.members.mlp import NumpyMLP
     from overtakezoo.zoo.train.contract import suite_source
+    from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     check_writable_dir(out)
     p, n, repeat = hp.ppo, hp.env.num_envs, hp.env.action_repeat
@@ -275,8 +242,7 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
     actor = MLP([dim, *p.hidden, 3], rng, 0.01)
     actor.params[-1][1] += p.overtake_bias  # the OVERTAKE logit: start near always-overtake
     critic = MLP([dim, *p.hidden, 1], rng, 1.0)
-    per_suite = max(1, hp.train.select_scenarios // len(suites))
-    select_sets = [(s.config, q.take(np.arange(min(per_suite, q.num)))) for s, q in zip(suites, pools)]
+    select_sets = selection_sets(suites, pools, hp.train.select_scenarios)
     best: dict[str, Any] = {"score": -np.inf, "iteration": None, "layers": None}
 
     obs = speed_relative(core.observe(), config).astype(DTYPE)
@@ -316,7 +282,8 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
         every = hp.train.select_every
         if last or (every and (it + 1) % every == 0 and it + 1 >= hp.train.select_from):
             layers = actor.layers()
-            score = greedy_score(layers, select_sets, repeat)
+            net = NumpyMLP(layers, "tanh")
+            score = greedy_score(lambda o, c: net(speed_relative(o, c)).argmax(axis=1), select_sets, repeat)
             if score > best["score"]:
                 best = {"score": score, "iteration": it + 1, "layers": layers}
             cpu["select"] += clock() - c2

@@ -33,11 +33,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, SUCCESS, EnvConfig, OvertakeCore, observation_size
+from overtakezoo.envs import EnvConfig, observation_size
 from overtakezoo.envs.config import unknown_key
 from overtakezoo.envs.io import atomic_path, check_writable_dir
 
-from overtakezoo.zoo.base import Decider
 from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, read_toml,
                        reproduce, suite_source)
@@ -149,46 +148,19 @@ def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]
     return buf.getvalue()
 
 
-class TorchPolicy(Decider):
-    """The actor being trained, acting greedily (float32, through torch) for model selection."""
+def greedy_actor(actor: torch.nn.Module) -> Any:
+    """The actor being trained, acting greedily (float32, through torch) for model selection:
+    ``act(obs, config)`` as :func:`.selection.greedy_score` calls it."""
+    import torch
 
-    name = "ppo"
+    actor.eval()
 
-    def __init__(self, actor: torch.nn.Module, config: EnvConfig, action_repeat: int) -> None:
-        super().__init__(config)
-        self.actor, self.action_repeat = actor.eval(), int(action_repeat)
-
-    def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        import torch
-
-        x = speed_relative(np.asarray(obs), self.config)
+    def act(obs: np.ndarray, config: EnvConfig) -> np.ndarray:
         with torch.inference_mode():
-            x = self.actor.obs_normalizer(torch.as_tensor(x, dtype=torch.float32))
-            return self.actor.mlp(x).numpy().argmax(axis=1).astype(np.int64)
+            x = actor.obs_normalizer(torch.as_tensor(speed_relative(np.asarray(obs), config), dtype=torch.float32))
+            return actor.mlp(x).numpy().argmax(axis=1).astype(np.int64)
 
-
-# ----------------------------------------------------------------------------- model selection
-def rollout(decider: Decider, config: EnvConfig, scenarios: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every scenario run to its end under ``decider`` (one batch, each decision held as the runner
-    holds it): outcome, crash lane, completion time."""
-    from overtakezoo.envs.hold import hold_steps, run_to_end
-
-    core = OvertakeCore(config)
-    obs = core.reset(scenarios)
-    decider.reset()
-    run_to_end(core, obs, lambda o, _: decider.act(o), hold_steps(config.decision_interval, decider.action_repeat))
-    return core.outcome, core.crash_lane, core.stats["completion_time"]
-
-
-def greedy_score(decider: Decider, sets: list[tuple[EnvConfig, Any]]) -> float:
-    """Success rate minus crash rate of ``decider`` over ``(config, scenarios)`` sets, each set
-    weighted equally (model selection over a mixture of suites)."""
-    scores = []
-    for config, scenarios in sets:
-        decider.config = config
-        outcome, _, _ = rollout(decider, config, scenarios)
-        scores.append(np.mean(outcome == SUCCESS) - np.mean(outcome == CRASH))
-    return float(np.mean(scores))
+    return act
 
 
 # ----------------------------------------------------------------------------- training
@@ -244,6 +216,7 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
 
     from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
+    from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     hp, hp_file = load_hyperparams(PPOHyperparams, hyperparams or hyperparams_file("ppo"), overrides)
     steps = int(steps if steps is not None else hp.train.steps)
@@ -264,8 +237,7 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
                            bootstrap_timeouts=hp.env.bootstrap_timeouts, action_repeat=repeat)
     # Model selection: the greedy (argmax) policy on the first scenarios of each training suite.
     select_every = hp.train.select_every
-    per_suite = max(1, hp.train.select_scenarios // len(suites))
-    select_sets = [(s.config, p.take(np.arange(min(per_suite, p.num)))) for s, p in zip(suites, pools)]
+    select_sets = selection_sets(suites, pools, hp.train.select_scenarios)
     selected = sum(sc.num for _, sc in select_sets)
     best: dict[str, Any] = {"score": -np.inf, "iteration": None, "state": None}
     runner = make_runner(env, hp)
@@ -307,7 +279,7 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
                 bar.update(1)
             if select_every and ((it + 1) % select_every == 0 or it + 1 == iterations):
                 policy = runner.alg.get_policy()
-                score = greedy_score(TorchPolicy(policy, config, repeat), select_sets)
+                score = greedy_score(greedy_actor(policy), select_sets, repeat)
                 runner.alg.train_mode()  # the decider switched the shared actor to eval mode
                 if score > best["score"]:
                     best = {"score": float(score), "iteration": it + 1,

@@ -1,0 +1,57 @@
+"""Model selection on training splits: the greedy policy of a run scored on fixed training scenarios,
+the best score kept. One scorer for every trainer that selects (rsl-rl ppo, the numpy ppo, dqn), so
+that "the best policy seen" means the same everywhere.
+
+The score is the success rate minus the crash rate, each training suite weighted equally. The
+scenarios are the first ``per_suite`` of each training split (what the run also trains on): test
+suites never enter a choice.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from overtakezoo.envs import CRASH, SUCCESS
+
+Act = Callable[[np.ndarray, Any], np.ndarray]  # (raw observations, their config) -> modes
+
+
+def selection_sets(suites: list[Any], pools: list[Any], total: int) -> list[tuple[Any, Any]]:
+    """``(config, scenarios)`` per training suite: the first ``total // len(suites)`` (at least one)."""
+    per_suite = max(1, int(total) // len(suites))
+    return [(s.config, q.take(np.arange(min(per_suite, q.num)))) for s, q in zip(suites, pools)]
+
+
+def greedy_score(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> float:
+    """Success rate minus crash rate of ``act`` over ``(config, scenarios)`` sets, each set weighted
+    equally, every decision held ``repeat`` core steps as the runner holds it. ``act`` must be
+    stateless per row: finished rows are dropped once at most half the batch runs (as the benchmark
+    runner does; single-AV rows never interact), which halves the cost of a scoring."""
+    from overtakezoo.envs import OvertakeCore
+    from overtakezoo.envs.hold import hold_steps, run_to_end
+
+    scores = []
+    for config, scenarios in sets:
+        live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
+
+        def count(outcome: np.ndarray) -> None:
+            live["success"] += int((outcome == SUCCESS).sum())
+            live["crash"] += int((outcome == CRASH).sum())
+
+        def compact(obs: np.ndarray) -> Any:
+            done = np.asarray(live["core"].done)
+            keep = np.flatnonzero(~done)
+            if 2 * keep.size > done.size or not keep.size:
+                return None
+            count(live["core"].outcome[done])
+            live["core"] = live["core"].clone(keep)
+            return live["core"], obs[keep]
+
+        obs = live["core"].reset(scenarios)
+        run_to_end(live["core"], obs, lambda o, _, c=config: act(o, c), hold_steps(config.decision_interval, repeat),
+                   compact=compact)
+        count(live["core"].outcome)
+        scores.append((live["success"] - live["crash"]) / scenarios.num)
+    return float(np.mean(scores))
