@@ -204,6 +204,28 @@ def test_crossplay_regenerates_byte_identically_and_check_catches_edits(tmp_path
     assert "on multi-AV suites" in capsys.readouterr().err
 
 
+def test_crossplay_changed_only_reruns_just_the_pairs_of_a_changed_decider(tmp_path, monkeypatch):
+    """--changed-only copies the pairs of two unchanged deciders and re-runs the rest; the file is the
+    one a full run writes. A changed weights hash, or another scenario count, means a re-run."""
+    root = tmp_path / "lb"
+    base = ["crossplay", "--suite", "duel", "--limit", "5", "--root", str(root)]
+    assert main(base + ["--deciders", "rule-fsm,always-overtake,fuzzy"]) == 0
+    full = (root / "crossplay" / "duel.json").read_bytes()
+    ran = []
+    real = crossplay._pair_counts
+    monkeypatch.setattr(crossplay, "_pair_counts", lambda suite, a, b, k: ran.append((a, b)) or real(suite, a, b, k))
+    doc = json.loads(full)
+    doc["deciders"][[d["name"] for d in doc["deciders"]].index("fuzzy")]["weights_sha256"] = "0" * 64  # "retrained"
+    (root / "crossplay" / "duel.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+    assert main(base + ["--deciders", "rule-fsm,always-overtake,fuzzy", "--changed-only"]) == 0
+    assert sorted(ran) == sorted({(a, b) for a in ("rule-fsm", "always-overtake", "fuzzy")
+                                  for b in ("rule-fsm", "always-overtake", "fuzzy") if "fuzzy" in (a, b)})
+    assert (root / "crossplay" / "duel.json").read_bytes() == full
+    ran.clear()
+    assert main(base[:4] + ["4"] + base[5:] + ["--deciders", "rule-fsm,always-overtake", "--changed-only"]) == 0
+    assert len(ran) == 4  # another --limit: nothing is reusable
+
+
 def test_crossplay_on_platoon_seats_b_on_every_other_av(tmp_path):
     """On a three-AV road A drives the ego and B both followers: B's counts are per AV (2 per road),
     and A = B is self-play (the same as every AV run by that member)."""

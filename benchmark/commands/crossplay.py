@@ -19,6 +19,7 @@ def register(subparsers: Any) -> None:
                    ["overtakezoo crossplay --suite duel --jobs 2",
                     "overtakezoo crossplay --suite duel --limit 50 --deciders rule-fsm,fuzzy,dqn --root /tmp/lb",
                     "overtakezoo crossplay --suite platoon --jobs 2",
+                    "overtakezoo crossplay --suite platoon --jobs 2 --changed-only   # after retraining a member",
                     "overtakezoo crossplay --suite duel --check --jobs 2"])
     p.add_argument("--suite", default="duel", help="a multi-AV suite: duel, platoon, mixed-traffic (default: duel)")
     p.add_argument("--limit", type=int, metavar="K", help="scenarios per pair, the suite's first K "
@@ -28,6 +29,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--jobs", type=int, default=1, help="rows of the matrix measured in parallel processes")
     p.add_argument("--check", action="store_true", help="write nothing; exit 1 if a re-run differs from the "
                    "stored matrix")
+    p.add_argument("--changed-only", action="store_true", help="re-run only the pairs with a decider whose "
+                   "version or weights differ from the stored matrix; copy the rest (every pair is deterministic)")
     p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
     p.set_defaults(handler=run)
 
@@ -68,8 +71,11 @@ def run(args: Any) -> int:
             return 1
         print(f"{path} reproduces: {len(doc['pairs'])} pairs on {doc['scenarios']} scenarios each")
         return 0
+    if args.changed_only and args.check:
+        raise UserError("--changed-only and --check: a check re-runs every pair")
+    stored = crossplay.load(path) if args.changed_only and path.is_file() else None
     doc = crossplay.measure(suite, names, crossplay.DEFAULT_SCENARIOS if args.limit is None else args.limit,
-                            args.jobs)
+                            args.jobs, stored)
     atomic_write_bytes(path, crossplay.to_bytes(doc))
     changed = write(args.root)
     print(f"measured {len(doc['pairs'])} pairs on {doc['scenarios']} scenarios of {suite.name}; wrote {path}; "

@@ -72,10 +72,22 @@ def _row(args: tuple[str, str, list[str], int]) -> list[dict[str, Any]]:
     return [{"a": a, "b": b, **_pair_counts(suite, a, b, scenarios)} for b in names]
 
 
+def reusable(stored: dict[str, Any] | None, suite: Suite, scenarios: int, deciders: list[dict[str, Any]]) -> set[str]:
+    """The deciders whose pairs ``stored`` (an earlier matrix) already holds as a re-run would give
+    them: same suite, config, simulator and scenario count, and the decider's version and weights."""
+    if not stored or (stored["suite"].get("hash"), stored.get("config_sha256"), stored.get("sim_version"),
+                      stored["scenarios"]) != (suite.hash, config_sha256(suite.config), SIM_VERSION, scenarios):
+        return set()
+    before = {d["name"]: (d["version"], d["weights_sha256"]) for d in stored["deciders"]}
+    return {d["name"] for d in deciders if before.get(d["name"]) == (d["version"], d["weights_sha256"])}
+
+
 def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAULT_SCENARIOS,
-            jobs: int = 1) -> dict[str, Any]:
+            jobs: int = 1, stored: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run every ordered pair of ``names`` (default: :func:`zoo_deciders`) on the suite's first
-    ``scenarios`` roads; returns the data document (deterministic: no timing in it)."""
+    ``scenarios`` roads; returns the data document (deterministic: no timing in it). With ``stored``
+    (an earlier matrix) a pair of two unchanged deciders (:func:`reusable`) is copied, not re-run:
+    every pair is a deterministic function of the suite and the two deciders."""
     from overtakezoo import zoo
 
     num_avs = suite.num_avs
@@ -91,7 +103,11 @@ def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAU
         if getattr(d, "privileged", False):
             raise UserError(f"{name}: privileged deciders cannot share a road in cross-play")
         deciders.append({"name": name, "version": str(d.version), "weights_sha256": d.weights_sha256})
-    todo = [(suite.name if suite.builtin else str(suite.path), a, names, scenarios) for a in names]
+    same = reusable(stored, suite, scenarios, deciders)
+    old = {(p["a"], p["b"]): p for p in stored["pairs"]} if same else {}
+    where = suite.name if suite.builtin else str(suite.path)
+    todo = [(where, a, [b for b in names if not (a in same and b in same)], scenarios) for a in names]
+    todo = [t for t in todo if t[2]]
     if jobs > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
@@ -101,10 +117,12 @@ def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAU
             rows = list(pool.map(_row, todo))
     else:
         rows = [_row(t) for t in todo]
+    new = {(p["a"], p["b"]): p for row in rows for p in row}
+    pairs = [new.get((a, b)) or old[(a, b)] for a in names for b in names]
     return {"generated_by": "overtakezoo crossplay",
             "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
             "config_sha256": config_sha256(suite.config), "sim_version": SIM_VERSION, "scenarios": scenarios,
-            "deciders": deciders, "pairs": [p for row in rows for p in row]}
+            "deciders": deciders, "pairs": pairs}
 
 
 def to_bytes(doc: dict[str, Any]) -> bytes:
