@@ -2,6 +2,7 @@
 
 Usage: python scripts/seed_results.py MEMBER RUN_DIR [RUN_DIR ...] [--ship] [--suites a,b,...]
        [--train-suite SPEC] [--compare NAME,NAME,...]
+       python scripts/seed_results.py MEMBER --compare-only --compare NAME   # after NAME was retrained
 
 Each RUN_DIR is an ``overtakezoo train`` output (``<algo>.pt`` + ``<algo>.json``, and from newer
 trainers ``<algo>.npz``). Every seed is run on the training splits of the suites it trained on
@@ -82,14 +83,20 @@ def evaluate(suite, decider) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("member")
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="*", type=Path)
     ap.add_argument("--ship", action="store_true")
     ap.add_argument("--suites", default=",".join(CORE))
     ap.add_argument("--no-write", action="store_true", help="only evaluate (fill each run's cache)")
     ap.add_argument("--train-suite", default=TRAIN_SUITE, help="what the member trained on (its splits choose the seed)")
     ap.add_argument("--compare", default="", help="zoo members to run on the multi-AV suites beside it")
+    ap.add_argument("--compare-only", action="store_true", help="re-run only the --compare members (after one "
+                    "was retrained) and update the seeds file and the shipped card; the member's seeds stay")
     args = ap.parse_args()
     algo = args.member
+    if args.compare_only:
+        return compare_only(algo, args.compare.split(","))
+    if not args.runs:
+        ap.error("give the member's run directories")
     train_splits = [s.name for s in load_training(args.train_suite)]
     seeds = []
     for run in args.runs:
@@ -125,15 +132,7 @@ def main() -> None:
            "train_suite": args.train_suite, "seeds": sorted(seeds, key=lambda e: e["seed"])}
     multi = [n for n in args.suites.split(",") if load_suite(n).scenarios().num_avs > 1]
     if args.compare and multi:
-        doc["compare"] = {}
-        for other in args.compare.split(","):
-            for name in multi:
-                suite = load_suite(name)
-                got = multi_counts(suite, load_policy(other, suite.config))
-                doc["compare"].setdefault(other, {})[name] = {"suite_version": suite.version,
-                                                              "suite_sha256": suite.hash, **got}
-                print(f"{other} {name}: success {got['success_rate']:.4f} crash {got['crash_rate']:.4f} "
-                      f"AV-AV crash {got['av_av_crash_rate']:.4f}", flush=True)
+        doc["compare"] = {other: compare(other, multi) for other in args.compare.split(",")}
     if multi:
         print(comparison_table(doc, multi))
     atomic_write_bytes(ROOT / "leaderboards" / "seeds" / f"{algo}.json",
@@ -159,6 +158,37 @@ def main() -> None:
             atomic_write_bytes(card, (json.dumps({**json.loads((run / f"{algo}.json").read_text()), **updates},
                                                  indent=1, sort_keys=True) + "\n").encode())
         print(f"{algo}: published {run.name} as {card.with_suffix('.npz')} + {card.name}")
+
+
+def compare(other: str, multi: list[str]) -> dict:
+    """The zoo member ``other`` (its shipped weights) in self-play on each multi-AV suite."""
+    out = {}
+    for name in multi:
+        suite = load_suite(name)
+        got = multi_counts(suite, load_policy(other, suite.config))
+        out[name] = {"suite_version": suite.version, "suite_sha256": suite.hash, **got}
+        print(f"{other} {name}: success {got['success_rate']:.4f} crash {got['crash_rate']:.4f} "
+              f"AV-AV crash {got['av_av_crash_rate']:.4f}", flush=True)
+    return out
+
+
+def compare_only(algo: str, others: list[str]) -> None:
+    """Re-run the compared members ``others`` on the multi-AV suites of ``algo``'s seeds file and
+    update that file and the shipped card's comparison (the member's own seeds are not re-run)."""
+    path = ROOT / "leaderboards" / "seeds" / f"{algo}.json"
+    doc = json.loads(path.read_text())
+    unknown = sorted(set(others) - set(doc.get("compare", {})))
+    if unknown:
+        raise SystemExit(f"error: {algo}'s seeds file compares {', '.join(doc.get('compare', {}))}, not {unknown[0]}")
+    multi = list(doc["compare"][others[0]])
+    for other in others:
+        doc["compare"][other] = compare(other, multi)
+    atomic_write_bytes(path, (json.dumps(doc, indent=1, sort_keys=True) + "\n").encode())
+    card_path = ROOT / "zoo" / "pretrained" / f"{algo}.json"
+    card = json.loads(card_path.read_text())
+    card["multi_av_comparison"] = {"table": comparison_table(doc, multi).splitlines(), **doc["compare"]}
+    atomic_write_bytes(card_path, (json.dumps(card, indent=1, sort_keys=True) + "\n").encode())
+    print(f"{algo}: comparison with {', '.join(others)} updated in {path.name} and {card_path.name}")
 
 
 def comparison_table(doc: dict, multi: list[str]) -> str:
