@@ -16,23 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, SUCCESS, OvertakeCore
-from overtakezoo.envs.hold import hold_steps, run_to_end
 from overtakezoo.envs.suites import load_training
 from overtakezoo.zoo.members.learned import MLPDecider, load_pretrained, load_weights, read_card
+from overtakezoo.zoo.train.selection import decider_act, held_back_sets, outcome_rates
 
 
 def scores(decider: MLPDecider, suites: list, start: int) -> list[tuple[str, float, float]]:
-    out = []
-    for suite in suites:
-        pool = suite.scenarios()
-        decider.config = suite.config
-        core = OvertakeCore(suite.config)
-        run_to_end(core, core.reset(pool.take(np.arange(start, pool.num))), lambda o, _: decider.act_batch(o),
-                   hold_steps(suite.config.decision_interval, decider.action_repeat))
-        outcome = np.asarray(core.outcome).reshape(-1)
-        out.append((suite.name, float(np.mean(outcome == SUCCESS)), float(np.mean(outcome == CRASH))))
-    return out
+    rates = outcome_rates(decider_act(decider), held_back_sets(suites, start), decider.action_repeat)
+    return [(suite.name, s, c) for suite, (s, c) in zip(suites, rates)]
 
 
 def main() -> None:

@@ -16,6 +16,11 @@ Two trainers of the ppo member, side by side: the numpy PPO (:mod:`overtakezoo.z
   in the ``-with-eval`` row); the seed's figure is the time of the first training process whose
   policy reaches the level (``inf``: none did). The median is over :data:`SEEDS`. Nothing is chosen
   from these runs: table1 is only the yardstick the figure is defined by.
+- ``time-to-zoo-quality``: a zoo member at its leaderboard quality from ``core-train``: the numpy
+  PPO on the whole mixture (:data:`ZOO_ARGS`) at the budgets of :data:`ZOO_LADDER` in turn, until
+  its policy's leaderboard score (success - 2 x crash, mean over the nine splits) on each split's
+  held-back scenarios (from :data:`HELD_BACK` on; model selection scored the first ones) is at least
+  the shipped ppo member's on the same scenarios. Training splits only: no test suite is read.
 """
 
 from __future__ import annotations
@@ -39,6 +44,10 @@ FAST_THROUGHPUT_ITERATIONS = 8
 RSL_ITERATION = 256 * 32  # ppo.toml: num_envs x num_steps_per_env
 RSL_LADDER = (4, 8, 16, 32, 64)
 THROUGHPUT_ITERATIONS = 8  # rsl-rl
+ZOO_ARGS = [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}", "--set", "train.select_every=8"]
+ZOO_ITERATION = FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV  # decisions per iteration on core-train
+ZOO_LADDER = (30, 60, 90)  # 60 iterations: ~1M decisions, the shipped ppo's budget
+HELD_BACK = 500  # each core-train split's scenarios from here on are the yardstick
 
 
 def _train(args: list[str], tmp: str) -> tuple[float, float, Path]:
@@ -111,6 +120,50 @@ def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: 
                "checks it, wall", "s", with_eval, digits=2)
 
 
+def _held_back_score(decider: Any, sets: list) -> float:
+    from overtakezoo.benchmark.leaderboard.headline import K
+    from overtakezoo.zoo.train.selection import decider_act, outcome_rates
+
+    return float(sum(s - K * c for s, c in outcome_rates(decider_act(decider), sets, HOLD)) / len(sets))
+
+
+def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None]) -> None:
+    from overtakezoo.envs.suites import load_training
+    from overtakezoo.zoo.members.learned import MLPDecider, load_pretrained, load_weights, read_card
+    from overtakezoo.zoo.train.selection import held_back_sets
+
+    suites = load_training("core-train")
+    sets = held_back_sets(suites, HELD_BACK)
+    target = _held_back_score(load_pretrained("ppo", suites[0].config), sets)
+    walls, cpus, reached = [], [], []
+    for seed in SEEDS:
+        wall = cpu = math.inf
+        for k in ZOO_LADDER:
+            w, c, out = _train(["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed),
+                                *ZOO_ARGS], tmp)
+            card = read_card(out / "ppo.json", "ppo")
+            got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card),
+                                   sets)
+            progress(f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
+                     f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})")
+            if got >= target:
+                wall, cpu = w, c
+                reached.append(f"seed {seed}: {k} iterations ({100 * got:.1f}, {c:.1f} CPU s)")
+                break
+        else:
+            reached.append(f"seed {seed}: not within {ZOO_LADDER[-1]} iterations")
+        walls.append(wall)
+        cpus.append(cpu)
+    what = (f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
+            f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
+            f"({100 * target:.1f}); the process `overtakezoo train ppo --suite core-train --eval-suite none"
+            f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
+            f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
+            "CPU time of the training process")
+    report.add("time-to-zoo-quality", what, "s", cpus, digits=1)
+    report.add("time-to-zoo-quality-wall", "the same processes, wall", "s", walls, digits=1)
+
+
 def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], None] = print) -> None:
     try:
         import torch  # noqa: F401  (the [train] extra: rsl-rl)
@@ -128,3 +181,4 @@ def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], N
         _time_to_level(report, "time-to-paper-level", fast, FAST, FAST_ITERATION, FAST_LADDER, tmp, progress)
         if rsl_rl:
             _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, [], RSL_ITERATION, RSL_LADDER, tmp, progress)
+        _time_to_zoo_quality(report, tmp, progress)

@@ -26,13 +26,19 @@ def selection_sets(suites: list[Any], pools: list[Any], total: int) -> list[tupl
 
 def greedy_score(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> float:
     """Success rate minus crash rate of ``act`` over ``(config, scenarios)`` sets, each set weighted
-    equally, every decision held ``repeat`` core steps as the runner holds it. ``act`` must be
+    equally (:func:`outcome_rates`)."""
+    return float(np.mean([s - c for s, c in outcome_rates(act, sets, repeat)]))
+
+
+def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tuple[float, float]]:
+    """(success rate, crash rate) of ``act`` on each ``(config, scenarios)`` set, every scenario run
+    to its end, each decision held ``repeat`` core steps as the runner holds it. ``act`` must be
     stateless per row: finished rows are dropped once at most half the batch runs (as the benchmark
-    runner does; single-AV rows never interact), which halves the cost of a scoring."""
+    runner does; single-AV rows never interact), which halves the cost."""
     from overtakezoo.envs import OvertakeCore
     from overtakezoo.envs.hold import hold_steps, run_to_end
 
-    scores = []
+    rates = []
     for config, scenarios in sets:
         live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
 
@@ -53,5 +59,24 @@ def greedy_score(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> float:
         run_to_end(live["core"], obs, lambda o, _, c=config: act(o, c), hold_steps(config.decision_interval, repeat),
                    compact=compact)
         count(live["core"].outcome)
-        scores.append((live["success"] - live["crash"]) / scenarios.num)
-    return float(np.mean(scores))
+        rates.append((live["success"] / scenarios.num, live["crash"] / scenarios.num))
+    return rates
+
+
+def decider_act(decider: Any) -> Act:
+    """A stateless zoo decider (an :class:`~overtakezoo.zoo.members.learned.MLPDecider`) as ``act``."""
+    def act(obs: np.ndarray, config: Any) -> np.ndarray:
+        decider.config = config
+        return decider.act_batch(obs)
+
+    return act
+
+
+def held_back_sets(suites: list[Any], start: int) -> list[tuple[Any, Any]]:
+    """Each training suite's scenarios from ``start`` on: training data the selection never scored
+    (it scores the first ones), for comparing runs on training splits only."""
+    out = []
+    for s in suites:
+        pool = s.scenarios()
+        out.append((s.config, pool.take(np.arange(min(start, pool.num - 1), pool.num))))
+    return out
