@@ -257,6 +257,8 @@ def test_model_selection_ships_the_best_greedy_network_and_survives_resume(tmp_p
     sel, sel_first = done.card["training"]["selection"], first.card["training"]["selection"]
     assert sel["scenarios"] == 64 and sel["every"] == 3000 and sel["score"] >= sel_first["score"]
     assert 3000 <= sel["transitions"] <= done.card["steps"]
+    assert [t for t, _ in sel["scores"]][:2] == [t for t, _ in sel_first["scores"]] and len(sel["scores"]) == 4
+    assert max(x for _, x in sel["scores"]) == sel["score"]
     sets = selection_sets(suites, [s.scenarios() for s in suites], 64)
     shipped = from_card("dqn", json.loads((tmp_path / "dqn.json").read_text()), tmp_path / "dqn.npz", suites[0].config)
 

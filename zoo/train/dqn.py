@@ -153,6 +153,7 @@ class Trainer:
         self._core_seed = self.seed + 1
         self.multi_av = False  # any training suite with several AVs per road (set by _start_core)
         self.best: dict[str, Any] = {"score": -np.inf, "transitions": None, "net": None}  # model selection
+        self.scores: list[list[float]] = []  # [transitions, greedy score] of every scoring, for the card
 
     def _start_core(self) -> None:
         """The parallel rows: ``num_envs`` split over the training suites, each refilled from its own."""
@@ -240,6 +241,7 @@ class Trainer:
             return numpy_masked_argmax(net(speed_relative(obs, config)), action_mask(obs, config) if use_mask else None)
 
         score = greedy_score(act, self.select_sets, self.hp.action_repeat)
+        self.scores.append([self.transitions, round(score, 4)])
         if score > self.best["score"]:
             self.best = {"score": score, "transitions": self.transitions,
                          "net": {k: v.detach().clone() for k, v in self.net.state_dict().items()}}
@@ -253,7 +255,7 @@ class Trainer:
         return {"rule": "greedy success rate minus crash rate on the first training scenarios",
                 "scenarios": int(sum(sc.num for _, sc in self.select_sets)), "every": hp.select_every,
                 "from": hp.select_from, "transitions": self.best["transitions"],
-                "score": round(float(self.best["score"]), 4)}
+                "score": round(float(self.best["score"]), 4), "scores": self.scores}
 
     def rates(self) -> tuple[float, float]:
         if not self.recent:
@@ -322,7 +324,7 @@ class Trainer:
                  "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
                  "torch_rng": torch.get_rng_state(), "core_seed": self._core_seed + 1,
                  "best": {"score": float(self.best["score"]), "transitions": self.best["transitions"],
-                          "net": self.best["net"]},
+                          "net": self.best["net"]}, "scores": self.scores,
                  "buffer": {k: torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v
                             for k, v in self.buffer.state().items()}}  # tensors: loadable with weights_only
         buf = io.BytesIO()
@@ -348,6 +350,7 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self._core_seed = state["core_seed"]  # episodes in flight restart with fresh draws
         self.best = dict(state.get("best") or self.best)
+        self.scores = [list(x) for x in state.get("scores", [])]
         self.buffer.load({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["buffer"].items()})
 
 
