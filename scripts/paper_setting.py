@@ -55,7 +55,10 @@ def main() -> None:
         for run in train(algo, args.runs, seeds):
             card = json.loads((run / f"{algo}.json").read_text())
             t1, sel = card["results"]["table1"], card["training"].get("selection", {})
-            s, c = t1["success_rate"], t1["crash_rate"]
+            s = {"value": t1["success_rate"], "lo": t1["success_ci"][0], "hi": t1["success_ci"][1], "k": t1["success"],
+                 "n": t1["count"]}
+            c = {"value": t1["crash_rate"], "lo": t1["crash_ci"][0], "hi": t1["crash_ci"][1], "k": t1["crash"],
+                 "n": t1["count"]}
             got.append({"seed": card["seed"], "success": s, "crash": c, "selection": sel,
                         "wall_time_s": card["wall_time_s"]})
             rows.append(f"| {algo} | {card['seed']} | {100 * s['value']:.1f} % [{100 * s['lo']:.1f}, "
