@@ -42,3 +42,6 @@ done
 overtakezoo train dagger --suite core-train --seeds 0,1,2 --out "$runs/dagger" --eval-suite none --no-progress
 python scripts/seed_results.py dagger "$runs/dagger-s0" "$runs/dagger-s1" "$runs/dagger-s2" --ship
 python scripts/ablation.py --runs "$runs"
+# 5. The paper's setting: dqn and double-dqn trained on table1-train alone, every seed run on table1
+#    (docs/paper-setting.md; not shipped).
+python scripts/paper_setting.py --runs "$runs/paper"
