@@ -91,25 +91,38 @@ def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], re
                    [steps * HOLD / wall for wall, _ in runs[row]])
 
 
-def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: int, ladder: tuple[int, ...],
-                   tmp: str, progress: Callable[[str], None]) -> None:
-    walls, cpus, with_eval, reached = [], [], [], []
+def _ladder(ladder: tuple[int, ...], attempt: Callable[[int, int], tuple[bool, float, float, float, str]]
+            ) -> tuple[list[float], list[float], list[float], list[str]]:
+    """Per seed, the budgets of ``ladder`` in turn until ``attempt(seed, k)`` -> (reached, wall, CPU,
+    extra wall, note) gets there: the walls, CPU times and walls plus extra of the first that does
+    (``inf`` where none does), and a note per seed."""
+    walls, cpus, totals, reached = [], [], [], []
     for seed in SEEDS:
         wall = cpu = total = math.inf
         for k in ladder:
-            w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed),
-                                *args], tmp)
-            ok, summary, ew, _ = _paper_level(out, tmp)
-            progress(f"{row}: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; table1 {summary}")
+            ok, w, c, extra, note = attempt(seed, k)
             if ok:
-                wall, cpu, total = w, c, w + ew
-                reached.append(f"seed {seed}: {k} iterations ({summary}, {w:.2f} s)")
+                wall, cpu, total = w, c, w + extra
+                reached.append(f"seed {seed}: {k} iterations ({note})")
                 break
         else:
             reached.append(f"seed {seed}: not within {ladder[-1]} iterations")
         walls.append(wall)
         cpus.append(cpu)
-        with_eval.append(total)
+        totals.append(total)
+    return walls, cpus, totals, reached
+
+
+def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: int, ladder: tuple[int, ...],
+                   tmp: str, progress: Callable[[str], None]) -> None:
+    def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
+        w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed),
+                            *args], tmp)
+        ok, summary, ew, _ = _paper_level(out, tmp)
+        progress(f"{row}: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; table1 {summary}")
+        return ok, w, c, ew, f"{summary}, {w:.2f} s"
+
+    walls, cpus, with_eval, reached = _ladder(ladder, attempt)
     what = (f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
             f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
             f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
@@ -135,25 +148,16 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
     suites = load_training("core-train")
     sets = held_back_sets(suites, HELD_BACK)
     target = _held_back_score(load_pretrained("ppo", suites[0].config), sets)
-    walls, cpus, reached = [], [], []
-    for seed in SEEDS:
-        wall = cpu = math.inf
-        for k in ZOO_LADDER:
-            w, c, out = _train(["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed),
-                                *ZOO_ARGS], tmp)
-            card = read_card(out / "ppo.json", "ppo")
-            got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card),
-                                   sets)
-            progress(f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
-                     f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})")
-            if got >= target:
-                wall, cpu = w, c
-                reached.append(f"seed {seed}: {k} iterations ({100 * got:.1f}, {c:.1f} CPU s)")
-                break
-        else:
-            reached.append(f"seed {seed}: not within {ZOO_LADDER[-1]} iterations")
-        walls.append(wall)
-        cpus.append(cpu)
+    def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
+        w, c, out = _train(["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed),
+                            *ZOO_ARGS], tmp)
+        card = read_card(out / "ppo.json", "ppo")
+        got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card), sets)
+        progress(f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
+                 f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})")
+        return got >= target, w, c, 0.0, f"{100 * got:.1f}, {c:.1f} CPU s"
+
+    walls, cpus, _, reached = _ladder(ZOO_LADDER, attempt)
     what = (f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
             f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
             f"({100 * target:.1f}); the process `overtakezoo train ppo --suite core-train --eval-suite none"
