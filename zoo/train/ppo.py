@@ -280,7 +280,7 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
             if select_every and ((it + 1) % select_every == 0 or it + 1 == iterations):
                 policy = runner.alg.get_policy()
                 score = greedy_score(greedy_actor(policy), select_sets, repeat)
-                runner.alg.train_mode()  # the decider switched the shared actor to eval mode
+                runner.alg.train_mode()  # greedy_actor switched the shared actor to eval mode
                 if score > best["score"]:
                     best = {"score": float(score), "iteration": it + 1,
                             "state": {k: v.detach().clone() for k, v in policy.state_dict().items()}}

@@ -78,5 +78,7 @@ def held_back_sets(suites: list[Any], start: int) -> list[tuple[Any, Any]]:
     out = []
     for s in suites:
         pool = s.scenarios()
-        out.append((s.config, pool.take(np.arange(min(start, pool.num - 1), pool.num))))
+        if start >= pool.num:
+            raise ValueError(f"{s.name} has {pool.num} scenarios: none is held back from {start} on")
+        out.append((s.config, pool.take(np.arange(start, pool.num))))
     return out
