@@ -1,12 +1,13 @@
-"""Greedy success and crash rates of ppo runs and of the shipped ppo on held-back training scenarios.
+"""Greedy success and crash rates of a member's runs and of the shipped member on training scenarios.
 
-    python scripts/train_split_scores.py RUN_DIR... [--suite core-train] [--from 500]
+    python scripts/train_split_scores.py RUN_DIR... [--member ppo] [--suite core-train] [--from 500]
 
 Each training suite of ``--suite`` (a mixture such as core-train) is run from scenario ``--from`` to
-its end (the trainers' model selection scores the first ones) by every run's ``ppo.npz`` and by the
-shipped ``zoo/pretrained/ppo``; the mean over the suites is what compares a run with the shipped
-member on training splits only (no test suite is read). Used for the numpy PPO on core-train
-(README, "PPO in numpy").
+its end (the trainers' model selection scores the first ones; ``--from 0``: the whole split) by
+every run's ``<member>.npz`` and by the shipped ``zoo/pretrained/<member>``; the mean over the
+suites is what compares a run with the shipped member on training splits only (no test suite is
+read). Used for the numpy PPO on core-train (README, "PPO in numpy") and dqn's n-step returns
+(README, "DQN with 3-step returns").
 """
 
 from __future__ import annotations
@@ -28,18 +29,21 @@ def scores(decider: MLPDecider, suites: list, start: int) -> list[tuple[str, flo
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="*", help="run directories holding ppo.npz and ppo.json")
+    ap.add_argument("runs", nargs="*", help="run directories holding <member>.npz and <member>.json")
+    ap.add_argument("--member", default="ppo", help="the learned member the runs train (default: ppo)")
     ap.add_argument("--suite", default="core-train")
     ap.add_argument("--from", dest="start", type=int, default=500)
     args = ap.parse_args()
     suites = load_training(args.suite)
-    deciders = [("shipped ppo", load_pretrained("ppo", suites[0].config))]
+    m = args.member
+    deciders = [(f"shipped {m}", load_pretrained(m, suites[0].config))]
     for run in args.runs:
-        card = read_card(Path(run) / "ppo.json", "ppo")
-        deciders.append((run, MLPDecider(load_weights(Path(run) / "ppo.npz", card), "ppo", suites[0].config, card)))
+        card = read_card(Path(run) / f"{m}.json", m)
+        deciders.append((run, MLPDecider(load_weights(Path(run) / f"{m}.npz", card), m, suites[0].config, card)))
     for name, decider in deciders:
         rows = scores(decider, suites, args.start)
-        print(f"{name}: mean success {np.mean([r[1] for r in rows]):.3f}, crash {np.mean([r[2] for r in rows]):.3f} "
+        success, crash = np.mean([r[1] for r in rows]), np.mean([r[2] for r in rows])
+        print(f"{name}: mean success {success:.3f}, crash {crash:.3f}, success - 2 x crash {success - 2 * crash:.3f} "
               f"over {len(rows)} suites; " + ", ".join(f"{n} {s:.3f}/{c:.3f}" for n, s, c in rows))
 
 

@@ -67,7 +67,7 @@ from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.members.learned import NUM_MODES, action_mask, masked_argmax as numpy_masked_argmax
 from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
                        suite_source)
-from overtakezoo.zoo.train.qlearning import QNetwork, ReplayBuffer, masked_argmax, td_targets
+from overtakezoo.zoo.train.qlearning import NStepReturns, QNetwork, ReplayBuffer, masked_argmax, td_targets
 from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 from overtakezoo.zoo.train.typed import as_dict, param
 
@@ -92,6 +92,7 @@ class DQNHyperparams:
     action_repeat: int = param(lo=1, hi=1000)  # core steps each decision is held
     action_mask: bool = param()  # the mode-transition mask (zoo/members/learned.py)
     gamma: float = param(lo=0.0, hi=1.0)  # discount per decision
+    n_step: int = param(1, 1, 100)  # decisions per TD target (1: one-step DQN; qlearning.NStepReturns)
     lr: float = param(lo=1e-12, hi=1.0)
     batch_size: int = param(lo=1)
     buffer_size: int = param(lo=1)
@@ -151,6 +152,7 @@ class Trainer:
         self.recent: deque[int] = deque(maxlen=hp.stats_window)  # outcomes of the last episodes
         self.last_loss = float("nan")
         self._core_seed = self.seed + 1
+        self.nstep: NStepReturns | None = None  # n_step > 1: pending n-step transitions (set by _start_core)
         self.multi_av = False  # any training suite with several AVs per road (set by _start_core)
         self.best: dict[str, Any] = {"score": -np.inf, "transitions": None, "net": None}  # model selection
         self.scores: list[list[float]] = []  # [transitions, greedy score] of every scoring, for the card
@@ -168,6 +170,9 @@ class Trainer:
             raise TrainError("select_every scores single-AV suites only; set it to 0 for multi-AV training")
         self.select_sets = selection_sets(self.suites, pools, self.hp.select_scenarios)
         self.obs = self._features(self.core.observe())
+        # Pending n-step transitions start empty: as episodes in flight, they restart on resume.
+        if self.hp.n_step > 1:
+            self.nstep = NStepReturns(self.hp.n_step, self.hp.gamma, len(self.obs), self.obs_dim)
 
     def row_counts(self) -> dict[str, dict[str, int]]:
         """Roads and AV rows each training suite holds in the parallel batch."""
@@ -200,7 +205,11 @@ class Trainer:
         next_obs = obs if res.final_obs is None else np.where(finished[:, None], self._features(res.final_obs), obs)
         done = res.terminated | (res.truncated & self.hp.timeout_terminal)
         reward = res.reward.astype(np.float32)
-        if res.waiting is not None and res.waiting.any():  # done AVs waiting for their road: no episode
+        if self.nstep is not None:  # waiting AVs made no decision; n-step transitions leave when complete
+            valid = None if res.waiting is None else ~res.waiting
+            self.buffer.add(**self.nstep.push(self.obs, act, reward, next_obs, done, finished, valid))
+            self.transitions += len(act) if valid is None else int(valid.sum())
+        elif res.waiting is not None and res.waiting.any():  # done AVs waiting for their road: no episode
             keep = ~res.waiting
             self.buffer.add(self.obs[keep], act[keep], reward[keep], next_obs[keep], done[keep].astype(np.float32))
             self.transitions += int(keep.sum())
@@ -219,8 +228,10 @@ class Trainer:
         b = self.buffer.sample(hp.batch_size, self.rng)
         next_mask = torch.from_numpy(action_mask(b["next_obs"], self.config)) if hp.action_mask else None
         obs, action, next_obs = (torch.from_numpy(b[k]) for k in ("obs", "action", "next_obs"))
+        # A k-step transition bootstraps with gamma^k (k = 1 unless n_step > 1).
+        gamma = hp.gamma if hp.n_step == 1 else hp.gamma ** torch.from_numpy(b["steps"])
         y = td_targets(self.net, self.target, torch.from_numpy(b["reward"]), next_obs, torch.from_numpy(b["done"]),
-                       hp.gamma, hp.double, next_mask)
+                       gamma, hp.double, next_mask)
         q = self.net(obs).gather(1, action[:, None])[:, 0]
         loss = nn.functional.huber_loss(q, y, delta=hp.huber_delta)
         self.optim.zero_grad(set_to_none=True)
@@ -398,6 +409,7 @@ def algorithm(hp: DQNHyperparams, multi_av: bool = False) -> str:
     """The card's ``algorithm``: which DQN, with which head, and parameter sharing when multi-AV."""
     return (("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)")
             + (" with a dueling head (Wang et al. 2016)" if hp.dueling else "")
+            + (f", {hp.n_step}-step returns" if hp.n_step > 1 else "")
             + (", parameters shared by every automated vehicle (Gupta et al. 2017)" if multi_av else ""))
 
 
