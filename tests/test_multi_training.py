@@ -33,7 +33,7 @@ def test_single_ego_training_is_unchanged_by_multi_av_training():
     # 54d0108, the same run), so the waiting-row filter and the row split leave single-ego training
     # bit-identical. Torch is pinned (pyproject), and float32 CPU kernels are deterministic here.
     trained = train(load_training("core-train"), member="dqn", suite_name="core-train", steps=1500, seed=3,
-                    progress=False, overrides={"num_envs": 64, "learning_starts": 300})
+                    progress=False, overrides={"num_envs": 64, "learning_starts": 300, "n_step": 1})
     card = trained.card
     assert (card["steps"], card["training"]["episodes"], card["training"]["gradient_updates"]) == (1536, 16, 200)
     assert _digest(trained.module) == "afbf73efce94bb6a6ddb55ec3666130796ce5be8d476c606ed2aa1fc1d499847"
@@ -41,23 +41,28 @@ def test_single_ego_training_is_unchanged_by_multi_av_training():
     assert card["algorithm"] == "DQN (Mnih et al. 2015) with a dueling head (Wang et al. 2016)"
 
 
-def test_waiting_avs_never_enter_the_buffer():
+@pytest.mark.parametrize("n_step", [1, 3])
+def test_waiting_avs_never_enter_the_buffer(n_step):
     hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("ps-dqn"),
-                             {"num_envs": 24, "learning_starts": 10**9, "steps": 2500})
+                             {"num_envs": 24, "learning_starts": 10**9, "steps": 2500, "n_step": n_step})
     trainer = Trainer("ps-dqn", hp, load_training("duel-train+platoon-train"), seed=0)
     trainer._start_core()
     assert trainer.row_counts() == {"duel-train": {"roads": 6, "rows": 12}, "platoon-train": {"roads": 4, "rows": 12}}
-    waited = 0
+    waited, decided = 0, set()
     while trainer.transitions < hp.steps:
         before, obs = trainer.buffer.size, trainer.obs.copy()
         waiting = np.asarray(trainer.core.done).copy()  # done AVs whose road still runs
         trainer._env_step()
         stored = slice(before, trainer.buffer.size)
-        # Exactly the rows that were not waiting, in order, and nothing else.
-        np.testing.assert_array_equal(trainer.buffer.obs[stored], obs[~waiting])
+        if n_step == 1:  # exactly the rows that were not waiting, in order, and nothing else
+            np.testing.assert_array_equal(trainer.buffer.obs[stored], obs[~waiting])
+        decided.update(o.tobytes() for o in obs[~waiting])
         waited += int(waiting.sum())
     assert waited > 50  # AVs of a road finish at different times: the filter was exercised
-    assert trainer.transitions == trainer.buffer.size  # one transition per stored row, no more
+    # n-step: every stored transition starts at a decision of a running AV; the rest are pending.
+    assert all(o.tobytes() in decided for o in trainer.buffer.obs[:trainer.buffer.size])
+    pending = 0 if trainer.nstep is None else int((trainer.nstep.age > 0).sum())
+    assert trainer.transitions == trainer.buffer.size + pending  # one transition per decision, no more
 
 
 def test_the_hold_gives_a_waiting_av_no_reward_and_no_steps():
