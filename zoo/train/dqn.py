@@ -13,7 +13,9 @@ is held for ``action_repeat`` core steps (``overtakezoo.envs.hold``, the same ho
 runner applies at evaluation). Each decision gives one transition (obs, mode, summed reward, next
 obs, done), all rows in one vectorized insert into a numpy ring buffer; ``next obs`` of a row whose
 episode ended during the hold is its final observation (the refilled row follows until the next
-decision, and those steps belong to no transition).
+decision, and those steps belong to no transition). With ``n_step`` > 1 (the shipped files: 3) the
+transitions are n-step ones, built per row by :class:`~.qlearning.NStepReturns` and stored when
+complete; the TD target discounts each by gamma^k.
 
 Several automated vehicles per road (the multi-AV suites ``duel``, ``platoon``, ``mixed-traffic``):
 every AV row is a learner and all share the one Q-network -- parameter sharing (Gupta et al. 2017,
@@ -152,7 +154,7 @@ class Trainer:
         self.recent: deque[int] = deque(maxlen=hp.stats_window)  # outcomes of the last episodes
         self.last_loss = float("nan")
         self._core_seed = self.seed + 1
-        self.nstep: NStepReturns | None = None  # n_step > 1: pending n-step transitions (set by _start_core)
+        self.nstep: NStepReturns | None = None  # pending n-step transitions (set by _start_core)
         self.multi_av = False  # any training suite with several AVs per road (set by _start_core)
         self.best: dict[str, Any] = {"score": -np.inf, "transitions": None, "net": None}  # model selection
         self.scores: list[list[float]] = []  # [transitions, greedy score] of every scoring, for the card
@@ -171,8 +173,7 @@ class Trainer:
         self.select_sets = selection_sets(self.suites, pools, self.hp.select_scenarios)
         self.obs = self._features(self.core.observe())
         # Pending n-step transitions start empty: as episodes in flight, they restart on resume.
-        if self.hp.n_step > 1:
-            self.nstep = NStepReturns(self.hp.n_step, self.hp.gamma, len(self.obs), self.obs_dim)
+        self.nstep = NStepReturns(self.hp.n_step, self.hp.gamma, len(self.obs), self.obs_dim)
 
     def row_counts(self) -> dict[str, dict[str, int]]:
         """Roads and AV rows each training suite holds in the parallel batch."""
@@ -205,17 +206,11 @@ class Trainer:
         next_obs = obs if res.final_obs is None else np.where(finished[:, None], self._features(res.final_obs), obs)
         done = res.terminated | (res.truncated & self.hp.timeout_terminal)
         reward = res.reward.astype(np.float32)
-        if self.nstep is not None:  # waiting AVs made no decision; n-step transitions leave when complete
-            valid = None if res.waiting is None else ~res.waiting
-            self.buffer.add(**self.nstep.push(self.obs, act, reward, next_obs, done, finished, valid))
-            self.transitions += len(act) if valid is None else int(valid.sum())
-        elif res.waiting is not None and res.waiting.any():  # done AVs waiting for their road: no episode
-            keep = ~res.waiting
-            self.buffer.add(self.obs[keep], act[keep], reward[keep], next_obs[keep], done[keep].astype(np.float32))
-            self.transitions += int(keep.sum())
-        else:
-            self.buffer.add(self.obs, act, reward, next_obs, done.astype(np.float32))
-            self.transitions += len(act)
+        # Done AVs waiting for their road made no decision: no transition. The others' transitions
+        # enter the buffer once complete (at once for one-step targets).
+        valid = None if res.waiting is None else ~res.waiting
+        self.buffer.add(**self.nstep.push(self.obs, act, reward, next_obs, done, finished, valid))
+        self.transitions += len(act) if valid is None else int(valid.sum())
         if finished.any():
             self.recent.extend(res.final_info["outcome"][finished].tolist())
             self.episodes += int(finished.sum())
@@ -228,8 +223,7 @@ class Trainer:
         b = self.buffer.sample(hp.batch_size, self.rng)
         next_mask = torch.from_numpy(action_mask(b["next_obs"], self.config)) if hp.action_mask else None
         obs, action, next_obs = (torch.from_numpy(b[k]) for k in ("obs", "action", "next_obs"))
-        # A k-step transition bootstraps with gamma^k (k = 1 unless n_step > 1).
-        gamma = hp.gamma if hp.n_step == 1 else hp.gamma ** torch.from_numpy(b["steps"])
+        gamma = hp.gamma ** torch.from_numpy(b["steps"])  # a k-step transition bootstraps with gamma^k
         y = td_targets(self.net, self.target, torch.from_numpy(b["reward"]), next_obs, torch.from_numpy(b["done"]),
                        gamma, hp.double, next_mask)
         q = self.net(obs).gather(1, action[:, None])[:, 0]
