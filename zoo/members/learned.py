@@ -10,10 +10,13 @@ differs (truncated, modified) with :class:`WeightsError`. Loading reads local fi
 is in float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
 argmax; in float64 a result does not depend on how rows happen to be batched.
 
-Each decision is held ``action_repeat`` core steps (the card's: 10 for dqn, double-dqn, ps-dqn, ppo
-and dagger, 1 for bc and cql, whose datasets hold one transition per step); the decider only declares it,
-whoever steps the core applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the
-trainers), combined with the configuration's ``decision_interval``.
+Each decision is held ``action_repeat`` core steps in training (the card's: 10 for dqn, double-dqn,
+ps-dqn, ppo and dagger, 1 for bc and cql, whose datasets hold one transition per step). Deployed, a
+member re-decides every ``decide_every`` steps where its card has one (chosen after training on the
+training splits, ``scripts/decision_rate.py``: a value learned for a 1 s hold, re-read more often, is
+a receding horizon), else at its training hold. The decider only declares it, whoever steps the core
+applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the trainers), combined with the
+configuration's ``decision_interval``.
 
 **Action mask** (a mode-transition rule of the DQN members, the same in training and evaluation):
 ABORT is only offered while the current mode is OVERTAKE or ABORT (from follow there is nothing to
@@ -138,9 +141,12 @@ class MLPDecider(Decider):
             raise WeightsError(f"{name}: network gives {net.out_features} scores, expected {NUM_MODES}")
         self.net, self.name = net, name
         self.model_card = card = card or {}
-        self.version = str(card.get("version", "1"))
         self.weights_sha256 = card.get("weights_sha256")
-        self.action_repeat = int(card.get("action_repeat", 1))
+        self.trained_repeat = int(card.get("action_repeat", 1))
+        self.action_repeat = deployed_repeat(name, card)
+        # The decision rate is part of the behaviour: results and cross-play tables name it.
+        every = "" if self.action_repeat == self.trained_repeat else f".every{self.action_repeat}"
+        self.version = str(card.get("version", "1")) + every
         self.use_mask = bool(card.get("action_mask", False))
         self.mask_version = int(card.get("action_mask_version", MASK_VERSION))
         self.features = card.get("features")  # None: the raw observation (weights from before the features)
@@ -162,6 +168,19 @@ class MLPDecider(Decider):
 
     def card(self) -> str:
         return describe(self.name, self.model_card)
+
+
+def deployed_repeat(name: str, card: dict[str, Any]) -> int:
+    """Core steps between the member's decisions when deployed: the card's ``decide_every`` (chosen
+    after training on the training splits, ``scripts/decision_rate.py``), else its training hold. A
+    network with memory reads one observation per decision, so it keeps the rate it was trained at."""
+    every = card.get("decide_every", card.get("action_repeat", 1))
+    if isinstance(every, bool) or not isinstance(every, int) or not 1 <= every <= 1000:
+        raise WeightsError(f"{name}: model card decide_every must be an integer in [1, 1000], got {every!r}")
+    if int(card.get("frame_stack", 1)) > 1 and every != card.get("action_repeat", 1):
+        raise WeightsError(f"{name}: a frame-stacked network decides at its training hold "
+                           f"({card.get('action_repeat', 1)} steps), not every {every}")
+    return every
 
 
 class StackedMLPDecider(MLPDecider):
@@ -219,7 +238,12 @@ def describe(name: str, c: dict[str, Any]) -> str:
     else:
         trained = (f"  trained on {suite}, {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, seed "
                    f"{c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
-    lines = [f"{what}, decision held {c.get('action_repeat', 1)} steps.", trained]
+    held = c.get("action_repeat", 1)
+    every = c.get("decide_every", held)
+    rate = (f"decision held {held} steps" if every == held else
+            f"decision held {held} steps in training, re-decided every {every} when deployed (chosen on the "
+            "training splits)")
+    lines = [f"{what}, {rate}.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
         lines.append(f"  table1: success {100 * res['success_rate']:.1f} % "

@@ -1,0 +1,76 @@
+"""Choose a learned member's deployed decision rate on its training splits, and write it into its cards.
+
+    python scripts/decision_rate.py MEMBER RUN_DIR... [--candidates 10,5,2,1] [--train-suite core-train]
+
+A member trained with each decision held ``action_repeat`` core steps (10, 1 s, for dqn, double-dqn,
+ps-dqn) can be re-asked more often when deployed: its value (or policy) for a 1 s hold, read again
+every k steps, is a receding horizon that reacts to a car the moment it is seen instead of up to
+a second later. Whether that helps is measured, not assumed: every run (training seed) plays every
+scenario of every training split of ``--train-suite`` at each candidate rate (multi-AV splits with
+every AV driven by the run), scored as the leaderboard scores, success - 2 x crash per road (a road
+succeeds when every AV does, crashes when any does), mean over splits. The member takes the
+candidate with the best mean over its runs (ties: the slower rate, nearer its training); no test
+suite is read. ``decide_every`` and the whole table (``decide_every_selection``) are written into
+every run's ``<MEMBER>.json``; ``scripts/seed_results.py ... --ship`` then evaluates the seeds at
+that rate and ships the chosen one with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from overtakezoo.benchmark.results.multi_metrics import by_av
+from overtakezoo.benchmark.run.runner import run_suite
+from overtakezoo.envs import CRASH, SUCCESS
+from overtakezoo.envs.io import atomic_write_json
+from overtakezoo.envs.suites import load_training
+from overtakezoo.zoo.members.learned import MLPDecider, load_weights, read_card
+
+def split_score(suite, decider: MLPDecider) -> float:
+    """success - 2 x crash per road on the whole split, in [-2, 1]."""
+    outcome = by_av(run_suite(suite, decider, progress=False).per["outcome"], suite.num_avs)  # (AVs, roads)
+    return float((outcome == SUCCESS).all(0).mean() - 2 * (outcome == CRASH).any(0).mean())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("member")
+    ap.add_argument("runs", nargs="+", type=Path, help="the member's run directories (one per training seed)")
+    ap.add_argument("--candidates", default="10,5,2,1", help="core steps between decisions to try")
+    ap.add_argument("--train-suite", default="core-train", help="what the member trained on (its splits choose)")
+    args = ap.parse_args()
+    m, candidates = args.member, sorted({int(k) for k in args.candidates.split(",")}, reverse=True)
+    suites = load_training(args.train_suite)
+    per_seed: dict[str, dict[str, float]] = {}
+    for run in args.runs:
+        card = read_card(run / f"{m}.json", m)
+        net = load_weights(run / f"{m}.npz", card)
+        row = {}
+        for k in candidates:
+            decider = MLPDecider(net, m, suites[0].config, {**card, "decide_every": k})
+            scores = [split_score(s, decider) for s in suites]
+            row[str(k)] = round(sum(scores) / len(scores), 6)
+            print(f"{m} seed {card['seed']} every {k}: {row[str(k)]:.4f} "
+                  + " ".join(f"{s.name} {v:.3f}" for s, v in zip(suites, scores)), flush=True)
+        per_seed[str(card["seed"])] = row
+    mean = {str(k): round(sum(r[str(k)] for r in per_seed.values()) / len(per_seed), 6) for k in candidates}
+    best = max(candidates, key=lambda k: (mean[str(k)], k))
+    selection = {"candidates": candidates, "train_suite": args.train_suite, "per_seed": per_seed, "mean": mean,
+                 "chosen": best, "score": "success - 2 x crash per road, mean over every scenario of every "
+                 "training split (scripts/decision_rate.py)"}
+    print(f"{m}: mean over {len(per_seed)} seeds " + ", ".join(f"every {k}: {mean[str(k)]:.4f}" for k in candidates)
+          + f"; chosen: every {best}")
+    for run in args.runs:
+        path = run / f"{m}.json"
+        card = json.loads(path.read_text())
+        card.pop("decide_every", None)
+        if best != card.get("action_repeat", 1):
+            card["decide_every"] = best
+        card["decide_every_selection"] = selection
+        atomic_write_json(path, card)
+
+
+if __name__ == "__main__":
+    main()
