@@ -21,17 +21,16 @@ import argparse
 import json
 from pathlib import Path
 
-from overtakezoo.benchmark.results.multi_metrics import by_av
-from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs import CRASH, SUCCESS
 from overtakezoo.envs.io import atomic_write_json
 from overtakezoo.envs.suites import load_training
 from overtakezoo.zoo.members.learned import MLPDecider, load_weights, read_card
 
+from multi_rates import rates  # this script's folder is on sys.path
+
 def split_score(suite, decider: MLPDecider) -> float:
     """success - 2 x crash per road on the whole split, in [-2, 1]."""
-    outcome = by_av(run_suite(suite, decider, progress=False).per["outcome"], suite.num_avs)  # (AVs, roads)
-    return float((outcome == SUCCESS).all(0).mean() - 2 * (outcome == CRASH).any(0).mean())
+    c = rates(suite, decider, None)["counts"]
+    return (c["all_succeed"] - 2 * c["any_crash"]) / c["roads"]
 
 
 def main() -> None:

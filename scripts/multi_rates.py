@@ -28,7 +28,9 @@ def rates(suite: Suite, decider_name: str | Decider, limit: int | None) -> dict[
     holds the outcome counts behind them."""
     decider = load(decider_name, suite.config) if isinstance(decider_name, str) else decider_name
     per = run_suite(suite, decider, progress=False, limit=limit).per
-    outcome, crash_av = by_av(per["outcome"], suite.num_avs), by_av(per["crash_av"], suite.num_avs)
+    outcome = by_av(per["outcome"], suite.num_avs)
+    # A single-AV suite records no AV-AV crashes (-1: none), so its rates read the same way.
+    crash_av = by_av(per["crash_av"], suite.num_avs) if "crash_av" in per else np.full(outcome.shape, -1)
     e, n = outcome.shape
 
     def mean(mask: np.ndarray) -> float:

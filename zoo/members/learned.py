@@ -142,10 +142,9 @@ class MLPDecider(Decider):
         self.net, self.name = net, name
         self.model_card = card = card or {}
         self.weights_sha256 = card.get("weights_sha256")
-        self.trained_repeat = int(card.get("action_repeat", 1))
         self.action_repeat = deployed_repeat(name, card)
         # The decision rate is part of the behaviour: results and cross-play tables name it.
-        every = "" if self.action_repeat == self.trained_repeat else f".every{self.action_repeat}"
+        every = "" if self.action_repeat == card.get("action_repeat", 1) else f".every{self.action_repeat}"
         self.version = str(card.get("version", "1")) + every
         self.use_mask = bool(card.get("action_mask", False))
         self.mask_version = int(card.get("action_mask_version", MASK_VERSION))
@@ -174,12 +173,13 @@ def deployed_repeat(name: str, card: dict[str, Any]) -> int:
     """Core steps between the member's decisions when deployed: the card's ``decide_every`` (chosen
     after training on the training splits, ``scripts/decision_rate.py``), else its training hold. A
     network with memory reads one observation per decision, so it keeps the rate it was trained at."""
-    every = card.get("decide_every", card.get("action_repeat", 1))
+    held = card.get("action_repeat", 1)
+    every = card.get("decide_every", held)
     if isinstance(every, bool) or not isinstance(every, int) or not 1 <= every <= 1000:
         raise WeightsError(f"{name}: model card decide_every must be an integer in [1, 1000], got {every!r}")
-    if int(card.get("frame_stack", 1)) > 1 and every != card.get("action_repeat", 1):
-        raise WeightsError(f"{name}: a frame-stacked network decides at its training hold "
-                           f"({card.get('action_repeat', 1)} steps), not every {every}")
+    if int(card.get("frame_stack", 1)) > 1 and every != held:
+        raise WeightsError(f"{name}: a frame-stacked network decides at its training hold ({held} steps), "
+                           f"not every {every}")
     return every
 
 
