@@ -1,6 +1,7 @@
-"""Choose a learned member's deployed decision rate on its training splits, and write it into its cards.
+"""Choose a learned member's deployed decision rate (or OVERTAKE threshold) on its training splits, and write it into its cards.
 
     python scripts/decision_rate.py MEMBER RUN_DIR... [--candidates 10,5,2,1] [--train-suite core-train]
+    python scripts/decision_rate.py MEMBER RUN_DIR... --overtake-offsets=-1.5,-1,-0.5,0
 
 A member trained with each decision held ``action_repeat`` core steps (10, 1 s, for dqn, double-dqn,
 ps-dqn) can be re-asked more often when deployed: its value (or policy) for a 1 s hold, read again
@@ -13,6 +14,10 @@ candidate with the best mean over its runs (ties: the slower rate, nearer its tr
 suite is read. ``decide_every`` and the whole table (``decide_every_selection``) are written into
 every run's ``<MEMBER>.json``; ``scripts/seed_results.py ... --ship`` then evaluates the seeds at
 that rate and ships the chosen one with it.
+
+``--overtake-offsets`` chooses the other deployment knob the same way, at the rate the cards already
+have: a constant added to the member's OVERTAKE score before the argmax (``overtake_offset``, a
+decision threshold; ties: the offset nearest 0), written with its table as ``overtake_offset_selection``.
 """
 
 from __future__ import annotations
@@ -33,14 +38,27 @@ def split_score(suite, decider: MLPDecider) -> float:
     return (c["all_succeed"] - 2 * c["any_crash"]) / c["roads"]
 
 
+# Each knob: how its candidates parse, the tie-break (the larger key wins among equal scores), the card's
+# value that means "unchanged" (then the key is left out of the card), and how the printout names one.
+KNOBS = {
+    "decide_every": (int, lambda k: k, lambda card: card.get("action_repeat", 1), "every {}"),
+    "overtake_offset": (float, lambda o: -abs(o), lambda card: 0.0, "offset {:+g}"),
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("member")
     ap.add_argument("runs", nargs="+", type=Path, help="the member's run directories (one per training seed)")
     ap.add_argument("--candidates", default="10,5,2,1", help="core steps between decisions to try")
+    ap.add_argument("--overtake-offsets", metavar="LIST",
+                    help="choose the OVERTAKE score offset among these instead (at the cards' decision rate)")
     ap.add_argument("--train-suite", default="core-train", help="what the member trained on (its splits choose)")
     args = ap.parse_args()
-    m, candidates = args.member, sorted({int(k) for k in args.candidates.split(",")}, reverse=True)
+    knob = "overtake_offset" if args.overtake_offsets else "decide_every"
+    parse, tie, unchanged, label = KNOBS[knob]
+    values = (args.overtake_offsets or args.candidates).split(",")
+    m, candidates = args.member, sorted({parse(v) for v in values}, key=tie, reverse=True)
     suites = load_training(args.train_suite)
     per_seed: dict[str, dict[str, float]] = {}
     for run in args.runs:
@@ -48,26 +66,27 @@ def main() -> None:
         net = load_weights(run / f"{m}.npz", card)
         row = {}
         for k in candidates:
-            decider = MLPDecider(net, m, suites[0].config, {**card, "decide_every": k})
+            decider = MLPDecider(net, m, suites[0].config, {**card, knob: k})
             scores = [split_score(s, decider) for s in suites]
             row[str(k)] = round(sum(scores) / len(scores), 6)
-            print(f"{m} seed {card['seed']} every {k}: {row[str(k)]:.4f} "
+            print(f"{m} seed {card['seed']} {label.format(k)}: {row[str(k)]:.4f} "
                   + " ".join(f"{s.name} {v:.3f}" for s, v in zip(suites, scores)), flush=True)
         per_seed[str(card["seed"])] = row
     mean = {str(k): round(sum(r[str(k)] for r in per_seed.values()) / len(per_seed), 6) for k in candidates}
-    best = max(candidates, key=lambda k: (mean[str(k)], k))
+    best = max(candidates, key=lambda k: (mean[str(k)], tie(k)))
     selection = {"candidates": candidates, "train_suite": args.train_suite, "per_seed": per_seed, "mean": mean,
                  "chosen": best, "score": "success - 2 x crash per road, mean over every scenario of every "
                  "training split (scripts/decision_rate.py)"}
-    print(f"{m}: mean over {len(per_seed)} seeds " + ", ".join(f"every {k}: {mean[str(k)]:.4f}" for k in candidates)
-          + f"; chosen: every {best}")
+    print(f"{m}: mean over {len(per_seed)} seeds " + ", ".join(f"{label.format(k)}: {mean[str(k)]:.4f}"
+                                                               for k in candidates)
+          + f"; chosen: {label.format(best)}")
     for run in args.runs:
         path = run / f"{m}.json"
         card = json.loads(path.read_text())
-        card.pop("decide_every", None)
-        if best != card.get("action_repeat", 1):
-            card["decide_every"] = best
-        card["decide_every_selection"] = selection
+        card.pop(knob, None)
+        if best != unchanged(card):
+            card[knob] = best
+        card[f"{knob}_selection"] = selection
         atomic_write_json(path, card)
 
 

@@ -21,8 +21,8 @@ from overtakezoo.envs.io import atomic_write_json, atomic_write_text
 from overtakezoo.benchmark.run.perf import load_average, machine
 from overtakezoo.envs.suites import load_suite
 
-# The zoo members under 5 % crashes on table1 (leaderboards/table1.md: fuzzy 0.2 %, double-dqn 2.8 %,
-# ppo 2.4 %, ps-dqn 3.6 %; the shielded ppo+shield and rule-fsm+shield 0.1 %), then two on oncoming-4.
+# The zoo members under 5 % crashes on table1 (leaderboards/table1.md: fuzzy 0.2 %, double-dqn 0.5 %,
+# ppo 1.4 %, ps-dqn 2.8 %; the shielded ppo+shield 0.0 % and rule-fsm+shield 0.1 %), then two on oncoming-4.
 ROWS = [("table1", "fuzzy"), ("table1", "ppo"), ("table1", "double-dqn"), ("table1", "ps-dqn"),
         ("table1", "ppo+shield"), ("table1", "rule-fsm+shield"), ("oncoming-4", "fuzzy"), ("oncoming-4", "ppo")]
 SEEDS = [0, 1, 2]

@@ -104,10 +104,11 @@ def main() -> None:
         weights_sha = trained_sha256(card)  # the torch file's: the same before and after an export
         entry = {"seed": card["seed"], "run": run.name, "weights_sha256": weights_sha,
                  "steps": card.get("steps", card.get("training", {}).get("gradient_steps")), "suites": {}}
-        cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights, rate and suites match
+        cache_path = run / "seed-eval.json"  # a run's evaluations, reused while weights, deployment and suites match
         cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-        every = card.get("decide_every")  # the deployed decision rate (scripts/decision_rate.py)
-        if cache.get("decide_every") != every:
+        # how the card deploys the network (scripts/decision_rate.py): rate and OVERTAKE threshold
+        deployed = {k: card.get(k) for k in ("decide_every", "overtake_offset")}
+        if cache.get("deployed") != deployed:
             cache = {}
         for name in dict.fromkeys([*train_splits, *args.suites.split(",")]):
             suite = load_suite(name)
@@ -121,7 +122,7 @@ def main() -> None:
             joint = f" AV-AV crash {got['av_av_crash_rate']:.4f}" if "av_av_crash" in got else ""
             print(f"{algo} seed {card['seed']} {name}: success {got['success_rate']:.4f} "
                   f"crash {got['crash_rate']:.4f}{joint}", flush=True)
-        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": weights_sha, "decide_every": every,
+        atomic_write_bytes(cache_path, json.dumps({"weights_sha256": weights_sha, "deployed": deployed,
                                                    **entry["suites"]}, indent=1).encode())
         seeds.append(entry)
     if args.no_write:

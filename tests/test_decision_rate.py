@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
+import sys
+from pathlib import Path
 
 import jsonschema
 import numpy as np
@@ -82,19 +85,9 @@ def test_a_network_with_memory_keeps_its_training_rate(dqn_parts):
     assert deployed_repeat("dagger", stacked) == 10
 
 
-def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_path, monkeypatch):
+def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_path, monkeypatch, decision_rate):
     """scripts/decision_rate.py on two runs (the shipped dqn under two seeds) over a small training
     split: the chosen rate is the best mean score, written with its table into each run's card."""
-    import importlib.util
-    import shutil
-    import sys
-    from pathlib import Path
-
-    scripts = Path(__file__).resolve().parents[1] / "scripts"
-    monkeypatch.syspath_prepend(str(scripts))
-    spec = importlib.util.spec_from_file_location("decision_rate_under_test", scripts / "decision_rate.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
     split = tmp_path / "occluded-mini-train.toml"
     split.write_text('name = "occluded-mini-train"\nversion = 1\nbase = "occluded"\ncount = 30\nseed = 7\n')
     runs = []
@@ -109,7 +102,7 @@ def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_pat
         runs.append(str(run))
     monkeypatch.setattr(sys, "argv", ["decision_rate.py", "dqn", *runs, "--candidates", "10,1",
                                       "--train-suite", str(split)])
-    module.main()
+    decision_rate.main()
     cards = [json.loads((Path(r) / "dqn.json").read_text()) for r in runs]
     sel = cards[0]["decide_every_selection"]
     assert sel == cards[1]["decide_every_selection"] and sel["candidates"] == [10, 1]
@@ -119,4 +112,3 @@ def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_pat
     for card in cards:  # still a valid card, loading at the chosen rate
         jsonschema.validate(card, SCHEMA, cls=jsonschema.Draft202012Validator)
         assert MLPDecider(load_weights(PRETRAINED / "dqn.npz", card, "dqn"), "dqn", None, card).action_repeat == best
-    sys.modules.pop("decision_rate_under_test", None)

@@ -16,7 +16,10 @@ member re-decides every ``decide_every`` steps where its card has one (chosen af
 training splits, ``scripts/decision_rate.py``: a value learned for a 1 s hold, re-read more often, is
 a receding horizon), else at its training hold. The decider only declares it, whoever steps the core
 applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the trainers), combined with the
-configuration's ``decision_interval``.
+configuration's ``decision_interval``. A card's ``overtake_offset`` is added to the OVERTAKE score
+before the argmax: a decision threshold (cost-sensitive classification, Elkan 2001) that makes the
+member start an overtake, and keep one going, only with a margin. It is chosen after training on the
+training splits (``scripts/decision_rate.py --overtake-offsets``), as dagger's logit offset is.
 
 **Action mask** (a mode-transition rule of the DQN members, the same in training and evaluation):
 ABORT is only offered while the current mode is OVERTAKE or ABORT (from follow there is nothing to
@@ -143,9 +146,11 @@ class MLPDecider(Decider):
         self.model_card = card = card or {}
         self.weights_sha256 = card.get("weights_sha256")
         self.action_repeat = deployed_repeat(name, card)
-        # The decision rate is part of the behaviour: results and cross-play tables name it.
+        self.overtake_offset = deployed_offset(name, card)
+        # The decision rate and threshold are part of the behaviour: results and cross-play tables name them.
         every = "" if self.action_repeat == card.get("action_repeat", 1) else f".every{self.action_repeat}"
-        self.version = str(card.get("version", "1")) + every
+        offset = f".overtake{self.overtake_offset:+g}" if self.overtake_offset else ""
+        self.version = str(card.get("version", "1")) + every + offset
         self.use_mask = bool(card.get("action_mask", False))
         self.mask_version = int(card.get("action_mask_version", MASK_VERSION))
         self.features = card.get("features")  # None: the raw observation (weights from before the features)
@@ -162,8 +167,15 @@ class MLPDecider(Decider):
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
         """Argmax over the allowed modes (stateless: the hold is the runner's)."""
+        return self.choose(self.scores(obs), obs)
+
+    def choose(self, scores: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """The mode per row: argmax of ``scores`` with the card's OVERTAKE offset, among the allowed modes."""
+        if self.overtake_offset:
+            scores = scores.copy()
+            scores[:, OVERTAKE] += self.overtake_offset
         mask = action_mask(obs, self.config, self.mask_version) if self.use_mask else None
-        return masked_argmax(self.scores(obs), mask)
+        return masked_argmax(scores, mask)
 
     def card(self) -> str:
         return describe(self.name, self.model_card)
@@ -181,6 +193,15 @@ def deployed_repeat(name: str, card: dict[str, Any]) -> int:
         raise WeightsError(f"{name}: a frame-stacked network decides at its training hold ({held} steps), "
                            f"not every {every}")
     return every
+
+
+def deployed_offset(name: str, card: dict[str, Any]) -> float:
+    """What the member adds to its OVERTAKE score before the argmax: the card's ``overtake_offset``
+    (chosen after training on the training splits), else 0."""
+    offset = card.get("overtake_offset", 0.0)
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not -50.0 <= offset <= 50.0:
+        raise WeightsError(f"{name}: model card overtake_offset must be a number in [-50, 50], got {offset!r}")
+    return float(offset)
 
 
 class StackedMLPDecider(MLPDecider):
@@ -205,8 +226,7 @@ class StackedMLPDecider(MLPDecider):
         if self.history.shape[0] != x.shape[0]:
             self.history = np.zeros((x.shape[0], *self.history.shape[1:]))
         self.history = np.concatenate([speed_relative(x, self.config)[:, None], self.history[:, :-1]], axis=1)
-        mask = action_mask(obs, self.config, self.mask_version) if self.use_mask else None
-        return masked_argmax(self.net(self.history.reshape(x.shape[0], -1)), mask)
+        return self.choose(self.net(self.history.reshape(x.shape[0], -1)), obs)
 
 
 def describe(name: str, c: dict[str, Any]) -> str:
@@ -243,6 +263,8 @@ def describe(name: str, c: dict[str, Any]) -> str:
     rate = (f"decision held {held} steps" if every == held else
             f"decision held {held} steps in training, re-decided every {every} when deployed (chosen on the "
             "training splits)")
+    if c.get("overtake_offset"):
+        rate += f", {c['overtake_offset']:+g} on the OVERTAKE score (a threshold chosen on the training splits)"
     lines = [f"{what}, {rate}.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
