@@ -38,6 +38,23 @@ def split_score(suite, decider: MLPDecider) -> float:
     return (c["all_succeed"] - 2 * c["any_crash"]) / c["roads"]
 
 
+def score_task(task: tuple) -> tuple[int, object, float, list[tuple[str, float]]]:
+    """One run at one candidate value of the knob on every training split: (seed, value, mean, per split).
+    A task is data (paths and names) so that it can go to a worker process."""
+    m, run, knob, k, train_suite = task
+    suites = load_training(train_suite)
+    card = read_card(run / f"{m}.json", m)
+    decider = MLPDecider(load_weights(run / f"{m}.npz", card), m, suites[0].config, {**card, knob: k})
+    scores = [(s.name, split_score(s, decider)) for s in suites]
+    return card["seed"], k, round(sum(v for _, v in scores) / len(scores), 6), scores
+
+
+def _report(label: str, result: tuple) -> tuple:
+    seed, k, mean_score, scores = result
+    print(f"seed {seed} {label.format(k)}: {mean_score:.4f} " + " ".join(f"{n} {v:.3f}" for n, v in scores), flush=True)
+    return result
+
+
 # Each knob: how its candidates parse, the tie-break (the larger key wins among equal scores), the card's
 # value that means "unchanged" (then the key is left out of the card), and how the printout names one.
 KNOBS = {
@@ -54,24 +71,26 @@ def main() -> None:
     ap.add_argument("--overtake-offsets", metavar="LIST",
                     help="choose the OVERTAKE score offset among these instead (at the cards' decision rate)")
     ap.add_argument("--train-suite", default="core-train", help="what the member trained on (its splits choose)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (one run at one candidate each; same table)")
     args = ap.parse_args()
     knob = "overtake_offset" if args.overtake_offsets else "decide_every"
     parse, tie, unchanged, label = KNOBS[knob]
     values = (args.overtake_offsets or args.candidates).split(",")
     m, candidates = args.member, sorted({parse(v) for v in values}, key=tie, reverse=True)
-    suites = load_training(args.train_suite)
+    tasks = [(m, run, knob, k, args.train_suite) for run in args.runs for k in candidates]
+    if args.jobs > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a forked copy of a process that already ran torch's thread pool can hang.
+        with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            done = pool.map(score_task, tasks)
+            results = [_report(label, r) for r in done]
+    else:
+        results = [_report(label, score_task(t)) for t in tasks]
     per_seed: dict[str, dict[str, float]] = {}
-    for run in args.runs:
-        card = read_card(run / f"{m}.json", m)
-        net = load_weights(run / f"{m}.npz", card)
-        row = {}
-        for k in candidates:
-            decider = MLPDecider(net, m, suites[0].config, {**card, knob: k})
-            scores = [split_score(s, decider) for s in suites]
-            row[str(k)] = round(sum(scores) / len(scores), 6)
-            print(f"{m} seed {card['seed']} {label.format(k)}: {row[str(k)]:.4f} "
-                  + " ".join(f"{s.name} {v:.3f}" for s, v in zip(suites, scores)), flush=True)
-        per_seed[str(card["seed"])] = row
+    for seed, k, mean_score, _ in results:
+        per_seed.setdefault(str(seed), {})[str(k)] = mean_score
     mean = {str(k): round(sum(r[str(k)] for r in per_seed.values()) / len(per_seed), 6) for k in candidates}
     best = max(candidates, key=lambda k: (mean[str(k)], tie(k)))
     selection = {"candidates": candidates, "train_suite": args.train_suite, "per_seed": per_seed, "mean": mean,

@@ -24,9 +24,9 @@ done
 # The deployed decision rate (and, for ppo, the OVERTAKE threshold), chosen on the training splits
 # over the 3 seeds and written into the run cards before a seed is chosen (README, "Deployed decision rate").
 for algo in dqn double-dqn ppo; do
-  python scripts/decision_rate.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2"
+  python scripts/decision_rate.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --jobs 2
 done
-python scripts/decision_rate.py ppo "$runs/ppo-s0" "$runs/ppo-s1" "$runs/ppo-s2" \
+python scripts/decision_rate.py ppo "$runs/ppo-s0" "$runs/ppo-s1" "$runs/ppo-s2" --jobs 2 \
   --overtake-offsets=0,-0.25,-0.5,-0.75,-1,-1.25,-1.5
 for algo in dqn double-dqn ppo; do
   python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
@@ -35,7 +35,10 @@ done
 # splits; every seed also in self-play on duel / platoon / mixed-traffic, beside the shipped dqn,
 # ppo and rule-fsm there. Shipped by the same median rule, over its own training splits.
 overtakezoo train ps-dqn --suite core-train+multi-train --seeds 0,1,2 --out "$runs/ps-dqn" --eval-suite none --no-progress
-python scripts/decision_rate.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train
+python scripts/decision_rate.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2
+# Its OVERTAKE threshold in Q units (the success reward is 10): a grid symmetric about 0, up to a tenth of it.
+python scripts/decision_rate.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2 \
+  --overtake-offsets=1,0.5,0.25,0,-0.25,-0.5,-1
 python scripts/seed_results.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --ship \
   --train-suite core-train+multi-train --compare dqn,ppo,rule-fsm \
   --suites table1,table1-reactive,oncoming-2,oncoming-4,oncoming-8,dense,urban-50,adversarial,occluded,duel,platoon,mixed-traffic

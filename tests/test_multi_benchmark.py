@@ -246,3 +246,23 @@ def test_repo_crossplay_matrix_covers_the_zoo():
     names = [d["name"] for d in doc["deciders"]]
     assert "oracle" not in names and {"rule-fsm", "fuzzy", "dqn", "double-dqn", "ppo", "bc", "cql"} <= set(names)
     assert len(doc["pairs"]) == len(names) ** 2
+
+
+def test_against_fuzzy_counts_every_place_and_names_the_largest_shortfall():
+    # joint success in %, rows A (the ego) x columns B (the other AVs)
+    table = {("fuzzy", "fuzzy"): 50, ("fuzzy", "x"): 40, ("fuzzy", "y"): 30,
+             ("x", "fuzzy"): 60, ("x", "x"): 45, ("x", "y"): 30,
+             ("y", "fuzzy"): 20, ("y", "x"): 35, ("y", "y"): 10}
+    pairs = {k: {"all_succeed": [v, 100]} for k, v in table.items()}
+    lines = crossplay.against_reference(["fuzzy", "x", "y"], pairs)
+    rows = {line.split(" | ")[0].strip("| "): line for line in lines if line.startswith("| x") or line.startswith("| y")}
+    # x as ego: 60>=50, 45>=40, 30>=30; as partner: (fuzzy,x) 40>=50? no, (x,x) 45>=60? no, (y,x) 35>=20 -> 4 of 6
+    assert "| 4 of 6 |" in rows["x"] and "partner of x: 45.0 % against 60.0 %" in rows["x"]
+    # y as ego: 20<50, 35<40, 10<30; as partner: 30<50, 30<60, 10<20 -> 0 of 6, worst (y,fuzzy) 20 vs 50 (-30)
+    assert "| 0 of 6 |" in rows["y"] and "ego beside fuzzy: 20.0 % against 50.0 %" in rows["y"]
+    assert crossplay.against_reference(["x", "y"], pairs) == []
+
+
+def test_repo_crossplay_pages_show_the_places_against_fuzzy():
+    page = (REPO_LEADERBOARDS / "crossplay-duel.md").read_text()
+    assert "## Against fuzzy, place by place" in page and "| ps-dqn | " in page

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -96,3 +97,11 @@ def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch,
         assert c.get("decide_every") == card.get("decide_every")  # the rate stays as it was
         jsonschema.validate(c, SCHEMA, cls=jsonschema.Draft202012Validator)
         assert MLPDecider(load_weights(PRETRAINED / "ppo.npz", c, "ppo"), "ppo", None, c).overtake_offset == best
+
+    # The same choice from worker processes, run as a user runs the script: --jobs 2 writes the same table.
+    for seed, run in enumerate(runs):
+        (Path(run) / "ppo.json").write_text(json.dumps({**card, "seed": seed}))
+    script = Path(__file__).resolve().parents[1] / "scripts" / "decision_rate.py"
+    subprocess.run([sys.executable, str(script), "ppo", *runs, "--overtake-offsets=-50,0,-1", "--train-suite", str(split),
+                    "--jobs", "2"], check=True, capture_output=True, text=True)
+    assert json.loads((Path(runs[0]) / "ppo.json").read_text())["overtake_offset_selection"] == sel

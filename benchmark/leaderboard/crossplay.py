@@ -211,8 +211,37 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
         summary.append((-mean("all_succeed", mine), mean("av_crash", mine), d, yielded))
     for neg_ok, crash, d, yielded in sorted(summary):
         out.append(f"| {md(d)} | {-neg_ok * 100:.1f} % | {crash * 100:.1f} % | {yielded * 100:.1f} % |")
+    out += against_reference(names, pairs)
     out += ["", md_image("cross-play heatmaps", f"crossplay-{raw}.png"), ""]
     return "\n".join(out)
+
+
+REFERENCE = "fuzzy"  # the hand-written decider a learned multi-AV member has to match, in every seat
+
+
+def against_reference(names: list[str], pairs: dict[tuple[str, str], dict[str, Any]]) -> list[str]:
+    """Each decider against ``REFERENCE`` put in the same place: for every partner B (itself and the
+    reference included), its joint success as the ego beside B against the reference's there, and as
+    B's partner against the reference's there; how many of those 2N it matches and the largest miss."""
+    if REFERENCE not in names:
+        return []
+    rate = lambda a, b: pairs[(a, b)]["all_succeed"][0] / pairs[(a, b)]["all_succeed"][1]  # noqa: E731
+    out = ["", f"## Against {md(REFERENCE)}, place by place", "",
+           f"For each decider D and each partner B: D's joint success as the ego beside B against {md(REFERENCE)}'s "
+           f"as the ego beside B, and D's as B's partner (column D of row B) against {md(REFERENCE)}'s there; "
+           "2 x the number of deciders places. A decider that leads only on average can still fall short in "
+           "some places: the largest shortfall is named.", "",
+           f"| decider | places at least {md(REFERENCE)}'s | largest shortfall |", "|---|---|---|"]
+    for d in names:
+        if d == REFERENCE:
+            continue
+        places = [(rate(d, b) - rate(REFERENCE, b), f"ego beside {md(b)}", rate(d, b), rate(REFERENCE, b)) for b in names]
+        places += [(rate(b, d) - rate(b, REFERENCE), f"partner of {md(b)}", rate(b, d), rate(b, REFERENCE)) for b in names]
+        ok = sum(gap >= 0 for gap, *_ in places)
+        gap, where, mine, ref = min(places, key=lambda p: p[0])
+        worst = f"{where}: {mine * 100:.1f} % against {ref * 100:.1f} %" if gap < 0 else "none"
+        out.append(f"| {md(d)} | {ok} of {len(places)} | {worst} |")
+    return out
 
 
 def heatmap(doc: dict[str, Any]) -> bytes:
