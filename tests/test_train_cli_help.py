@@ -23,19 +23,20 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_readme_first_command_is_the_base_install_and_ci_runs_the_second():
     lines = ROOT.joinpath("README.md").read_text().split("```bash\n", 1)[1].splitlines()
     assert lines[0] == "pip install -e . && overtakezoo eval --suite table1 --decider rule-fsm"
-    assert lines[1] == "pip install -e '.[test]' && python -m pytest"
+    assert lines[1] == "pip install -e '.[test]' && python -m pytest -n 2"
     assert lines[1] in ROOT.joinpath(".ci", "run").read_text().splitlines()
     base = __import__("tomllib").loads(ROOT.joinpath("pyproject.toml").read_text())["project"]["dependencies"]
     assert not [d for d in base if re.match(r"(torch|rsl-rl|minari)\b", d)]  # eval needs numpy only
 
 
-def test_eval_never_imports_torch():
+def test_eval_never_imports_torch(tmp_path):
     code = ("import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; "
             "sys.exit(main(['eval', '--suite', sys.argv[1], '--decider', 'dqn', '--out', sys.argv[2], '--no-progress']))")
     tiny = SUITES_DIR / "table1.toml"
-    done = subprocess.run([sys.executable, "-c", code, str(tiny), "/dev/null"], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-c", code, str(tiny), str(tmp_path / "dqn.json")], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr
+    assert (tmp_path / "dqn.json").is_file()
 
 
 @pytest.mark.parametrize("member", zoo.names("learned"))
