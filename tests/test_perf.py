@@ -1,6 +1,7 @@
 """`overtakezoo perf`: every figure is measured, named by a stable id and written with its range."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -73,3 +74,7 @@ def test_training_rows_time_whole_processes_to_the_paper_level(tmp_path, monkeyp
     # one iteration (16k decisions) on core-train stays below the shipped ppo: the row says so, it does not pass
     zoo_row = rows["time-to-zoo-quality"]
     assert "seed 0: not within 1 iterations" in zoo_row["what"] and "held-back training scenarios 950-999" in zoo_row["what"]
+    # the yardstick is the member as the leaderboard runs it: the new run is scored with the shipped card's rate and threshold
+    card = json.loads((Path(perf_training.__file__).parents[2] / "zoo/pretrained/ppo.json").read_text())
+    assert f"decision every {card['decide_every']} core steps" in zoo_row["what"]
+    assert f"{card['overtake_offset']:+g} on the OVERTAKE score" in zoo_row["what"]

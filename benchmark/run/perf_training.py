@@ -20,7 +20,10 @@ Two trainers of the ppo member, side by side: the numpy PPO (:mod:`overtakezoo.z
   PPO on the whole mixture (:data:`ZOO_ARGS`) at the budgets of :data:`ZOO_LADDER` in turn, until
   its policy's leaderboard score (success - 2 x crash, mean over the nine splits) on each split's
   held-back scenarios (from :data:`HELD_BACK` on; model selection scored the first ones) is at least
-  the shipped ppo member's on the same scenarios. Training splits only: no test suite is read.
+  the shipped ppo member's on the same scenarios. Both are scored as the leaderboard runs them: the
+  shipped member with its card's decision rate and OVERTAKE threshold, the new run with the same two
+  (:data:`DEPLOYED`, the member's recipe: chosen once on the training splits, not per run).
+  Training splits only: no test suite is read.
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ ZOO_ARGS = [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}", "--set", "tr
 ZOO_ITERATION = FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV  # decisions per iteration on core-train
 ZOO_LADDER = (30, 60, 90)  # 60 iterations: ~1M decisions, the shipped ppo's budget
 HELD_BACK = 500  # each core-train split's scenarios from here on are the yardstick
+DEPLOYED = ("decide_every", "overtake_offset")  # the shipped card's deployment settings a new run is scored with
 
 
 def _train(args: list[str], tmp: str) -> tuple[float, float, Path]:
@@ -134,10 +138,17 @@ def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: 
 
 
 def _held_back_score(decider: Any, sets: list) -> float:
+    """Success - K x crash, mean over ``sets``, each decision held as the member is deployed."""
     from overtakezoo.benchmark.leaderboard.headline import K
     from overtakezoo.zoo.train.selection import decider_act, outcome_rates
 
-    return float(sum(s - K * c for s, c in outcome_rates(decider_act(decider), sets, HOLD)) / len(sets))
+    rates = outcome_rates(decider_act(decider), sets, decider.action_repeat)
+    return float(sum(s - K * c for s, c in rates) / len(sets))
+
+
+def _recipe(recipe: dict[str, Any]) -> str:
+    shown = {"decide_every": "decision every {} core steps", "overtake_offset": "{:+g} on the OVERTAKE score"}
+    return ", ".join(shown[k].format(v) for k, v in recipe.items()) or "training hold and no threshold"
 
 
 def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None]) -> None:
@@ -147,11 +158,13 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
 
     suites = load_training("core-train")
     sets = held_back_sets(suites, HELD_BACK)
-    target = _held_back_score(load_pretrained("ppo", suites[0].config), sets)
+    shipped = load_pretrained("ppo", suites[0].config)
+    recipe = {k: shipped.model_card[k] for k in DEPLOYED if k in shipped.model_card}
+    target = _held_back_score(shipped, sets)
     def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
         w, c, out = _train(["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed),
                             *ZOO_ARGS], tmp)
-        card = read_card(out / "ppo.json", "ppo")
+        card = {**read_card(out / "ppo.json", "ppo"), **recipe}
         got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card), sets)
         progress(f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
                  f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})")
@@ -160,7 +173,7 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
     walls, cpus, _, reached = _ladder(ZOO_LADDER, attempt)
     what = (f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
             f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
-            f"({100 * target:.1f}); the process `overtakezoo train ppo --suite core-train --eval-suite none"
+            f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process `overtakezoo train ppo --suite core-train --eval-suite none"
             f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
             f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
             "CPU time of the training process")
