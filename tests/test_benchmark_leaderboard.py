@@ -48,6 +48,14 @@ def test_repo_leaderboard_is_current():
     assert stale_files(REPO_LEADERBOARDS) == []
 
 
+def test_check_from_another_folder_reads_the_checkouts_leaderboard(tmp_path, monkeypatch, capsys):
+    # Outside the repository root the default is the checkout's leaderboards/, not an empty ./leaderboards
+    monkeypatch.chdir(tmp_path)
+    assert main(["leaderboard", "--check"]) == 0
+    assert "up to date" in capsys.readouterr().out
+    assert not (tmp_path / "leaderboards").exists()
+
+
 def test_regeneration_is_byte_identical_and_check_detects_mutation(root, capsys):
     assert main(["leaderboard", "--root", str(root), "--check"]) == 1  # never generated
     assert main(["leaderboard", "--root", str(root)]) == 0

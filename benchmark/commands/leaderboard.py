@@ -40,7 +40,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--jobs", type=int, default=1, help="with --verify: suites verified in parallel processes")
     p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows matching this glob, "
                    "e.g. 'table1/*' or '*/my-policy'")
-    p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
+    p.add_argument("--root", default=None, help="leaderboard folder (default: ./leaderboards, else the "
+                   "leaderboards/ of the checkout this package runs from)")
     p.set_defaults(handler=run)
 
 
@@ -51,6 +52,7 @@ def run(args: Any) -> int:
 
     if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
         raise UserError("--sample, --seed, --base and --only go with --verify")
+    args.root = args.root or default_root()
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
         from overtakezoo.benchmark.leaderboard.changes import changed_rows, default_base
@@ -82,3 +84,17 @@ def run(args: Any) -> int:
     print(f"leaderboard regenerated in {args.root}: {len(changed)} file(s) changed"
           + (f" ({', '.join(changed)})" if changed else ""))
     return 0
+
+
+def default_root() -> str:
+    """``./leaderboards`` where it exists, else the checkout's own (an editable install run from
+    another folder): never a fresh, empty folder that --check would call stale."""
+    from pathlib import Path
+
+    from overtakezoo.benchmark.errors import UserError
+
+    for root in (Path("leaderboards"), Path(__file__).resolve().parents[2] / "leaderboards"):
+        if (root / "submissions").is_dir():
+            return str(root)
+    raise UserError("no leaderboards/ folder here or in this package's checkout: run from the repository "
+                    "root or pass --root")
