@@ -173,7 +173,8 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
     walls, cpus, _, reached = _ladder(ZOO_LADDER, attempt)
     what = (f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
             f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
-            f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process `overtakezoo train ppo --suite core-train --eval-suite none"
+            f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process "
+            "`overtakezoo train ppo --suite core-train --eval-suite none"
             f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
             f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
             "CPU time of the training process")
