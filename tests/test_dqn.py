@@ -181,24 +181,25 @@ def _rates(net_or_card, algo, suite):
     return summary["success_rate"], summary["crash_rate"]
 
 
-@pytest.mark.parametrize("n_step,steps", [(1, 40000), (3, 60000)])
-def test_short_training_beats_an_untrained_network(tmp_path, n_step, steps):
+@pytest.mark.parametrize("n_step", [1, 3])
+def test_short_training_beats_an_untrained_network(tmp_path, n_step):
     torch.manual_seed(0)
     hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
     untrained = QNetwork(observation_size(EnvConfig()), hp.hidden, hp.dueling)
     scen = load_suite("table1")
     s0, c0 = _rates(untrained, "dqn", scen)
-    # ~12-18 s of CPU. Measured (seed 0): the untrained net never passes (0 % success, 0 % crash).
-    # One-step targets: after 40k steps on table1-train the net passes ~15 % of table1's first 200
-    # and crashes in none. 3-step returns (dqn.toml): nothing passes after 40k (the returns sum
-    # epsilon's random modes, eps_fraction 0.5 here), after 60k 90.5 % pass and 4.5 % crash. Short
-    # runs are not monotone in their length, so this checks that learning started -- safe passes
-    # appear -- not how far it gets (the slow test does).
-    trained = train(load_training("table1-train"), member="dqn", steps=steps, seed=0, out=tmp_path, progress=False,
-                    overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 10000,
-                               "log_every": 5000, "n_step": n_step})
+    # ~25 s of CPU each. The untrained net never passes (0 % success, 0 % crash). Short runs are
+    # chaotic: the bits of the trained net depend on the CPU's float kernels, and at 40-60k steps one
+    # CPU's run passed 15-90 % of table1's first 200 while another's passed 0-2.5 %. At 100k steps,
+    # measured over seeds 0-2 and torch kernels (ATEN_CPU_CAPABILITY default / avx2 / avx512): one-step
+    # targets 21-63 % success, 0-3.5 % crashes; 3-step returns 83-93 %, 7.5-16.5 %. So this checks
+    # that learning started -- safe passes appear, and crashes stay below rule-fsm's 29 % -- with room
+    # for any CPU, not how far it gets (the slow tests do).
+    trained = train(load_training("table1-train"), member="dqn", steps=100_000, seed=0, out=tmp_path, progress=False,
+                    overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 50000,
+                               "log_every": 10000, "n_step": n_step})
     s1, c1 = _rates(trained.module, "dqn", scen)
-    assert s1 >= 0.1 and c1 <= 0.05 * n_step and s1 - 2 * c1 > s0 - 2 * c0 + 0.1, ((s0, c0), (s1, c1))
+    assert s1 >= 0.1 and c1 <= 0.25 and s1 - 2 * c1 > s0 - 2 * c0 + 0.1, ((s0, c0), (s1, c1))
     assert ("3-step returns" in trained.card["algorithm"]) == (n_step == 3)
     assert trained.card["hyperparameters"]["n_step"] == n_step
     log = (tmp_path / "log.csv").read_text().splitlines()
