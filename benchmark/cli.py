@@ -21,8 +21,9 @@ import threading
 from overtakezoo.envs import ConfigError
 
 from overtakezoo.benchmark import commands
-from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.errors import UserError, one_line
 from overtakezoo.envs.io import WriteError
+from overtakezoo.envs.safe_json import JSONInputError
 
 
 class Terminated(KeyboardInterrupt):
@@ -78,8 +79,8 @@ def _run(args: argparse.Namespace) -> int:
         except (OSError, ValueError, AttributeError):  # stdout without a file descriptor (captured)
             pass
         return 1
-    except (UserError, ConfigError, WriteError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (UserError, ConfigError, WriteError, JSONInputError) as exc:
+        print(f"error: {one_line(exc)}", file=sys.stderr)  # control characters from a file name or value escaped
         return 2
     except Terminated:
         print("terminated", file=sys.stderr)

@@ -14,13 +14,14 @@ __all__ = [
 ]
 
 # The env faces (thin adapters over the core). Importing this package registers
-# "overtakezoo/Overtake-v0" with Gymnasium and PettingZoo.
+# "overtakezoo/Overtake-v1" (table1-train, decisions held 1 s), "overtakezoo/Overtake-v0" (the env's
+# defaults, one core step per env step) and every suite's id with Gymnasium and PettingZoo.
 from overtakezoo.envs.faces.gym import OvertakeEnv, register_envs  # noqa: E402
-from overtakezoo.envs.faces.pettingzoo import OvertakeParallelEnv, env, parallel_env  # noqa: E402
+from overtakezoo.envs.faces.pettingzoo import OvertakeParallelEnv, env, parallel_env, sb3_vec_env  # noqa: E402
 from overtakezoo.envs.faces.vector import OvertakeVectorEnv, make_vec  # noqa: E402
 
 register_envs()
-__all__ += ["OvertakeEnv", "OvertakeParallelEnv", "OvertakeVectorEnv", "env", "parallel_env", "make_vec",
+__all__ += ["OvertakeEnv", "OvertakeParallelEnv", "OvertakeVectorEnv", "env", "parallel_env", "sb3_vec_env", "make_vec",
             "register_envs", "Renderer", "draw_frame", "frame_from_core"]
 
 

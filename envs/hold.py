@@ -4,8 +4,12 @@ the benchmark runner, the Gymnasium / PettingZoo faces, the rsl-rl face and the 
 
 A decision is held for :func:`hold_steps` core steps: the configuration's ``decision_interval``
 (how often the benchmark lets a decider act) rounded to the multiple of it nearest the decider's own
-``action_repeat`` (how many steps each decision was held in training). :func:`hold` then steps the
-core that many times under the same modes.
+``action_repeat``, its *decision rate* (the core steps between its decisions when deployed: a
+learned member's card's ``decide_every``, else its *training hold*, the card's ``action_repeat``,
+the core steps each decision was held in training). :func:`hold` then steps the core that many
+times under the same modes. An env face holds ``hold_steps`` core steps per env step: the zoo's
+1 s (:func:`~overtakezoo.envs.suites.zoo_hold`) for a face made from a suite or a suite id, the
+config's ``decision_interval`` for one made from a raw config.
 
 A row whose episode ends during the hold stops counting: its reward, termination and (on an
 auto-reset core) its final observation and info are those of its own episode. On a core without

@@ -57,6 +57,12 @@ class Suite:
         return self.distribution.sample(1, self.seed).num_avs
 
     @property
+    def hold_steps(self) -> int:
+        """Core steps one env step of this suite's faces holds a decision by default: the zoo's 1 s at
+        the suite's dt (:func:`zoo_hold`; its registered id's ``hold_steps``)."""
+        return zoo_hold(self.config.dt, self.config.decision_interval)
+
+    @property
     def builtin(self) -> bool:
         return self.path.parent == SUITES_DIR.resolve()
 
@@ -151,8 +157,19 @@ def list_suites() -> list[Suite]:
     return [load_suite(n) for n in suite_names()]
 
 
-# The zoo's decision: its learned members hold each decision 1 s (action_repeat 10 at dt = 0.1 s).
+# The zoo's decision: its learned members were trained holding each decision 1 s (a training hold,
+# the card's action_repeat, of 10 at dt = 0.1 s); every face of a suite holds that long by default.
 ZOO_DECISION_S = 1.0
+
+
+def zoo_hold(dt: float, decision_interval: int = 1) -> int:
+    """Core steps of the zoo's decision (:data:`ZOO_DECISION_S`) at ``dt``, a multiple of
+    ``decision_interval`` (10 at dt = 0.1 s): the hold of a suite's registered id
+    (:func:`suite_env_ids`) and of every face made from a suite (``parallel_env("duel")``,
+    ``make_vec(suite="table1")``, ``OvertakeEnv(suite=...)``). The one place it is computed."""
+    from overtakezoo.envs.hold import hold_steps
+
+    return hold_steps(decision_interval, max(1, round(ZOO_DECISION_S / float(dt))))
 
 
 @dataclass(frozen=True)
@@ -168,8 +185,6 @@ class SuiteEnvId:
 def suite_env_ids() -> dict[str, SuiteEnvId]:
     """Every built-in suite's environment id, read from the files' top-level keys only (cheap enough
     for ``import overtakezoo.envs``; the env validates the whole file when it is made)."""
-    from overtakezoo.envs.hold import hold_steps
-
     out: dict[str, SuiteEnvId] = {}
     for name in suite_names():
         doc = tomllib.loads((SUITES_DIR / f"{name}.toml").read_text("utf-8"))
@@ -179,7 +194,7 @@ def suite_env_ids() -> dict[str, SuiteEnvId]:
         sim, scenario = base.get("sim", {}), base.get("scenario", {})
         dt, interval = sim.get("dt", 0.1), sim.get("decision_interval", 1)
         multi = scenario.get("platoon_size", 1) > 1 or scenario.get("oncoming_av", 0) > 0
-        held = hold_steps(interval, max(1, round(ZOO_DECISION_S / dt)))
+        held = zoo_hold(dt, interval)
         out[f"overtakezoo/{name}-v{doc['version']}"] = SuiteEnvId(name, int(doc["version"]), held, multi)
     return out
 

@@ -129,3 +129,15 @@ def decision_rate(monkeypatch):
     spec.loader.exec_module(module)
     yield module
     sys.modules.pop("decision_rate_under_test", None)
+
+
+def last_error_line(capsys, argv):
+    """The one ``error:`` line a refused command prints, last (after any lines saying the hold)."""
+    from overtakezoo.benchmark.cli import main
+
+    capsys.readouterr()
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in lines if line.startswith("error: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], lines
+    return errors[0]

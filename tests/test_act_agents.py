@@ -35,7 +35,7 @@ def test_act_agents_drives_a_duel_as_the_runners_self_play(seed):
     act_agents ends every road as the benchmark runner's self-play does, on the same scenarios."""
     suite = dataclasses.replace(load_suite("duel"), seed=seed, count=10)
     ref = run_indices(suite, zoo.load("rule-fsm", suite.config), np.arange(suite.count), safety=False)
-    env = parallel_env("duel")
+    env = parallel_env("duel", hold_steps=1)  # the runner holds rule-fsm's decisions 1 core step (a suite's env: 10)
     decider = zoo.load("rule-fsm", env.config)
     got = _selfplay(env, decider, suite.scenarios(), decider.act_agents)
     np.testing.assert_array_equal(got, ref["outcome"])
@@ -46,7 +46,7 @@ def test_single_observation_act_mixes_the_agents_state():
     between the agents, and the duel ends otherwise."""
     suite = load_suite("duel")
     ref = run_indices(suite, zoo.load("rule-fsm", suite.config), np.arange(20), safety=False)["outcome"]
-    env = parallel_env("duel")
+    env = parallel_env("duel", hold_steps=1)
     decider = zoo.load("rule-fsm", env.config)
     mixed = _selfplay(env, decider, suite.scenarios().take(np.arange(20)),
                       lambda obs: {a: decider.act(o) for a, o in obs.items()})

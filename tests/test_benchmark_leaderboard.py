@@ -56,6 +56,68 @@ def test_check_from_another_folder_reads_the_checkouts_leaderboard(tmp_path, mon
     assert not (tmp_path / "leaderboards").exists()
 
 
+def test_one_root_rule_for_submit_and_every_leaderboard_mode(tmp_path, monkeypatch, capsys):
+    # submit, leaderboard, --check and --verify find their leaderboard by one rule (commands/_options.py).
+    from overtakezoo.benchmark.commands import _options
+    from test_submissions import one_line_error, shipped
+
+    results = tmp_path / "r.json"
+    shipped("always-follow").save(results)
+    # A given --root that does not exist is an error in every leaderboard mode, never "out of date".
+    missing = tmp_path / "nothing-here"
+    for mode in ([], ["--check"], ["--verify"], ["--verify", "--sample", "1"]):
+        assert one_line_error(capsys, ["leaderboard", "--root", str(missing), *mode]) == \
+            f"error: no such folder: {missing}", mode
+    assert one_line_error(capsys, ["leaderboard", "--root", str(results)]).startswith(f"error: no such folder: {results}")
+    assert one_line_error(capsys, ["submit", str(results), "--root", str(results)]).startswith(
+        f"error: no such folder: {results}")
+    assert not missing.exists()
+
+    # Outside any checkout (none holds a board) and without ./leaderboards: nothing is filed, no folder made.
+    monkeypatch.setattr(_options, "CHECKOUT_LEADERBOARDS", tmp_path / "no-checkout" / "leaderboards")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.delenv("OVERTAKEZOO_VERIFY_BASE", raising=False)  # --verify below: outside git, no base
+    for argv in (["submit", str(results)], ["leaderboard"], ["leaderboard", "--check"], ["leaderboard", "--verify"]):
+        assert "no leaderboard here" in one_line_error(capsys, argv), argv
+    assert list(work.iterdir()) == []
+
+    # The checkout's own board when ./leaderboards has none (an editable install run from elsewhere) ...
+    checkout = tmp_path / "checkout" / "leaderboards"
+    (checkout / "submissions").mkdir(parents=True)
+    monkeypatch.setattr(_options, "CHECKOUT_LEADERBOARDS", checkout)
+    assert main(["submit", str(results)]) == 0
+    assert (checkout / "submissions" / "table1" / "always-follow.json").is_file() and list(work.iterdir()) == []
+    assert main(["leaderboard", "--check"]) == 1  # the checkout's board, not yet generated
+    assert f"stale: {checkout}/" in capsys.readouterr().err
+    # ... and ./leaderboards where it has submissions/: every command reads the same folder.
+    (work / "leaderboards" / "submissions").mkdir(parents=True)
+    assert main(["submit", str(results)]) == 0
+    assert main(["leaderboard"]) == 0
+    assert main(["leaderboard", "--check"]) == 0
+    assert main(["leaderboard", "--verify", "--sample", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "filed leaderboards/submissions/table1/always-follow.json" in out and "started a new" not in out
+    assert "leaderboard regenerated in leaderboards:" in out and "verified 1 row(s)" in out
+    assert (work / "leaderboards" / "table1.md").is_file() and not (checkout.parent / "table1.md").exists()
+
+    # An explicit --root to a new folder starts a new leaderboard there, and says so.
+    assert main(["submit", str(results), "--root", str(tmp_path / "new-lb")]) == 0
+    out = capsys.readouterr().out
+    assert f"started a new leaderboard in {tmp_path / 'new-lb'}" in out and f"--root {tmp_path / 'new-lb'}" in out
+
+    # Each command's --help says the rule.
+    for command in ("submit", "leaderboard"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert ("found by one rule for submit and leaderboard") in text and ("without --root: ./leaderboards where "
+                "it has a submissions/ folder, else the leaderboards/ of the checkout this package runs from, else an "
+                "error (the default never creates a folder)") in text, command
+        assert ("created when nothing is there yet" if command == "submit" else "PATH, which must exist") in text
+
+
 def test_regeneration_is_byte_identical_and_check_detects_mutation(root, capsys):
     assert main(["leaderboard", "--root", str(root), "--check"]) == 1  # never generated
     assert main(["leaderboard", "--root", str(root)]) == 0

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results.results import PER_SCENARIO, Results
+from overtakezoo.benchmark.results.results import PER_SCENARIO, SAFETY_PER_SCENARIO, Results
 from overtakezoo.envs.suites import load_suite
 
 
@@ -16,8 +16,9 @@ class Stub:
     name, version, privileged, weights_sha256 = "stub", "1", False, None
 
 
-def fake_results(n=3000, seed=0, suite="table1"):
-    """Results with random per-scenario arrays (no simulation: fast)."""
+def fake_results(n=3000, seed=0, suite="table1", safety=True):
+    """Results with random per-scenario arrays (no simulation: fast), with the safety arrays a run
+    records (a leaderboard row needs every one) unless ``safety`` is off (`eval --no-safety`)."""
     rng = np.random.default_rng(seed)
     outcome = rng.choice([1, 2, 3], n, p=[0.6, 0.3, 0.1])
     crash_npc = np.where(outcome == 2, rng.integers(0, 2, n), -1)
@@ -26,6 +27,10 @@ def fake_results(n=3000, seed=0, suite="table1"):
                aborts=rng.integers(0, 3, n), switches=rng.integers(0, 4, n))
     per["completion_time"] = np.where(outcome == 1, per["completion_time"] + 25, np.nan)
     per["min_ttc"][::7] = np.inf
+    if safety:  # drawn after the others: those arrays are what they were before the safety metrics
+        per.update({k: np.where(rng.random(n) < 0.5, rng.uniform(0, 1, n), np.nan)
+                    for k, (dtype, _) in SAFETY_PER_SCENARIO.items() if dtype is np.float64})
+        per.update({k: rng.integers(-1, 2, n) for k, (dtype, _) in SAFETY_PER_SCENARIO.items() if dtype is np.int8})
     return Results.create(load_suite(suite), Stub(), per, start=0, stop=n, shard=None,
                           timing={"wall_time_s": 1.0, "started": "2026-01-01T00:00:00+00:00", "steps": 1})
 

@@ -124,7 +124,7 @@ def test_unwritable_out_on_every_command(tmp_path, tmp_path_factory, capsys, arc
         ["decision-map", "--decider", "always-follow", "--resolution", "2", "--out", f"{bad}/m.png"],
         ["replay", str(archive), "--episode", "0", "--out", f"{bad}/e.gif"],
         ["replay", str(archive), "--episode", "0", "--out", f"{bad}/e.png"],
-        ["leaderboard", "--root", f"{bad}/lb"],
+        ["submit", str(tmp_path / "r.json"), "--root", f"{bad}/lb"],  # a new root is created: here it cannot be
         ["dataset", "build", "--suite", suite, "--decider", "always-follow", "--name", "o/t/x-v0", "--count", "1"],
         ["dataset", "list"],
         ["dataset", "download", "o/t/x-v0", "--no-progress"],
@@ -132,6 +132,8 @@ def test_unwritable_out_on_every_command(tmp_path, tmp_path_factory, capsys, arc
     ]
     for argv in runs:
         assert "cannot write" in one_line_error(capsys, argv), argv
+    # The leaderboard command reads its root, never creates it (submit --root may: a new leaderboard).
+    assert one_line_error(capsys, ["leaderboard", "--root", f"{bad}/lb"]) == f"error: no such folder: {bad}/lb"
     t0 = time.perf_counter()  # perf fails before its (here 60 s of) measuring
     assert "cannot write" in one_line_error(capsys, ["perf", "--sizes", "1", "--seconds", "60", "--no-suites",
                                                      "--out", f"{bad}/perf"])

@@ -229,7 +229,48 @@ def test_vector_env_refuses_bad_actions():
     vec.reset(seed=0)
     with pytest.raises(ValueError, match=r"actions\[1\]: action -1"):
         vec.step([0, -1, 0])
-    with pytest.raises(ValueError, match="dtype float"):
+    with pytest.raises(ValueError, match=r"^actions\[1\]: action 1.5 is not an integer in 0\.\.2$"):
         vec.step(np.array([0.0, 1.5, 0.0]))
+    with pytest.raises(ValueError, match=r"^actions\[0\]: action 0.0 is not an integer"):  # floats: refused, as gym's 1.0
+        vec.step(np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(ValueError, match="dtype bool"):
+        vec.step(np.array([True, False, True]))
     with pytest.raises(ValueError, match="shape"):
         vec.step([0, 1])
+
+
+def _face_step(face: str, action):
+    """One step of ``face`` (3 envs or agents' worth where it is batched) with ``action`` in the
+    middle; returns the name the face's error message starts with."""
+    if face == "gym":
+        e = gymnasium.make(ENV_ID).unwrapped
+        e.reset(seed=0)
+        e.step(action)
+    elif face == "vector":
+        vec = make_vec(num_envs=3)
+        vec.reset(seed=0)
+        vec.step(np.array([0, action, 0]))  # a float among ints makes the batch float: refused per entry
+    elif face == "pettingzoo":
+        env = parallel_env(scenario={"platoon_size": 2})
+        env.reset(seed=0)
+        env.step({"av_0": 0, "av_1": action})
+    else:
+        torch = pytest.importorskip("torch")
+        pytest.importorskip("rsl_rl")
+        from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv
+
+        env = OvertakeRslRlEnv(3, EnvConfig(), seed=0)
+        env.step(torch.tensor([[0.0], [1.0], [2.0]]))  # rsl-rl's float column: whole numbers are modes
+        env.step(torch.tensor([[0.0], [action], [0.0]]))
+
+
+FACE_WHO = {"gym": r"OvertakeEnv\.step", "vector": r"actions\[1\]", "pettingzoo": "av_1", "rsl_rl": r"actions\[1\]"}
+
+
+@pytest.mark.parametrize("action,shown", [(5, r"5(\.0)?"), (-1, r"-1(\.0)?"), (1.7, r"1\.7"), (float("nan"), "nan")],
+                         ids=["5", "-1", "1.7", "nan"])
+@pytest.mark.parametrize("face", list(FACE_WHO))
+def test_every_face_refuses_a_bad_action_with_one_message(face, action, shown):
+    # The same one-line ValueError from every face: never rounded, clamped or wrapped into a mode.
+    with pytest.raises(ValueError, match=rf"^{FACE_WHO[face]}: action {shown} is not an integer in 0\.\.2$"):
+        _face_step(face, action)

@@ -49,12 +49,11 @@ def evaluate(capsys, suite, spec, out):
 # ----------------------------------------------------------------------------- Stable-Baselines3
 def _sb3_zip(tmp_path: Path, marker: Path) -> Path:
     pytest.importorskip("stable_baselines3")
-    import gymnasium
     from stable_baselines3 import DQN
 
-    import overtakezoo.envs  # noqa: F401 (registers overtakezoo/Overtake-v0)
+    from overtakezoo.envs import OvertakeEnv  # the env's defaults: only its spaces matter (tiny replaces the suites)
 
-    model = DQN("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v0"), seed=0, verbose=0, device="cpu",
+    model = DQN("MlpPolicy", OvertakeEnv(), seed=0, verbose=0, device="cpu",
                 policy_kwargs={"net_arch": [16]})
     model.save(tmp_path / "honest.zip")
     payload = base64.b64encode(pickle.dumps(Plant(marker))).decode()
@@ -293,6 +292,7 @@ def test_a_row_storing_code_is_refused_by_verify(tmp_path, tiny, capsys, scripts
                  "--no-progress"]) == 0
     root = tmp_path / "lb"
     _direct_row(root, tiny, "ts-row", Results.load(tmp_path / "r.json"), (tmp_path / "w.pt").read_bytes(), ".pt")
+    capsys.readouterr()  # (eval's hold line and no-card warning on stderr)
     err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify"])
     assert "ts-row.json" in err and "artifact" in err
     assert not (tmp_path / "pwned").exists()
@@ -314,6 +314,7 @@ def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path,
                  "--no-progress"]) == 0
     root = tmp_path / "lb"
     _direct_row(root, tiny, "seven", Results.load(tmp_path / "r.json"), onnx_bytes, ".onnx")
+    capsys.readouterr()  # (eval's hold line and no-card warning on stderr)
     err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify"])
     assert err.startswith("error: submissions/tiny/seven.json: ") and "step 0" in err and "scenario" in err
     assert "returned mode 7" in err

@@ -10,6 +10,7 @@ import threading
 import pytest
 
 from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard.generate import generate
 from overtakezoo.benchmark.leaderboard.untrusted import md, plot_text
 
@@ -200,11 +201,12 @@ def test_hostile_crossplay_seeds_and_reference_strings_are_escaped(root):
         "config_sha256": "x" * 64, "sim_version": 0, "scenarios": 2,
         "deciders": [{"name": n, "version": "<b>1</b>", "weights_sha256": "` <b>"} for n in evil], "pairs": pairs}))
     seeds = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
-    seeds.update(member="<img onerror=x> t.png", selection_rule="[l] `c` *e* <b>x</b> t.png")
+    seeds.update(selection_rule="[l] `c` *e* <b>x</b> t.png")  # the member is the file's name (checked)
     for e in seeds["seeds"]:
-        e["seed"] = "*e* t.png"
+        if e["seed"] != seeds["shipped_seed"]:
+            e["seed"] = "*e* <img onerror=x> t.png"
     (root / "seeds").mkdir()
-    (root / "seeds" / "evil.json").write_text(json.dumps(seeds))
+    (root / "seeds" / "dqn.json").write_text(json.dumps(seeds))
     paper = json.loads((root / "reference" / "paper.json").read_text())
     paper["source"] = "<b>x</b> ![t](https://x/t.png)"
     paper["rows"][0]["decider"] = "*e* | [l] t.png"
@@ -213,3 +215,45 @@ def test_hostile_crossplay_seeds_and_reference_strings_are_escaped(root):
     for page in ("crossplay-duel.md", "README.md", "table1.md"):
         _hostile_lines(files[page].decode())
     assert files["crossplay-duel.png"].startswith(b"\x89PNG")
+
+
+# ------------------------------------------------------------------ seeds files
+def _seeds_root(tmp_path, name, change=None, source="dqn"):
+    doc = json.loads((REPO_LEADERBOARDS / "seeds" / f"{source}.json").read_text())
+    if change:
+        change(doc)
+    (tmp_path / "seeds").mkdir(parents=True, exist_ok=True)
+    (tmp_path / "seeds" / f"{name}.json").write_text(json.dumps(doc))
+    return tmp_path
+
+
+def test_a_seeds_file_cannot_lift_another_member(tmp_path):
+    from overtakezoo.benchmark.leaderboard.headline import load_seeds
+
+    assert set(load_seeds(REPO_LEADERBOARDS)) >= {"dqn", "ppo"}  # the shipped files pass
+    # always-overtake (not learned) claims dqn's seeds under its own name; then ppo's file names dqn.
+    with pytest.raises(UserError, match="named after the learned member"):
+        load_seeds(_seeds_root(tmp_path, "always-overtake", lambda d: d.update(member="always-overtake")))
+    with pytest.raises(UserError, match="says member 'dqn'"):
+        load_seeds(_seeds_root(tmp_path / "b", "ppo"))
+    # A file for dqn whose shipped seed is not the shipped dqn's weights.
+    with pytest.raises(UserError, match="is not the shipped dqn's"):
+        load_seeds(_seeds_root(tmp_path / "c", "dqn", lambda d: d.update(shipped_seed=1)))
+
+
+def test_a_seeds_file_whose_shipped_seed_differs_from_its_verified_row_is_refused(tmp_path):
+    from overtakezoo.benchmark.leaderboard.headline import build_table, load_seeds
+    from overtakezoo.benchmark.results.results import Results
+
+    row = Results.load(REPO_LEADERBOARDS / "submissions" / "dense" / "dqn.json")
+    rows, hashes = {"dqn": {"dense": row.summary}}, {"dense": row.suite["hash"]}
+    assert len(build_table(rows, load_seeds(REPO_LEADERBOARDS), hashes)["dqn"]["dense"]) == 3  # honest: 3 seeds
+
+    def claim_all(doc):
+        for e in doc["seeds"]:
+            c = e["suites"]["dense"]
+            c.update(success=c["n"], crash=0)
+
+    forged = load_seeds(_seeds_root(tmp_path, "dqn", claim_all))
+    with pytest.raises(UserError, match="shipped seed 0 on dense"):
+        build_table(rows, forged, hashes)

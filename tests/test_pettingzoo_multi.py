@@ -15,7 +15,7 @@ with warnings.catch_warnings():  # pettingzoo.test imports its own example envs 
 
 from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.suites import MULTI, load_suite
-from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env
+from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env, sb3_vec_env
 from overtakezoo.envs.faces.spaces import ego_observation_space
 
 KMH = 1 / 3.6
@@ -165,20 +165,13 @@ def test_an_episode_ends_when_every_av_is_done_and_then_steps_empty():
 
 
 # ---------------------------------------------------------------- SuperSuit parameter sharing
-def _supersuit_vec(par, k: int, base_class: str):
-    import supersuit as ss
-
-    vec = ss.pettingzoo_env_to_vec_env_v1(ss.black_death_v3(par))
-    return ss.concat_vec_envs_v1(vec, num_vec_envs=k, base_class=base_class)
-
-
 def test_supersuit_black_death_vector_of_roads():
     """``k`` roads x E AVs as one Gymnasium vector env: a finished AV gets zeros until its road ends,
     then the whole road restarts."""
     import gymnasium
 
     par = parallel_env(scenario={"oncoming_av": 1, "oncoming_count": 0, "time_limit": 3.0})
-    vec = _supersuit_vec(par, 3, "gymnasium")
+    vec = sb3_vec_env(par, 3, base_class="gymnasium")
     assert isinstance(vec, gymnasium.vector.VectorEnv) and vec.num_envs == 6
     obs, infos = vec.reset(seed=0)
     assert obs.shape == (6, par.core.obs_size) and len(infos) == 6
@@ -196,19 +189,26 @@ def test_supersuit_black_death_vector_of_roads():
 
 
 def test_parameter_sharing_ppo_on_supersuit_vector():
-    """A few hundred steps of stable-baselines3's PPO, one shared policy for every AV of two duel roads."""
+    """A few hundred steps of stable-baselines3's PPO, one shared policy for every AV of two duel roads,
+    seeded with PPO(seed=0) (SuperSuit 3.11's own SB3 wrapper raises AttributeError: 'ConcatVecEnv'
+    object has no attribute 'seed'; issue 36): sb3_vec_env seeds the next reset, road i with seed + i."""
     import torch
     from stable_baselines3 import PPO
-    from stable_baselines3.common.utils import set_random_seed
 
-    vec = _supersuit_vec(parallel_env(load_suite("duel")), 2, "stable_baselines3")
+    vec = sb3_vec_env(parallel_env(load_suite("duel")), num_roads=2)
     assert vec.num_envs == 4
-    set_random_seed(0)
-    vec.venv.reset(seed=0)  # SuperSuit's SB3 wrapper has no seed(): seed the roads, PPO then keeps stepping them
+    assert vec.seed(7) == [7, 8, 9, 10]
+    first = vec.reset()
+    vec.seed(7)
+    np.testing.assert_array_equal(vec.reset(), first)  # the same seed, the same roads
+    vec.seed(8)
+    shifted = vec.reset()
+    np.testing.assert_array_equal(shifted[:2], first[2:])  # road i is seeded seed + i (rows road by road)
+    assert not np.array_equal(shifted, first)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # a 32-unit MLP: more threads only contend with the other tests
     try:
-        model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64, n_epochs=2, device="cpu",
+        model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64, n_epochs=2, device="cpu", seed=0,
                     policy_kwargs={"net_arch": [32]}, verbose=0)
         before = [p.detach().clone() for p in model.policy.parameters()]
         model.learn(total_timesteps=512)  # 128 steps of the vector: 2 roads x 2 AVs
@@ -234,7 +234,7 @@ def test_the_core_steps_n_roads_as_e_times_n_rows_like_n_envs():
     for m in modes:
         res = core.step(m)
     for road in range(n):
-        par = parallel_env(suite)
+        par = parallel_env(suite, hold_steps=1)  # one core step per env step, as the core is stepped here
         o, _ = par.reset(options={"scenarios": roads.take([road])})
         for m in modes:
             o, r, *_ = par.step({f"av_{k}": int(m[k * n + road]) for k in range(e) if f"av_{k}" in par.agents})

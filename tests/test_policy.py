@@ -69,9 +69,9 @@ def test_sb3_dqn_trained_on_the_gym_env_evaluates_through_the_cli(tmp_path, suit
     import gymnasium
     from stable_baselines3 import DQN
 
-    import overtakezoo.envs  # noqa: F401 (registers overtakezoo/Overtake-v0)
+    import overtakezoo.envs  # noqa: F401 (registers overtakezoo/Overtake-v1)
 
-    model = DQN("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v0"), seed=0, learning_starts=100,
+    model = DQN("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v1"), seed=0, learning_starts=100,
                 train_freq=8, verbose=0, device="cpu")
     model.learn(600)  # a couple of seconds: the point is the route, not the skill
     model.save(tmp_path / "model.zip")

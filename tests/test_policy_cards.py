@@ -58,12 +58,11 @@ def _mlp(seed=0):
 
 def _sb3_zip(path):
     pytest.importorskip("stable_baselines3")
-    import gymnasium
     from stable_baselines3 import PPO
 
-    import overtakezoo.envs  # noqa: F401 (registers overtakezoo/Overtake-v0)
+    from overtakezoo.envs import OvertakeEnv  # the env's defaults: only its spaces matter (tiny replaces the suites)
 
-    PPO("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v0"), seed=0, n_steps=64, device="cpu").save(path)
+    PPO("MlpPolicy", OvertakeEnv(), seed=0, n_steps=64, device="cpu").save(path)
     return path.with_name(path.name + ".zip") if path.suffix != ".zip" else path
 
 
@@ -212,6 +211,7 @@ def test_onnx_card_inside_with_external_data_from_another_cwd(tmp_path, tiny, ca
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
     # The data file outside the model's directory is never read: one line naming the fix.
     (d / "policy.onnx.data").unlink()
+    capsys.readouterr()  # (submit's hold line on stderr)
     assert "save_as_external_data=False" in one_line_error(capsys, ["eval", "--suite", tiny, "--policy", rel,
                                                                     "--no-progress"])
 
@@ -318,7 +318,7 @@ def test_sb3_ppo_and_a2c_zips_act_as_they_predict(tmp_path):
 
     obs = np.random.default_rng(5).normal(size=(6, D)).astype(np.float32)
     for algo, kwargs in ((PPO, {"n_steps": 64}), (A2C, {})):
-        model = algo("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v0"), seed=1, device="cpu", **kwargs)
+        model = algo("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v1"), seed=1, device="cpu", **kwargs)
         model.save(tmp_path / algo.__name__)
         dec = load_policy(str(tmp_path / f"{algo.__name__}.zip"))
         assert dec.policy["kind"] == "sb3"

@@ -18,6 +18,7 @@ import overtakezoo.envs  # noqa: F401  (registers the ids)
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
 from overtakezoo.envs import ConfigError, OvertakeEnv, OvertakeVectorEnv, make_vec, parallel_env
+from overtakezoo.envs.faces.gym import ENV_ID, ENV_ID_V0
 from overtakezoo.envs.suites import MULTI, SuiteError, load_suite, suite_env_ids, suite_names
 
 with warnings.catch_warnings():
@@ -46,10 +47,12 @@ def test_every_builtin_suite_is_a_registered_id_with_the_zoo_hold():
         assert entry.hold_steps == round(1.0 / suite.config.dt) == 10  # the zoo's 1 s decision
         assert pettingzoo.parallel_registry[env_id].kwargs == {"suite": entry.name, "hold_steps": 10}
         multi = suite.num_avs > 1
-        assert entry.multi_av == multi and (env_id in gymnasium.registry) == (not multi)
-        if not multi:
-            assert gymnasium.spec(env_id).kwargs == {"suite": entry.name, "hold_steps": 10}
-    assert "overtakezoo/table1-train-v2" in gymnasium.registry and "overtakezoo/duel-v1" not in gymnasium.registry
+        assert entry.multi_av == multi and env_id in gymnasium.registry
+        assert gymnasium.spec(env_id).kwargs == {"suite": entry.name, "hold_steps": 10}
+        # A multi-AV suite's Gymnasium id only refuses, showing the PettingZoo call (issue 36).
+        refuses = gymnasium.spec(env_id).entry_point == "overtakezoo.envs.faces.pettingzoo:gymnasium_refusal"
+        assert refuses == multi
+    assert "overtakezoo/table1-train-v2" in gymnasium.registry
     assert {entry.name for entry in ids.values() if entry.multi_av} == {*MULTI, *(f"{m}-train" for m in MULTI)}
 
 
@@ -59,9 +62,24 @@ def test_a_suite_id_is_the_suites_world_and_overtake_v0_is_unchanged():
     assert isinstance(env, OvertakeEnv) and env.hold_steps == 10
     assert env.config == load_suite("table1").config  # scripted NPCs, no prediction: the suite's settings
     assert env.distribution == load_suite("table1").distribution
-    default = gymnasium.make("overtakezoo/Overtake-v0").unwrapped
+    with pytest.warns(DeprecationWarning, match=r"Overtake-v0 is out of date.*upgrading to version `v1`"):
+        default = gymnasium.make("overtakezoo/Overtake-v0").unwrapped
     assert default.hold_steps == 1 and default.config == overtakezoo.envs.EnvConfig()
     made.close()
+
+
+def test_overtake_v1_is_table1_train_v2_with_the_zoo_hold():
+    # Issue 36: the id the submit guide trains on is the training world at the zoo's 1 s decision, the
+    # kwargs of table1-train v2's id. A new table1-train version must come with a new Overtake version.
+    assert ENV_ID == "overtakezoo/Overtake-v1" and ENV_ID_V0 == "overtakezoo/Overtake-v0"
+    assert gymnasium.spec(ENV_ID).kwargs == gymnasium.spec("overtakezoo/table1-train-v2").kwargs \
+        == {"suite": "table1-train", "hold_steps": 10}
+    assert pettingzoo.parallel_registry[ENV_ID].kwargs == gymnasium.spec(ENV_ID).kwargs
+    env = gymnasium.make(ENV_ID).unwrapped
+    train = load_suite("table1-train")
+    assert env.hold_steps == 10 and env.config == train.config and env.distribution == train.distribution
+    assert gymnasium.make_vec(ENV_ID, num_envs=2).hold_steps == 10
+    assert gymnasium.spec("overtakezoo/Overtake-v0").kwargs == {}
 
 
 def test_make_make_vec_and_parallel_env_take_a_suite_name_or_file(tmp_path):
@@ -71,7 +89,8 @@ def test_make_make_vec_and_parallel_env_take_a_suite_name_or_file(tmp_path):
     for suite in ("table1-train", str(path)):
         assert gymnasium.make("overtakezoo/Overtake-v0", suite=suite).unwrapped.config == table1
         vec = gymnasium.make_vec("overtakezoo/Overtake-v0", num_envs=2, suite=suite)
-        assert isinstance(vec, OvertakeVectorEnv) and vec.config == table1 and vec.hold_steps == 1
+        # made from a suite: the suite's hold, the zoo's 1 s, as its id (issue 36)
+        assert isinstance(vec, OvertakeVectorEnv) and vec.config == table1 and vec.hold_steps == 10
         assert parallel_env(suite=suite).config == table1
     held = gymnasium.make_vec("overtakezoo/table1-v2", num_envs=3)
     assert held.hold_steps == 10 and held.config == table1

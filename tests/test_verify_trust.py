@@ -17,9 +17,12 @@ from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import Results
 from overtakezoo.benchmark.leaderboard.submission import submissions_lock, submit
 from overtakezoo.benchmark.leaderboard.changes import changed_rows
-from overtakezoo.benchmark.leaderboard.verify import sample_indices, tree_seed, verify
+from overtakezoo.benchmark.leaderboard.verify import sample_indices, verify
 
-from test_submissions import REPO, one_line_error, shipped
+from overtakezoo.benchmark.cli import main
+from overtakezoo.envs.io import file_sha256
+
+from test_submissions import REPO, one_line_error, shipped, tiny  # noqa: F401 (tiny: a fixture)
 
 ROWS = ("always-follow", "always-overtake", "oracle", "rule-fsm")
 
@@ -128,10 +131,11 @@ def test_new_and_changed_rows_are_verified_in_full(root, capsys):
     assert verify(root, sample=1, seed=0, log=lambda _: None) == len(ROWS)
     err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--base", base])
     assert f"{rel}: scenario " in err
-    # The default draw follows the tree's content: any edit moves it.
-    before = tree_seed(root)
-    edit(root / "submissions" / "table1" / "rule-fsm.json", lambda d: d["timing"].update(wall_time_s=1.0))
-    assert tree_seed(root) != before
+    # The default draw is fresh randomness, printed so that a failure can be replayed.
+    seeds = []
+    for _ in range(2):
+        verify(root, sample=1, log=seeds.append, only="table1/rule-fsm")
+    assert all(s.startswith("sample seed ") for s in (seeds[0], seeds[2])) and seeds[0] != seeds[2]
     with pytest.raises(UserError, match="not a git revision"):
         changed_rows(root, "no-such-rev")
 
@@ -148,6 +152,54 @@ def test_a_new_stale_row_is_refused(root, capsys):
     verify(root, sample=1, changed=changed_rows(root, "HEAD"), log=lines.append)
     assert "stale submissions/table1/rule-fsm.json: listed by name only, not re-run (measured on simulator v1" \
            f" (now v{Results.load(REPO / 'submissions/table1/dqn.json').meta['sim_version']}))" in lines
+
+
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_untracked_rows_are_new_and_counted_as_rows(tiny, tmp_path, capsys, learned_dir, monkeypatch):
+    # The board in a subfolder of its repository, as leaderboards/ in a checkout.
+    monkeypatch.delenv("OVERTAKEZOO_VERIFY_BASE", raising=False)
+    monkeypatch.delenv("GITHUB_BASE_REF", raising=False)
+    repo = tmp_path / "repo"
+    root = repo / "leaderboards"
+    assert main(["eval", "--decider", "always-follow", "--suite", tiny, "--out", str(tmp_path / "af.json"),
+                 "--no-progress"]) == 0
+    assert main(["submit", str(tmp_path / "af.json"), "--root", str(root)]) == 0
+    git(repo, "init", "-q")
+    git(repo, "add", "-A")
+    git(repo, "commit", "-qm", "base")
+    base = git(repo, "rev-parse", "HEAD")
+    monkeypatch.setenv("OVERTAKEZOO_VERIFY_BASE", base)  # a pull request's target (no origin here)
+
+    # A policy of our own, just submitted: three untracked files (the row, the weights, their card), one row.
+    mine = tmp_path / "run" / "mine.npz"
+    mine.parent.mkdir()
+    shutil.copy(learned_dir / "dqn.npz", mine)
+    shutil.copy(learned_dir / "dqn.json", mine.with_suffix(".json"))
+    assert main(["eval", "--policy", str(mine), "--suite", tiny, "--out", str(tmp_path / "r.json"),
+                 "--no-progress"]) == 0
+    assert main(["submit", str(tmp_path / "r.json"), "--name", "my-dqn", "--policy", str(mine), "--root", str(root)]) == 0
+    assert len(git(repo, "ls-files", "--others").split()) == 3
+    rel = f"submissions/{tiny}/my-dqn.json"
+    for staged in (False, True):  # untracked, then added: the same one row, verified in full
+        if staged:
+            git(repo, "add", "-A")
+        assert changed_rows(root, base) == {rel}
+        capsys.readouterr()
+        assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0  # base: the target, from the environment
+        out = capsys.readouterr().out
+        assert f"rows new or changed against {base[:12]} (untracked rows are new): 1 row(s), verified in full" in out
+        assert f"verified {rel}: 12 of 12 scenarios reproduce exactly (new or changed: every scenario)" in out
+        assert f"verified submissions/{tiny}/always-follow.json: 1 of 12 scenarios reproduce exactly\n" in out
+    # --only counts the rows it selects; a deleted row is on no board: nothing to verify.
+    assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--only", "*/always-*"]) == 0
+    assert "(untracked rows are new): 0 row(s)" in capsys.readouterr().out
+    git(repo, "commit", "-qm", "my-dqn")
+    (root / "submissions" / tiny / "always-follow.json").unlink()
+    assert changed_rows(root, "HEAD") == set()
+    # A stored file changed: the row using it is the one row counted.
+    card = root / "submissions" / "artifacts" / f"{file_sha256(mine)}.json"
+    card.write_text(card.read_text() + " ")
+    assert changed_rows(root, "HEAD") == {rel}
 
 
 # ------------------------------------------------------------------ concurrent submits
@@ -185,3 +237,41 @@ def test_submits_in_one_clone_wait_for_each_other(tmp_path):
         t.join(60)
     assert len(filed) == 1 and len(errors) == 1 and "already on the table1 leaderboard" in errors[0]
     assert Results.load(root2 / "submissions" / "table1" / "always-follow.json").decider["name"] == "always-follow"
+
+
+def test_ci_in_a_fresh_clone_verifies_a_forged_row_in_full(tmp_path, capsys, monkeypatch):
+    # As CI really runs: a fresh clone of the branch under test, no base in the environment. There
+    # the merge base with origin/HEAD is HEAD itself, which used to mean "0 rows changed" and one
+    # predictable scenario per row; now there is no base, and every row is re-run in full.
+    for var in ("OVERTAKEZOO_VERIFY_BASE", "GITHUB_BASE_REF"):
+        monkeypatch.delenv(var, raising=False)
+    repo = tmp_path / "repo"
+    lb = repo / "leaderboards"
+    (lb / "submissions" / "table1").mkdir(parents=True)
+    for name in ("always-follow", "rule-fsm"):
+        shutil.copy(REPO / "submissions" / "table1" / f"{name}.json", lb / "submissions" / "table1")
+    assert main(["leaderboard", "--root", str(lb)]) == 0
+    git(repo, "init", "-q")
+    git(repo, "add", "-A")
+    git(repo, "commit", "-qm", "main")
+    # The pull request: always-follow (it never overtakes, so it never succeeds) claims 13 successes,
+    # its summary recomputed and the pages regenerated, so --check passes.
+    rel = "submissions/table1/always-follow.json"
+    r = Results.load(lb / rel)
+    per = {k: v.copy() for k, v in r.per.items()}
+    lie = np.flatnonzero(per["outcome"] != 1)[100:113]
+    per["outcome"][lie], per["completion_time"][lie] = 1, 30.0
+    from overtakezoo.benchmark.results.metrics import summarize
+
+    Results(r.meta, per, summarize(per, r.meta["seed"]), r.timing).save(lb / rel)
+    assert main(["leaderboard", "--root", str(lb)]) == 0
+    git(repo, "commit", "-qam", "pr")
+    clone = tmp_path / "ci"
+    subprocess.run(["git", "clone", "-q", str(repo), str(clone)], check=True)
+    capsys.readouterr()
+    assert main(["leaderboard", "--root", str(clone / "leaderboards"), "--check"]) == 0
+    capsys.readouterr()
+    assert main(["leaderboard", "--root", str(clone / "leaderboards"), "--verify", "--sample", "1"]) == 2
+    out, err = capsys.readouterr()
+    assert "every row counts as changed and is verified in full" in out
+    assert err.startswith(f"error: {rel}: scenario {lie[0]}") and "\n" not in err.strip(), err

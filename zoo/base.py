@@ -32,8 +32,11 @@ class Decider:
       :class:`ObservationError`; the check is here, once, so ``act_batch`` sees valid input only.
     - ``reset(mask)``: forget per-row state for the rows in ``mask`` (all rows when None); the
       runner calls it when episodes (re)start.
-    - ``action_repeat``: core steps each decision was made for (from training); the benchmark runner
-      holds every decision that long (``overtakezoo.envs.hold``), so a decider never counts steps.
+    - ``action_repeat``: the decider's *decision rate* (its deployed hold): core steps between its
+      decisions when deployed; the benchmark runner holds every decision that long
+      (``overtakezoo.envs.hold``), so a decider never counts steps. For a learned member it is its
+      card's ``decide_every`` (dqn: 1), which may differ from its *training hold*, the core steps each
+      decision was held in training (the card's ``action_repeat``, dqn: 10; :mod:`.members.learned`).
     - ``row_state``: the names of the decider's per-row state arrays (``()``: stateless; ``None``,
       the default: undeclared). A decider that declares it lets the runner drop finished rows from
       the batch mid-run (:meth:`keep_rows`); an undeclared one always sees the whole batch.

@@ -42,7 +42,8 @@ def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, d
             f"{who}: version must be a str, got {getattr(decider, 'version', None)!r}")
     repeat = getattr(decider, "action_repeat", 1)
     _expect(isinstance(repeat, (int, np.integer)) and not isinstance(repeat, bool) and repeat >= 1,
-            f"{who}: action_repeat must be an int >= 1 (core steps each decision is held), got {repeat!r}")
+            f"{who}: action_repeat must be an int >= 1 (its decision rate: core steps each decision is held), "
+            f"got {repeat!r}")
     scenarios = ScenarioDistribution.from_dict(config.scenario).sample(num, seed)
 
     first = _rollout(decider, config, scenarios, decisions, who)

@@ -24,6 +24,11 @@ import numpy as np
 from overtakezoo.benchmark.archive.cdr import RECORD_HEAD
 from overtakezoo.benchmark.archive.format import FORMAT_VERSION, INF_FIELDS, STATE_TOPICS
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
+
+# A chunk's records are inflated at most this far: the recorder writes chunks of ~4 MiB of whole
+# episodes (one long episode's scene a few MiB more), so a chunk declaring or inflating past 256 MiB is a bomb.
+MAX_CHUNK_BYTES = 256 << 20
 
 
 @dataclass
@@ -107,7 +112,7 @@ class _Archive:
         except OSError as exc:
             raise UserError(f"cannot read archive {self.path}: {exc.strerror or exc}") from None
         self.note: str | None = None
-        self._chunks: list[tuple[int, int, int]] | None = None  # scanned (offset, start, end): no summary
+        self._chunks: list[tuple[int, int, int]] = []  # (offset, start, end): from the summary, or scanned
         self._topics: dict[int, str] = {}  # scanned channels
         try:
             self.reader = make_reader(self._f, validate_crcs=True, decoder_factories=[_JsonDecoderFactory()])
@@ -117,7 +122,11 @@ class _Archive:
                 summary = None
             if summary is None:
                 meta, entries = self._scan()
-            else:
+            else:  # its chunks are read here too (bounded, :func:`_inflate`), never by mcap's reader
+                self._topics = {cid: ch.topic for cid, ch in summary.channels.items()}
+                self._chunks = sorted((ci.chunk_start_offset, ci.message_start_time, ci.message_end_time)
+                                      for ci in summary.chunk_indexes
+                                      if any(self._topics.get(c) in STATE_TOPICS for c in ci.message_index_offsets))
                 meta, entries = {}, []
                 for rec in self.reader.iter_metadata():
                     if rec.name == "episode":
@@ -201,31 +210,37 @@ class _Archive:
     def messages(self, start: int | None = None, end: int | None = None) -> Iterator[tuple[str, bytes]]:
         """The reader's topics' messages (their data), in time order per topic."""
         try:
-            if self._chunks is not None:
-                yield from self._scanned_messages(start, end)
-                return
-            for _, channel, msg in self.reader.iter_messages(
-                    topics=list(STATE_TOPICS), starting_at=start, ending_before=end, log_time_order=False):
-                yield channel.topic, msg.data
+            yield from self._chunk_messages(start, end)
         except UserError:
             raise
         except Exception as exc:
             raise _corrupt(self.path, exc) from None
 
-    def _scanned_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, bytes]]:
-        """:meth:`messages` of a scanned file: the chunks overlapping [start, end), CRCs checked."""
+    def _chunk_messages(self, start: int | None, end: int | None) -> Iterator[tuple[str, bytes]]:
+        """:meth:`messages`: those of the chunks overlapping [start, end), in file order, each chunk
+        inflated within :data:`MAX_CHUNK_BYTES` (:func:`_inflate`), CRCs checked."""
+        import dataclasses
+
         from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
         from mcap.records import Chunk, Message
         from mcap.stream_reader import breakup_chunk
 
         lo, hi = (start or 0), (end if end is not None else 1 << 64)
         topics = self._topics
         wanted = set(STATE_TOPICS)
+        size = os.fstat(self._f.fileno()).st_size
         for pos, first, last in self._chunks:
             if last < lo or first >= hi:
                 continue
-            self._f.seek(pos + 9)
-            for rec in breakup_chunk(Chunk.read(ReadDataStream(self._f)), validate_crc=True):
+            self._f.seek(pos)
+            head = self._f.read(9)
+            opcode, length = struct.unpack("<BQ", head) if len(head) == 9 else (None, 0)
+            if opcode != Opcode.CHUNK or pos + 9 + length > size:  # (never read a length the file does not hold)
+                raise ValueError(f"no whole chunk record at offset {pos}")
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(self._f.read(length))))
+            plain = dataclasses.replace(chunk, compression="", data=_inflate(self.path, pos, chunk))
+            for rec in breakup_chunk(plain, validate_crc=True):
                 if isinstance(rec, Message) and lo <= rec.log_time < hi and topics.get(rec.channel_id) in wanted:
                     yield topics[rec.channel_id], rec.data
 
@@ -235,6 +250,42 @@ class _Archive:
             raise UserError(f"episode {k} is not in {self.path} (episodes: {known}, {len(self.entries)} in all)")
         e = self.by_index[k]
         return e.start_ns, e.end_ns + 1
+
+
+def _inflate(path: Path, pos: int, chunk: Any) -> bytes:
+    """A chunk's records, decompressed with a bounded output: refused (:class:`UserError`) when its declared
+    ``uncompressed_size`` is over :data:`MAX_CHUNK_BYTES`, or when its data inflates past that size (read
+    at most one byte further: a bomb never inflates whole)."""
+    declared = int(chunk.uncompressed_size)
+    if declared > MAX_CHUNK_BYTES:
+        raise UserError(f"{path}: the chunk at offset {pos} declares {declared} bytes uncompressed, at most "
+                        f"{MAX_CHUNK_BYTES} are read (a decompression bomb, not an OvertakeZoo archive)")
+    limit = declared + 1
+    if chunk.compression == "zstd":
+        import zstandard
+
+        out = bytearray()
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data), read_across_frames=True) as r:
+            while len(out) < limit:
+                piece = r.read(min(1 << 20, limit - len(out)))
+                if not piece:
+                    break
+                out += piece
+        data = bytes(out)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=limit)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise UserError(f"{path}: the chunk at offset {pos} is compressed with {chunk.compression!r} "
+                        "(this reads zstd, lz4 or none)")
+    if len(data) != declared:
+        how = "past" if len(data) > declared else "short of"
+        raise UserError(f"{path}: the chunk at offset {pos} inflates {how} its declared {declared} bytes "
+                        "(a decompression bomb, or a corrupt archive)")
+    return data
 
 
 class _Builder:
@@ -250,9 +301,9 @@ class _Builder:
         if topic == "/state":
             self.state.append(data)
         elif topic == "/episode/spec":
-            self.spec = json.loads(data)
+            self.spec = safe_json.loads(data, f"episode {self.index}: its {topic} message")
         elif topic == "/episode/summary":
-            self.summary = json.loads(data)
+            self.summary = safe_json.loads(data, f"episode {self.index}: its {topic} message")
 
     def build(self, path: Path) -> Episode:
         if self.spec is None or self.summary is None or not self.state:
@@ -331,8 +382,11 @@ def read_episode(path: str | os.PathLike, k: int) -> Episode:
     with _Archive(path) as ar:
         start, end = ar.episode_range(int(k))
         b = _Builder(int(k))
-        for topic, data in ar.messages(start, end):
-            b.add(topic, data)
+        try:
+            for topic, data in ar.messages(start, end):
+                b.add(topic, data)
+        except safe_json.JSONInputError as exc:
+            raise UserError(f"{ar.path}: {exc}") from None
         return b.build(ar.path)
 
 
@@ -340,13 +394,16 @@ def read_archive(path: str | os.PathLike) -> list[Episode]:
     """Every (whole) episode of the archive, in scenario order."""
     with _Archive(path) as ar:
         builders: dict[int, _Builder] = {}
-        for topic, data in ar.messages():
-            ep = _episode_of(topic, data)
-            if ep not in ar.by_index:  # the part of an episode a cut file lost
-                continue
-            if ep not in builders:
-                builders[ep] = _Builder(ep)
-            builders[ep].add(topic, data)
+        try:
+            for topic, data in ar.messages():
+                ep = _episode_of(topic, data)
+                if ep not in ar.by_index:  # the part of an episode a cut file lost
+                    continue
+                if ep not in builders:
+                    builders[ep] = _Builder(ep)
+                builders[ep].add(topic, data)
+        except safe_json.JSONInputError as exc:
+            raise UserError(f"{ar.path}: {exc}") from None
         missing = set(ar.by_index) - set(builders)
         if missing:
             raise UserError(f"{ar.path}: episodes {sorted(missing)[:5]} listed but have no data (corrupt archive)")
@@ -358,4 +415,4 @@ def read_archive(path: str | os.PathLike) -> list[Episode]:
 def _episode_of(topic: str, data: bytes) -> int:
     if topic == "/state":  # the first field after the CDR header
         return struct.unpack_from("<I", data, 4)[0]
-    return json.loads(data)["episode"]
+    return safe_json.loads(data, f"a {topic} message")["episode"]

@@ -8,7 +8,6 @@ through ``ffmpeg`` (needed on PATH), a PNG is the final frame.
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig
+from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig, safe_json
 
 from overtakezoo.benchmark.archive.reader import Episode, read_archive_meta, read_episode
 from overtakezoo.benchmark.errors import UserError
@@ -29,7 +28,7 @@ FOXGLOVE_LAYOUT = Path(__file__).parent / "foxglove" / "overtakezoo-layout.json"
 def _planner(meta: dict[str, str]) -> dict[str, float]:
     """The planner geometry the drawing needs, from the config stored in the archive."""
     defaults = PlannerConfig()
-    stored = json.loads(meta.get("config", "{}")).get("planner", {}) or {}
+    stored = safe_json.loads(meta.get("config", "{}"), "archive metadata: config").get("planner", {}) or {}
     keys = ("roll_in_speed_factor", "roll_in_margin", "car_tip_margin", "horizon_time")
     return {k: float(stored.get(k, getattr(defaults, k))) for k in keys}
 

@@ -3,8 +3,49 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 from typing import Any
 
+# The checkout this package runs from (an editable install): benchmark/commands/ -> the repository root.
+CHECKOUT_LEADERBOARDS = Path(__file__).resolve().parents[2] / "leaderboards"
+
+DEFAULT_ROOT_RULE = ("without --root: ./leaderboards where it has a submissions/ folder, else the leaderboards/ "
+                     "of the checkout this package runs from, else an error (the default never creates a folder)")
+
+
+def root_help(new_ok: bool = False) -> str:
+    """The ``--root`` help of every leaderboard command (submit, leaderboard): one rule, said the same way."""
+    given = ("PATH, created when nothing is there yet (a new leaderboard)" if new_ok
+             else "PATH, which must exist (else: no such folder: PATH)")
+    return f"the leaderboard folder, found by one rule for submit and leaderboard: {given}; {DEFAULT_ROOT_RULE}"
+
+
+def leaderboard_root(root: str | None, new_ok: bool = False) -> str:
+    """The one rule ``submit``, ``leaderboard``, ``leaderboard --check`` and ``leaderboard --verify``
+    find their leaderboard by. ``root`` when given: a folder that exists, else a UserError
+    "no such folder: PATH" (with ``new_ok``, submit's explicit --root, a path where nothing is yet is
+    returned to be created). Without it: ``./leaderboards`` where it has ``submissions/``, else the
+    checkout's own ``leaderboards/`` (an editable install run from another folder), else a UserError:
+    the default never names a fresh, empty folder (one that --check would call stale, or that submit
+    would start a stray board in)."""
+    from overtakezoo.benchmark.errors import UserError
+
+    if root is not None:
+        path = Path(root)
+        if path.is_dir() or path.is_symlink():  # a symlinked root is refused by name later (check_tree)
+            return root
+        if new_ok and not path.exists() and not path.is_symlink():
+            above = next(p for p in path.absolute().parents if p.exists())  # what the new folders go under
+            if not above.is_dir() or not os.access(above, os.W_OK | os.X_OK):
+                raise UserError(f"cannot write {root}: {above} is not a writable folder")
+            return root
+        raise UserError(f"no such folder: {root}" + (" (a file is there)" if path.exists() else ""))
+    for candidate in (Path("leaderboards"), CHECKOUT_LEADERBOARDS):
+        if (candidate / "submissions").is_dir():
+            return str(candidate)
+    raise UserError("no leaderboard here: neither ./leaderboards nor this package's checkout has a "
+                    "leaderboards/submissions/ folder; run from the repository root or pass --root")
 
 
 def add_parser(subparsers: Any, name: str, help: str, description: str, examples: list[str]) -> argparse.ArgumentParser:

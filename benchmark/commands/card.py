@@ -1,4 +1,4 @@
-"""``overtakezoo card``: write the policy card (decision hold, observation contract) of a policy file."""
+"""``overtakezoo card``: write the policy card (training hold, observation contract) of a policy file."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "card", "write the policy card of a policy file (its decision hold)",
-                   "Write the policy card of a policy file you trained outside OvertakeZoo: the core steps each\n"
-                   "decision is held (--action-repeat: what your training env's action repeat / frame skip was)\n"
+    p = add_parser(subparsers, "card", "write the policy card of a policy file (its training hold)",
+                   "Write the policy card of a policy file you trained outside OvertakeZoo: its training hold, the\n"
+                   "core steps each decision was held in training (--action-repeat: your training env's action\n"
+                   "repeat / frame skip; 10 for overtakezoo/Overtake-v1 and the suite ids, the zoo's 1 s)\n"
                    "and, with --suite, the observation contract (observation_size, observation_layout) of the\n"
                    "suite it was trained on. It goes beside a Stable-Baselines3 .zip or a TorchScript file as\n"
                    "<stem>.card.json, and into an ONNX file's metadata (key overtakezoo.card); written\n"
@@ -23,7 +24,7 @@ def register(subparsers: Any) -> None:
                     "overtakezoo card policy.pt --action-repeat 1 --name my-ppo --version 2"])
     p.add_argument("policy", metavar="POLICY", help="the policy file (.zip, TorchScript .pt, .onnx)")
     p.add_argument("--action-repeat", type=int, required=True, metavar="N",
-                   help="core steps each decision is held (1..1000)")
+                   help="the training hold: core steps each decision was held in training (1..1000)")
     p.add_argument("--suite", help="the suite or training mixture it was trained on (records its observation contract)")
     p.add_argument("--name", help="the policy's name (file policies are named NAME-<sha256 prefix>)")
     p.add_argument("--version", help="the policy's version")

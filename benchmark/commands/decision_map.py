@@ -20,7 +20,8 @@ def register(subparsers: Any) -> None:
                     "overtakezoo decision-map --policy runs/dqn/dqn.pt --out fig10-mine.png"])
     add_decider_options(p)
     p.add_argument("--suite", default="table1", help="suite whose road and simulator settings are used")
-    p.add_argument("--out", help="PNG path (default: decision-map-<decider>.png)")
+    p.add_argument("--out", help="image path; its suffix names the format: .png, .jpg/.jpeg, .svg or .pdf "
+                                 "(default: decision-map-<decider>.png)")
     p.add_argument("--lead-speed", type=float, default=2.0, help="NPC1 speed, m/s (default 2)")
     p.add_argument("--oncoming-speed", type=float, default=2.0, help="NPC2 speed, m/s (default 2)")
     p.add_argument("--gaps", type=float, nargs=2, default=(5.0, 40.0), metavar=("MIN", "MAX"),
@@ -39,7 +40,7 @@ def register(subparsers: Any) -> None:
 def run(args: Any) -> int:
     import numpy as np
 
-    from overtakezoo.benchmark.run.decision_map import decision_map, plot
+    from overtakezoo.benchmark.run.decision_map import decision_map, image_format, plot
     from overtakezoo.benchmark.errors import UserError
     from overtakezoo.envs.io import atomic_write_bytes
     from overtakezoo.envs.suites import load_suite
@@ -56,13 +57,20 @@ def run(args: Any) -> int:
     for flag, v in (("--lead-speed", args.lead_speed), ("--oncoming-speed", args.oncoming_speed)):
         if not 0 <= v <= 100:
             raise UserError(f"{flag} {v:g}: expected a speed in [0, 100] m/s")
+    if args.out is not None:
+        try:
+            fmt = image_format(Path(args.out).suffix)
+        except ValueError as exc:
+            raise UserError(f"--out {args.out}: {exc}") from None
+    else:
+        fmt = "png"
     suite = load_suite(args.suite)
     decider = decider_from_args(args, suite.config)
     out = check_writable(Path(args.out or f"decision-map-{decider.name}.png"))
     dm = decision_map(decider, suite, np.linspace(*args.gaps, args.resolution),
                       np.linspace(*args.distances, args.resolution), args.lead_speed, args.oncoming_speed,
                       args.ticks, args.warmup)
-    atomic_write_bytes(out, plot(dm))
+    atomic_write_bytes(out, plot(dm, fmt))
     counts = np.bincount(dm.modes.ravel(), minlength=3)
     print(f"wrote {out}: follow {counts[0]}, overtake {counts[1]}, abort {counts[2]} of {dm.modes.size} cells")
     return 0

@@ -13,7 +13,9 @@ from overtakezoo.envs.io import check_writable
 def register(subparsers: Any) -> None:
     p = add_parser(subparsers, "eval", "evaluate a decider on a suite",
                    "Run a decider on every scenario of a suite (one batch, in chunks), print a Table I-style\n"
-                   "summary with 95 % CIs and write a results file (JSON).",
+                   "summary with 95 % CIs and write a results file (JSON). On stderr it says the hold (core steps\n"
+                   "per decision) and where it came from: a model card, a policy card, ONNX metadata or the\n"
+                   "default; a policy file without a card is warned about.",
                    ["overtakezoo eval --suite table1 --decider always-follow",
                     "overtakezoo eval --suite table1 --decider dqn --ray --shards 8   # local Ray instance",
                     "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
@@ -97,8 +99,13 @@ def run(args: Any) -> int:
 
 def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:
     from overtakezoo.benchmark.results.metrics import render_table
+    from overtakezoo.benchmark.run.policy import hold_lines
 
     results.save(out)
+    # On stderr (stdout is the results, parsed), after the run (a failure stays one error line): the
+    # hold each decision got and where it came from, and a warning for a policy file without a card.
+    for line in hold_lines(decider, suite.config, suite.name):
+        print(line, file=sys.stderr)
     lo, hi = results.meta["range"]
     print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
           f"decider {decider.name} v{decider.version}")

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import fnmatch
 import sys
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser
+from overtakezoo.benchmark.commands._options import add_parser, leaderboard_root, root_help
 
 
 def register(subparsers: Any) -> None:
@@ -17,11 +18,12 @@ def register(subparsers: Any) -> None:
                    "With --verify nothing is written: every current row's labels are derived again (from its\n"
                    "built-in zoo member, or from its stored artifact, checked by sha256) and its policy is re-run\n"
                    "(artifacts in a sandboxed child process) on its scenarios: all of them for rows new or changed\n"
-                   "against the git base (--base), K of each other row with --sample K, drawn from --seed (default:\n"
-                   "the sha256 of the whole submissions tree, unknown until the tree is final). Every\n"
-                   "per-scenario value must equal the recorded one; the first row that does not reproduce is\n"
-                   "named with its first mismatching scenario (exit 2). Stale rows show no numbers and are not\n"
-                   "re-run; a new or changed stale row is refused.",
+                   "against the git base (--base; a row file git does not track yet is new; with no base, every\n"
+                   "row), K of each other row with --sample K, drawn from --seed (default: fresh randomness,\n"
+                   "printed). Every per-scenario value must equal the recorded one; the first\n"
+                   "row that does not reproduce is named with its first mismatching scenario (exit 2). Stale\n"
+                   "rows show no numbers and are not re-run; a new or changed stale row is refused. Every mode\n"
+                   "finds its leaderboard as `submit` does (--root).",
                    ["overtakezoo leaderboard", "overtakezoo leaderboard --check",
                     "overtakezoo leaderboard --verify --sample 1     # CI: changed rows in full, 1 scenario of the rest",
                     "overtakezoo leaderboard --verify --sample 20 --seed 1 --base HEAD  # 20 of every committed row",
@@ -32,16 +34,16 @@ def register(subparsers: Any) -> None:
                    "its per-scenario results to match exactly")
     p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios of each row unchanged "
                    "against --base (default: every scenario); new or changed rows are always verified in full")
-    p.add_argument("--seed", type=int, help="with --verify --sample: the draw's seed (default: from the sha256 of "
-                   "every file under submissions/)")
+    p.add_argument("--seed", type=int, help="with --verify --sample: the draw's seed (default: fresh randomness, "
+                   "printed, so nobody can compute the draw before pushing; pass it back to replay a failure)")
     p.add_argument("--base", metavar="REV", help="with --verify: the git revision rows are new or changed against "
-                   "(default: $OVERTAKEZOO_VERIFY_BASE, else the merge base of HEAD with origin/$GITHUB_BASE_REF or "
-                   "origin/HEAD; outside git: none, every row sampled)")
+                   "(default: $OVERTAKEZOO_VERIFY_BASE, else the merge base of HEAD with origin/$GITHUB_BASE_REF, "
+                   "fetched if missing, or origin/HEAD; none outside git or when that merge base is HEAD itself, "
+                   "a fresh clone of the branch under test as CI runs: then every row is verified in full)")
     p.add_argument("--jobs", type=int, default=1, help="with --verify: suites verified in parallel processes")
     p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows matching this glob, "
                    "e.g. 'table1/*' or '*/my-policy'")
-    p.add_argument("--root", default=None, help="leaderboard folder (default: ./leaderboards, else the "
-                   "leaderboards/ of the checkout this package runs from)")
+    p.add_argument("--root", metavar="PATH", default=None, help=root_help())
     p.set_defaults(handler=run)
 
 
@@ -52,7 +54,7 @@ def run(args: Any) -> int:
 
     if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
         raise UserError("--sample, --seed, --base and --only go with --verify")
-    args.root = args.root or default_root()
+    args.root = leaderboard_root(args.root)
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
         from overtakezoo.benchmark.leaderboard.changes import changed_rows, default_base
@@ -64,8 +66,16 @@ def run(args: Any) -> int:
             raise UserError(f"--jobs {args.jobs}: must be >= 1")
         base = args.base or default_base(args.root)
         changed = changed_rows(args.root, base) if base else set()
+        if not base and args.sample is not None:
+            print("no git base to compare with (outside git, or a fresh clone of the branch under test, as CI "
+                  "runs): every row counts as changed and is verified in full")
+            args.sample = None
         if base:
-            print(f"rows new or changed against {base[:12]}: {len(changed)} (verified in full)")
+            shown = changed if args.only is None else {  # the rows --only selects (suite/name, as load_submissions)
+                rel for rel in changed if fnmatch.fnmatchcase(rel.removeprefix("submissions/").removesuffix(".json"),
+                                                              args.only)}
+            print(f"rows new or changed against {base[:12]} (untracked rows are new): {len(shown)} row(s), "
+                  "verified in full")
         n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs, changed=changed)
         if n == 0 and args.only is not None:
             raise UserError(f"--only {args.only!r}: no current row matches")
@@ -84,17 +94,3 @@ def run(args: Any) -> int:
     print(f"leaderboard regenerated in {args.root}: {len(changed)} file(s) changed"
           + (f" ({', '.join(changed)})" if changed else ""))
     return 0
-
-
-def default_root() -> str:
-    """``./leaderboards`` where it exists, else the checkout's own (an editable install run from
-    another folder): never a fresh, empty folder that --check would call stale."""
-    from pathlib import Path
-
-    from overtakezoo.benchmark.errors import UserError
-
-    for root in (Path("leaderboards"), Path(__file__).resolve().parents[2] / "leaderboards"):
-        if (root / "submissions").is_dir():
-            return str(root)
-    raise UserError("no leaderboards/ folder here or in this package's checkout: run from the repository "
-                    "root or pass --root")

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import shlex
+import sys
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser
+from overtakezoo.benchmark.commands._options import add_parser, leaderboard_root, root_help
 
 
 def register(subparsers: Any) -> None:
@@ -28,7 +31,7 @@ def register(subparsers: Any) -> None:
                    "`eval --policy`; weights from `overtakezoo train` are stored with their model card); "
                    "needed for every decider that is not a built-in zoo member")
     p.add_argument("--replace", action="store_true", help="replace an existing row of the same name")
-    p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
+    p.add_argument("--root", metavar="PATH", default=None, help=root_help(new_ok=True))
     p.set_defaults(handler=run)
 
 
@@ -36,10 +39,15 @@ def run(args: Any) -> int:
     from overtakezoo.benchmark.results.results import Results, merge
     from overtakezoo.benchmark.leaderboard.submission import submit
 
+    root = leaderboard_root(args.root, new_ok=True)
     parts = [Results.load(p) for p in args.results]
     results = parts[0] if len(parts) == 1 else merge(parts)
-    path = submit(results, args.root, name=args.name, policy=args.policy, replace=args.replace,
-                  source=" + ".join(args.results))
-    print(f"filed {path}; check it with `overtakezoo leaderboard --verify --only "
-          f"'{path.parent.name}/{path.stem}'`, then run `overtakezoo leaderboard` to regenerate the tables")
+    new = not os.path.lexists(root)
+    path = submit(results, root, name=args.name, policy=args.policy, replace=args.replace,
+                  source=" + ".join(args.results), report=lambda line: print(line, file=sys.stderr))  # the hold
+    if new:
+        print(f"started a new leaderboard in {root}")
+    at = f" --root {shlex.quote(args.root)}" if args.root is not None else ""
+    print(f"filed {path}; check it with `overtakezoo leaderboard{at} --verify --only "
+          f"'{path.parent.name}/{path.stem}'`, then run `overtakezoo leaderboard{at}` to regenerate the tables")
     return 0

@@ -16,13 +16,16 @@ from typing import Callable
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir, file_sha256
 from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
-from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets_dir, install, staging_root
+from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets_dir, install, minari_module, staging_root
 
 
 def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: float = 30.0,
              build: bool = True, say: Callable[[str], None] = lambda line: None) -> Path:
     """Fetch, verify and unpack dataset ``name`` from the registry's mirrors (in order); returns its
-    local folder. With ``build``, a dataset no mirror delivers is rebuilt from its recipe instead."""
+    local folder. With ``build``, a dataset no mirror delivers is rebuilt from its recipe instead.
+    Without minari (a base install) a :class:`UserError` naming the extra comes first, before any
+    download or rebuild is tried or announced."""
+    minari_module()  # a downloaded or rebuilt dataset is Minari's format: useless (and unbuildable) without it
     registry = load_registry()
     if name not in registry:
         known = ", ".join(sorted(registry)) or "none"
@@ -84,6 +87,10 @@ class _MirrorFailed(Exception):
     """One mirror did not deliver the archive (the reason is the message)."""
 
 
+class _Oversized(Exception):
+    """A mirror's body is longer than the registry's size: the download stops there (a mirror cannot fill the disk)."""
+
+
 def _fetch(url: str, part: Path, size: int, progress: bool, chunk: int, timeout: float) -> None:
     """Download into ``part``, resuming from its current length with an HTTP Range request."""
     from tqdm import tqdm
@@ -99,16 +106,26 @@ def _fetch(url: str, part: Path, size: int, progress: bool, chunk: int, timeout:
         with urllib.request.urlopen(req, timeout=timeout) as resp:
             if have and resp.status != 206:  # server ignored the range: take the whole body
                 have = 0
+            declared = resp.headers.get("Content-Length", "")
+            if declared.strip().isdigit() and int(declared) > size - have:  # refused before a byte is read
+                raise _Oversized(f"announced {have + int(declared)} bytes, the registry's archive has {size}")
             mode = "ab" if have else "wb"
             with open(part, mode) as f, tqdm(total=size, initial=have, unit="B", unit_scale=True,
                                              desc=part.name.removesuffix(".tar.gz.part"),
                                              disable=not progress) as bar:
-                while True:
-                    block = resp.read(chunk)
+                got = have
+                while True:  # at most the registry's size (+1 byte, to tell a longer body): never more
+                    block = resp.read(min(chunk, size - got + 1))
                     if not block:
                         break
+                    if got + len(block) > size:
+                        raise _Oversized(f"sent more than the registry's {size} bytes")
                     f.write(block)
+                    got += len(block)
                     bar.update(len(block))
+    except _Oversized as exc:
+        part.unlink(missing_ok=True)
+        raise _MirrorFailed(f"{exc} (deleted the partial file)") from None
     except urllib.error.HTTPError as exc:
         raise _MirrorFailed(f"HTTP {exc.code} {exc.reason}") from None
     except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 
 
 REGISTRY_FILE = Path(__file__).with_name("registry") / "datasets.json"
@@ -23,11 +23,11 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
     and sha256 of the archive (absent when none is packed), recipe, content_sha256, ...}."""
     path = registry_path() if path is None else path
     try:
-        data = json.loads(path.read_text())
+        data = safe_json.load_file(path, f"dataset registry {path}")
     except OSError as exc:
         raise UserError(f"cannot read dataset registry {path}: {exc.strerror or exc}") from None
-    except json.JSONDecodeError as exc:
-        raise UserError(f"dataset registry {path} is not valid JSON: {exc}") from None
+    except safe_json.JSONInputError as exc:
+        raise UserError(str(exc)) from None
     entries = data.get("datasets", {}) if isinstance(data, dict) else None
     if not isinstance(entries, dict):
         raise UserError(f"dataset registry {path}: expected {{\"datasets\": {{name: {{mirrors, size, sha256}}}}}}")

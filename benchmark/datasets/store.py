@@ -263,14 +263,15 @@ def install(staging: Path, name: str, target: Path) -> None:
 
 
 def _env_spec(config: Any) -> Any:
-    """The Gymnasium spec of ``overtakezoo/Overtake-v0`` with the suite's config, so Minari can
+    """The Gymnasium spec of ``overtakezoo/Overtake-v0`` (one core step per env step, as the dataset
+    records them; v1 is a suite id with a 10-step hold) with the suite's config, so Minari can
     recover the environment; ``None`` when the env face is not available."""
     try:
         import gymnasium
 
-        from overtakezoo.envs.faces.gym import ENV_ID
+        from overtakezoo.envs.faces.gym import ENV_ID_V0
 
-        spec = gymnasium.spec(ENV_ID)
+        spec = gymnasium.spec(ENV_ID_V0)
         cfg = json.loads(json.dumps(config.to_dict()))  # plain JSON types for Minari's metadata
         return dataclasses.replace(spec, kwargs={**spec.kwargs, "config": cfg})
     except Exception:  # noqa: BLE001 - the dataset is valid without an env spec

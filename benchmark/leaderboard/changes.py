@@ -1,59 +1,76 @@
 """Which leaderboard rows a pull request changed: the rows' files against a git base (the verifier re-runs
-those in full), and the seed that samples the others from the tree's content."""
+those in full; with no base, every row), and the fresh seed that samples the others."""
 
 from __future__ import annotations
 
-import hashlib
 import os
+import secrets
 import subprocess
 from pathlib import Path
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard.rows import ARTIFACTS, load_submissions, stored_files
-from overtakezoo.envs.io import file_sha256
 
 
 # ------------------------------------------------------------------ what to verify
-def tree_seed(root: str | Path) -> int:
-    """A seed from the content of every file under ``<root>/submissions`` (paths and bytes)."""
-    base = Path(root) / "submissions"
-    h = hashlib.sha256()
-    for path in sorted(p for p in base.rglob("*") if p.is_file() and p.name != ".lock") if base.is_dir() else []:
-        h.update(path.relative_to(base).as_posix().encode() + b"\0" + file_sha256(path).encode())
-    return int.from_bytes(h.digest()[:8], "little")
+def fresh_seed() -> int:
+    """The sample's seed when none is given: fresh randomness from the OS, so nobody can compute the
+    draw before pushing and tune a forged row around it (the verifier prints it, so a failure can
+    be replayed with ``--seed``)."""
+    return secrets.randbits(63)
 
 
 def default_base(root: str | Path) -> str | None:
-    """The git revision a pull request is compared with: ``$OVERTAKEZOO_VERIFY_BASE``, else the
-    merge base of HEAD with ``origin/$GITHUB_BASE_REF`` or ``origin/HEAD``; None outside git."""
+    """The git revision a pull request is compared with, or None when there is nothing to compare
+    with, and then every row counts as changed (verified in full).
+
+    ``$OVERTAKEZOO_VERIFY_BASE`` when set; else the merge base of HEAD with the target branch:
+    ``origin/$GITHUB_BASE_REF`` in a pull-request job (fetched when the clone lacks it), else
+    ``origin/HEAD``. A merge base that *is* HEAD says nothing: that is a fresh clone of the branch
+    being checked (how CI runs), where the target's history holds the pull request's own commits,
+    so no row can be taken as already verified. Outside git, or with no such branch: None."""
     wanted = os.environ.get("OVERTAKEZOO_VERIFY_BASE")
     if wanted:
         return wanted
-    ref = f"origin/{os.environ['GITHUB_BASE_REF']}" if os.environ.get("GITHUB_BASE_REF") else "origin/HEAD"
-    for candidate in (ref, "HEAD"):
-        out = _git(root, "merge-base", "HEAD", candidate)
-        if out is not None:
-            return out.strip()
-    return None
+    target = os.environ.get("GITHUB_BASE_REF")
+    ref = f"origin/{target}" if target else "origin/HEAD"
+    if target and _git(root, "rev-parse", "--verify", "--quiet", ref) is None:
+        _git(root, "fetch", "--quiet", "--no-tags", "origin", f"+refs/heads/{target}:refs/remotes/{ref}")
+    base, head = _git(root, "merge-base", "HEAD", ref), _git(root, "rev-parse", "HEAD")
+    if base is None or head is None or base.strip() == head.strip():
+        return None
+    return base.strip()
+
+
+def is_row(rel: str) -> bool:
+    """Whether ``rel`` (relative to ``submissions/``) names a row: ``<suite>/<name>.json`` outside
+    ``artifacts/``, the files :func:`.rows.load_submissions` reads (one row each)."""
+    parts = rel.split("/")
+    return len(parts) == 2 and parts[0] != ARTIFACTS and parts[1].endswith(".json")
 
 
 def changed_rows(root: str | Path, base: str) -> set[str]:
-    """Rows (paths relative to ``root``) new or changed in the working tree against ``base``, and
-    rows that reference a stored artifact that is; :class:`UserError` when ``base`` is no revision."""
+    """Rows (``submissions/<suite>/<name>.json``, relative to ``root``) of the working tree that are
+    new or changed against ``base``: a row file that differs from ``base`` or is not in it (an
+    untracked row is new, staged or not), and a row that references a stored artifact that is. A
+    deleted row is on no board, so it is not counted. :class:`UserError` when ``base`` is no revision."""
     root = Path(root)
     top = _git(root, "rev-parse", "--show-toplevel")
     if top is None or _git(root, "rev-parse", "--verify", "--quiet", f"{base}^{{commit}}") is None:
         raise UserError(f"--base {base}: not a git revision of the repository holding {root}")
     sub = (root / "submissions").resolve()
-    listed = (_git(root, "diff", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
-             (_git(root, "ls-files", "--others", "--exclude-standard", "--", str(sub)) or "")
-    top_path = Path(top.strip())
-    changed = set()
-    for line in listed.splitlines():
-        path = (top_path / line).resolve()
-        if path.is_relative_to(sub):
-            changed.add(path.relative_to(root.resolve()).as_posix())
-    artifacts = {c.split("/", 2)[2] for c in changed if c.startswith(f"submissions/{ARTIFACTS}/")}
+    # Both lists name paths from the repository's top (ls-files would name them from `root` without
+    # --full-name); no --exclude-standard: an ignored row file is still read by the board, so it is new.
+    listed = (_git(root, "diff", "-z", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
+             (_git(root, "ls-files", "-z", "--others", "--full-name", "--", str(sub)) or "")
+    top_path = Path(top.strip()).resolve()
+    files = set()
+    for line in listed.split("\0"):
+        path = (top_path / line).resolve() if line else None
+        if path is not None and path.is_relative_to(sub):
+            files.add(path.relative_to(sub).as_posix())
+    changed = {f"submissions/{rel}" for rel in files if is_row(rel) and (sub / rel).is_file()}
+    artifacts = {rel.split("/", 1)[1] for rel in files if rel.startswith(f"{ARTIFACTS}/")}
     if artifacts:
         for rows in load_submissions(root).values():
             for row in rows:

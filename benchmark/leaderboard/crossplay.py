@@ -25,6 +25,7 @@ import numpy as np
 from overtakezoo.envs import SIM_VERSION
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 from overtakezoo.benchmark.results.metrics import format_metric, wilson
 from overtakezoo.benchmark.results.results import config_sha256
 from overtakezoo.envs.suites import Suite, load_suite
@@ -135,7 +136,7 @@ def data_path(root: str | Path, suite: str) -> Path:
 
 def load(path: Path) -> dict[str, Any]:
     try:
-        doc = json.loads(path.read_bytes())
+        doc = safe_json.load_file(path, path.name)
         names = [d["name"] for d in doc["deciders"]]
         pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
         assert sorted(pairs) == sorted((a, b) for a in names for b in names), "pairs do not cover every ordered pair"

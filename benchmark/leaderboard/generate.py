@@ -22,16 +22,17 @@ from typing import Any
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.benchmark.leaderboard import crossplay
 from overtakezoo.benchmark.leaderboard import headline
 from overtakezoo.benchmark.leaderboard import multi as multi_leaderboard
 from overtakezoo.benchmark.leaderboard import paper_table
 from overtakezoo.benchmark.leaderboard import safety_board
-from overtakezoo.benchmark.leaderboard.guide import GUIDE, SECURITY
+from overtakezoo.benchmark.leaderboard.guide import GUIDE, GUIDE_HEADING, SECURITY
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
 from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
-from overtakezoo.benchmark.leaderboard.rows import Row, load_submissions, stale_reasons
+from overtakezoo.benchmark.leaderboard.rows import Row, board_reasons, load_submissions
 from overtakezoo.envs.suites import CORE, MULTI, load_suite, suite_names
 from overtakezoo.benchmark.leaderboard.untrusted import check_target, check_tree, md, md_code, md_image, md_link, plain_name
 
@@ -52,7 +53,7 @@ def load_reference(root: Path) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     try:
-        ref = json.loads(path.read_text())
+        ref = safe_json.load_file(path, path.name)
         assert isinstance(ref["rows"], list) and all(isinstance(r["decider"], str) for r in ref["rows"])
         assert isinstance(ref["suite"], str) and isinstance(ref["source"], str)
     except (ValueError, KeyError, TypeError, AssertionError) as exc:
@@ -75,7 +76,7 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
         suite = load_suite(name) if name in suite_names() else None
         rows = subs.get(name, [])
-        reasons = {row.rel: stale_reasons(row.results, suite) for row in rows}
+        reasons = {row.rel: board_reasons(row.results, suite) for row in rows}  # stale, or not the suite's shape
         if name in MULTI:
             multi[name] = _multi_suite(name, suite, rows, reasons, files, cross_index.get(name))
             continue
@@ -170,7 +171,7 @@ def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:
                                   {"outcome": fsm.results.per_scenario_array("outcome")})
     path = root / SHAPE_NOTES
     try:
-        notes = json.loads(path.read_text()) if path.is_file() else {}
+        notes = safe_json.load_file(path, path.name) if path.is_file() else {}
     except ValueError as exc:
         raise UserError(f"{path}: malformed notes file ({exc})") from None
     if not isinstance(notes, dict):
@@ -222,7 +223,7 @@ def owned_files(root: Path, files: dict[str, bytes]) -> set[str]:
     The index is input like the rest: only plain generated-looking names in the root count."""
     owned = set(files)
     try:
-        prev = json.loads((root / "index.json").read_bytes())
+        prev = safe_json.load_file(root / "index.json")  # malformed, too large or too deep: no previous index
     except (OSError, ValueError):
         prev = {}
     if not isinstance(prev, dict):
@@ -334,4 +335,4 @@ def _readme(index: dict[str, Any], head: str = "") -> str:
         out.append(f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | "
                    f"{len(s['entries'])} | {best_txt} |")
     multi = multi_leaderboard.readme_section(index.get("multi_agent", {}), index.get("crossplay", {}))
-    return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE + "\n" + SECURITY
+    return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE_HEADING + "\n\n" + GUIDE + "\n" + SECURITY

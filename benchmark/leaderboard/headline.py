@@ -16,7 +16,6 @@ score is their mean (rliable's stratified bootstrap over runs and tasks).
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 from overtakezoo.envs.suites import CORE
 from overtakezoo.benchmark.leaderboard.untrusted import md
 
@@ -188,7 +188,7 @@ def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
     out = {}
     for path in sorted((root / "seeds").glob("*.json")) if (root / "seeds").is_dir() else []:
         try:
-            doc = json.loads(path.read_text())
+            doc = safe_json.load_file(path, path.name)
             assert isinstance(doc["member"], str) and isinstance(doc["selection_rule"], str)
             for entry in doc["seeds"]:
                 for c in entry["suites"].values():
@@ -197,8 +197,28 @@ def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
                     assert isinstance(c["suite_sha256"], str)
         except (ValueError, KeyError, TypeError, AssertionError) as exc:
             raise UserError(f"{path}: malformed seeds file ({type(exc).__name__}: {exc})") from None
+        _anchored(path, doc)
         out[doc["member"]] = doc
     return out
+
+
+def _anchored(path: Path, doc: dict[str, Any]) -> None:
+    """A seeds file speaks for the learned member its *file name* names, and its shipped seed is that
+    member's shipped weights (the model card's sha256): a file cannot lift another member, and the
+    seed whose rows :func:`build_table` can hold against the verified board is the zoo's own."""
+    from overtakezoo import zoo
+    from overtakezoo.zoo.members.learned import PRETRAINED
+
+    member = path.stem
+    if member not in zoo.names("learned") or doc["member"] != member:
+        raise UserError(f"{path}: a seeds file is named after the learned member it reports (one of "
+                        f"{', '.join(zoo.names('learned'))}); this one says member {doc['member']!r}")
+    card = safe_json.load_file(PRETRAINED / f"{member}.json", f"zoo/pretrained/{member}.json")
+    shipped = [e for e in doc["seeds"] if e.get("seed") == doc.get("shipped_seed")]
+    zoo_sha = {card.get("trained_weights_sha256"), card.get("weights_sha256")} - {None}
+    if len(shipped) != 1 or shipped[0].get("weights_sha256") not in zoo_sha:
+        raise UserError(f"{path}: shipped seed {doc.get('shipped_seed')!r}: its weights_sha256 is not the shipped "
+                        f"{member}'s (zoo/pretrained/{member}.json)")
 
 
 def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dict[str, Any]],
@@ -215,6 +235,10 @@ def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dic
                 per_seed = [e["suites"].get(suite) for e in doc["seeds"]]
                 ok = all(c is not None and c["suite_sha256"] == hashes.get(suite) for c in per_seed)
                 per_seed = [Counts(c["success"], c["crash"], c["n"]) for c in per_seed] if ok else []
+                shipped = [c for e, c in zip(doc["seeds"], per_seed) if e["seed"] == doc["shipped_seed"]]
+                if shipped and shipped[0] != counts_from_summary(summary):  # the row `--verify` re-runs
+                    raise UserError(f"seeds/{name}.json: shipped seed {doc['shipped_seed']} on {suite}: "
+                                    f"{shipped[0]} is not its leaderboard row's {counts_from_summary(summary)}")
             table.setdefault(name, {})[suite] = per_seed or [counts_from_summary(summary)]
     # A member with seeds on some suites and one run on others: use its single runs everywhere.
     for name, by_suite in table.items():

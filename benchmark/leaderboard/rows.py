@@ -10,7 +10,10 @@ Layout under ``<root>/submissions/``:
 - ``artifacts/``: stored policies, once by content, shared by every suite they run on.
 
 A row is *stale* when its suite file, environment config or simulator version is not the current
-one (:func:`stale_reasons`): the board lists it by name only.
+one (:func:`stale_reasons`): the board lists it by name only. A row that names the current suite
+file must have its shape (:func:`suite_mismatch`: the suite block, range, and every array a run
+records, one value per scenario): ``submit`` and ``leaderboard --verify`` refuse one that does not,
+and the board lists it by name only, as a stale row (:func:`board_reasons`).
 """
 
 from __future__ import annotations
@@ -20,11 +23,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from overtakezoo.envs import SIM_VERSION
 
 from overtakezoo.benchmark.run.artifacts import Artifact, policy_kind
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import Results, config_sha256
+from overtakezoo.benchmark.results.schema import recorded_keys
 from overtakezoo.envs.suites import Suite
 
 ARTIFACTS = "artifacts"
@@ -117,6 +123,45 @@ def stale_reasons(results: Results, suite: Suite | None) -> list[tuple[str, str]
         out.append(("sim_version", f"simulator {'of unknown version' if sim is None else f'v{sim}'} "
                                    f"(now v{SIM_VERSION})"))
     return out
+
+
+def suite_mismatch(results: Results, suite: Suite) -> list[tuple[str, str]]:
+    """(field, what the row holds) for each way a row that is not stale (it names the current suite
+    file) differs from what a run of that file gives: its whole ``suite`` block, ``range``,
+    ``num_avs``, and every per-scenario array a run records
+    (:func:`~overtakezoo.benchmark.results.schema.recorded_keys`: none missing, none extra), each of
+    ``count`` x AVs values. A row's own fields agree with each other when it loads; this checks them
+    against the suite, so no scenario can be appended, and no array dropped, by hand."""
+    out: list[tuple[str, str]] = []
+    want = {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count}
+    have = results.suite
+    for key in sorted(set(have) | set(want), key=lambda k: (k not in want, k)):
+        if have.get(key) != want.get(key):
+            out.append((f"suite.{key}", f"a suite block with {key} {have.get(key)!r} (the suite file gives "
+                                        f"{want.get(key)!r})"))
+    if list(results.meta["range"]) != [0, suite.count]:
+        out.append(("range", f"scenarios {results.meta['range']} (the suite file gives [0, {suite.count}])"))
+    e = suite.num_avs
+    if results.num_avs != e:
+        out.append(("num_avs", f"{results.num_avs} automated vehicle(s) per scenario (the suite file gives {e})"))
+    n = suite.count * e
+    wanted = recorded_keys(e)
+    for key in wanted:
+        a = results.per.get(key)
+        if a is None:
+            out.append((f"scenarios.{key}", f"a run without scenarios.{key}, which every run records"))
+        elif np.shape(a) != (n,):
+            out.append((f"scenarios.{key}", f"{np.size(a)} values of {key} (the suite file gives {n}: "
+                                            f"{suite.count} scenarios x {e} AV)"))
+    for key in sorted(set(results.per) - set(wanted)):
+        out.append((f"scenarios.{key}", f"an array {key} that no run of this suite records"))
+    return out
+
+
+def board_reasons(results: Results, suite: Suite | None) -> list[tuple[str, str]]:
+    """Why a row shows no numbers on the board: it is stale (:func:`stale_reasons`), or it names the
+    current suite file without its shape (:func:`suite_mismatch`; ``submit`` and ``--verify`` refuse those)."""
+    return stale_reasons(results, suite) or suite_mismatch(results, suite)
 
 
 def describe(reasons: list[tuple[str, str]]) -> str:

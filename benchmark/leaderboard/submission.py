@@ -13,19 +13,20 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import json
 import os
 import re
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from overtakezoo.benchmark.run.artifacts import Artifact
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 from overtakezoo.envs.io import atomic_write_bytes
-from overtakezoo.benchmark.results.results import Results
-from overtakezoo.benchmark.leaderboard.rows import ARTIFACTS, Row, artifact_decider, builtin_names, reserved_name, stale_reasons, stored_files
+from overtakezoo.benchmark.results.results import Results, same_summary, summary_of
+from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, Row, artifact_decider, builtin_names, reserved_name,
+                                                     stale_reasons, stored_files, suite_mismatch)
 from overtakezoo.benchmark.run.sandbox import PolicyFailure
 from overtakezoo.envs.io import file_sha256
 from overtakezoo.envs.suites import Suite, load_suite, suite_names
@@ -39,7 +40,8 @@ _SHA_NAME = re.compile(r"^[0-9a-f]{64}(\.[A-Za-z0-9_-]{1,16})?$")
 
 # ------------------------------------------------------------------ filing
 def submit(results: Results, root: str | Path = "leaderboards", *, name: str | None = None,
-           policy: str | Path | None = None, replace: bool = False, source: str = "results") -> Path:
+           policy: str | Path | None = None, replace: bool = False, source: str = "results",
+           report: Callable[[str], None] | None = None) -> Path:
     """File ``results`` as the row ``name`` with the policy that re-runs it; returns the row's path.
 
     Without ``policy`` the results must come from a built-in zoo member (its current version and
@@ -47,9 +49,12 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
     (built-in names are reserved): the file is converted to a stored format (:mod:`.artifacts`),
     the converted artifact is re-run on every scenario in the sandbox and must reproduce the results
     exactly, and the row's ``decider`` block is derived from it. An existing row is replaced only with
-    ``replace``. The submissions directory is locked while a row is filed."""
+    ``replace``. The submissions directory is locked while a row is filed. Once it is filed,
+    ``report`` (``submit`` prints them on stderr) gets the lines saying the hold the row is run with
+    and where it came from (:func:`~overtakezoo.benchmark.run.policy.hold_lines`)."""
     root = Path(root)
     suite = _current_suite(results, source)
+    said: list[str] = []  # the hold lines, reported once the row is filed
     decider = results.decider
     name = decider["name"] if name is None else name
     if not NAME_RE.match(name):
@@ -62,7 +67,7 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         if name != decider["name"]:
             raise UserError(f"--name {name!r}: a built-in zoo member is filed under its own name "
                             f"({decider['name']!r}); a policy of your own needs --policy FILE")
-        block = _builtin_block(results, suite, source)
+        block = _builtin_block(results, suite, source, said)
     else:
         reserved_name(name, "--name")
         if decider["name"].endswith("+shield"):
@@ -71,8 +76,10 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         if decider["privileged"]:
             raise UserError(f"{source}: decider.privileged: only built-in zoo members may read the simulator state")
         art = _converted(Path(policy), decider, suite)
+        _not_zoo_weights(art, Path(policy))  # a member's weights under a new name would rank beside the member
         meta = {**results.meta, "decider": artifact_decider(name, art)}
-        _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source)
+        _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source,
+                    said)
     with submissions_lock(root):
         check_tree(root)  # no symlink or FIFO planted under the root is written through
         path = root / "submissions" / suite.name / f"{name}.json"
@@ -89,6 +96,8 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
                         results.summary, results.timing)
         filed.save(path)
         prune_artifacts(root, locked=True)
+    for line in said if report is not None else ():
+        report(line)
     return path
 
 
@@ -121,13 +130,22 @@ def _current_suite(results: Results, source: str) -> Suite:
     if reasons:
         field, why = reasons[0]
         raise UserError(f"{source}: {field}: measured on {why}: re-run the evaluation")
+    mismatch = suite_mismatch(results, current)  # the suite's shape: no scenario appended, no array dropped
+    if mismatch:
+        field, why = mismatch[0]
+        raise UserError(f"{source}: {field}: measured on {why}: not what a run of the current suite file "
+                        "gives (edited by hand?); submit the results `overtakezoo eval` wrote")
+    if not same_summary(results.summary, summary_of(results.per, results.meta["seed"], results.num_avs)):
+        raise UserError(f"{source}: summary: does not match the per-scenario arrays (edited by hand?)")
     return current
 
 
-def _builtin_block(results: Results, suite: Suite, source: str) -> dict[str, Any]:
-    from overtakezoo.benchmark.run.policy import load_zoo
+def _builtin_block(results: Results, suite: Suite, source: str, said: list[str] | None = None) -> dict[str, Any]:
+    from overtakezoo.benchmark.run.policy import hold_lines, load_zoo
 
     d, member = results.decider, load_zoo(results.decider["name"], suite.config, hint="")
+    if said is not None:
+        said += hold_lines(member, suite.config, suite.name)
     now = (str(member.version), member.weights_sha256, bool(member.privileged))
     if (d["version"], d["weights_sha256"], d["privileged"]) != now or "policy" in d:
         raise UserError(f"{source}: decider: measured with {d['name']} v{d['version']} (weights "
@@ -165,18 +183,97 @@ def _converted(policy: Path, decider: dict[str, Any], suite: Suite) -> Artifact:
     return art
 
 
+def _not_zoo_weights(art: Artifact, policy: Path) -> None:
+    """:class:`UserError` when the stored form of ``policy`` carries a built-in zoo member's weights
+    (:func:`zoo_weights_of`): that member already has its row, under its own name."""
+    member = zoo_weights_of(art)
+    if member is not None:
+        raise UserError(f"--policy {policy}: its weights are the built-in zoo member {member!r}'s (zoo/pretrained/"
+                        f"{member}.npz): the zoo's own row ranks them; submit weights of your own (a member's "
+                        "results are filed under its name, without --policy)")
+
+
+def _weights_prints(arrays: list[np.ndarray]) -> set[str]:
+    """sha256 of each weight matrix (float32 values and shape; a matrix and its transpose, as an ONNX
+    MatMul stores it), so the same weights match whatever format or precision carries them."""
+    out = set()
+    for a in arrays:
+        if a.ndim != 2 or a.size < 64 or a.dtype.kind not in "fiu":  # matrices only: biases may well coincide
+            continue
+        for m in (a, a.T):
+            m = np.ascontiguousarray(m, dtype="<f4")
+            out.add(hashlib.sha256(repr(m.shape).encode() + m.tobytes()).hexdigest())
+    return out
+
+
+def _zoo_prints() -> dict[str, set[str]]:
+    """Each built-in member's weight-matrix prints (:func:`_weights_prints`) from ``zoo/pretrained/*.npz``."""
+    if not _ZOO_PRINTS:
+        from overtakezoo.zoo.members.learned import PRETRAINED
+
+        for path in sorted(PRETRAINED.glob("*.npz")):
+            with np.load(path, allow_pickle=False) as z:
+                _ZOO_PRINTS[path.stem] = _weights_prints([z[k] for k in z.files])
+    return _ZOO_PRINTS
+
+
+_ZOO_PRINTS: dict[str, set[str]] = {}
+
+
+def zoo_weights_of(art: Artifact) -> str | None:
+    """The built-in zoo member whose every weight matrix ``art`` (an npz MLP or an ONNX model) holds, or None."""
+    import io
+
+    arrays: list[np.ndarray] = []
+    try:
+        if art.kind == "mlp":
+            with np.load(io.BytesIO(art.data), allow_pickle=False) as z:
+                arrays = [z[k] for k in z.files]
+        elif art.kind == "onnx":
+            import onnx
+            from onnx import numpy_helper
+
+            model = onnx.load_model_from_string(art.data)
+            graphs = [model.graph]
+            while graphs:
+                g = graphs.pop()
+                arrays += [numpy_helper.to_array(t) for t in g.initializer]
+                for node in g.node:
+                    for attr in node.attribute:
+                        if attr.type == onnx.AttributeProto.TENSOR:
+                            arrays.append(numpy_helper.to_array(attr.t))
+                        elif attr.type == onnx.AttributeProto.GRAPH:
+                            graphs.append(attr.g)
+                        elif attr.type == onnx.AttributeProto.GRAPHS:
+                            graphs.extend(attr.graphs)
+    except Exception:  # unreadable here: the re-run in the sandbox refuses it
+        return None
+    have = _weights_prints(arrays)
+    return next((name for name, prints in _zoo_prints().items() if prints and prints <= have), None)
+
+
 def _not_evaluated(policy: Path, sha: str, measured: str) -> None:
     raise UserError(f"--policy {policy}: sha256 {sha[:12]}..., but the results were measured with weights "
                     f"{measured[:12]}...: submit the file that was evaluated")
 
 
-def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, source: str) -> None:
-    """Re-run the stored form on every scenario: a row whose artifact does not give its numbers is refused."""
-    from overtakezoo.benchmark.run.policy import boxed
+def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, source: str,
+                said: list[str] | None = None) -> None:
+    """Re-run the stored form on every scenario: a row whose artifact does not give its numbers is refused,
+    and so is one that is not deterministic (:mod:`~overtakezoo.benchmark.run.determinism`: no random op,
+    the same decisions by batch size, row order and call), whose row would fail later verifications."""
+    from overtakezoo.benchmark.run.determinism import check_deterministic, check_onnx_ops
+    from overtakezoo.benchmark.run.policy import boxed, hold_lines
     from overtakezoo.benchmark.run.runner import RunFailure, run_indices
 
+    who = f"--policy {policy}" + (" (its ONNX export)" if art.source_kind == "torchscript" else "")
+    if art.kind == "onnx":
+        check_onnx_ops(art.data, who)
     dec = boxed(art, suite.config, str(policy))
+    if said is not None:
+        said += hold_lines(dec, suite.config, suite.name)
     try:
+        check_deterministic(dec.inner.act, suite, who)
         with torch_single_threaded():
             got = run_indices(suite, dec, np.arange(suite.count))
     except RunFailure as exc:
@@ -225,7 +322,7 @@ def _references(root: Path, skip: Path | None = None) -> set[str] | None:
         if path.parent.name == ARTIFACTS or path == skip:
             continue
         try:
-            used |= set(stored_files(json.loads(path.read_bytes()).get("submission", {})["policy"]))
+            used |= set(stored_files(safe_json.load_file(path).get("submission", {})["policy"]))
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             return None
     return used

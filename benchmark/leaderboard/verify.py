@@ -13,10 +13,20 @@ For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
    the sandbox, :mod:`.sandbox`) runs the row's scenarios and every per-scenario value must equal
    the recorded one. Which scenarios: every scenario of a row that is new or changed against the
    git base (``changed``: the row file or an artifact it references differs), and ``sample`` of each
-   other row, drawn from ``seed``: by default the sha256 of the whole submissions tree, so the
-   draw is known only once the tree is final and changes with any edit.
+   other row, drawn from ``seed``: by default fresh randomness (printed, so a failure replays with
+   ``--seed``), so nobody can compute the draw before pushing. With no git base to compare with (a
+   fresh clone of the branch under test, as CI runs) every row counts as changed.
 3. **Stale rows** (measured on another suite, config or simulator) show no numbers anywhere (the
    board lists them by name), so they are not re-run; a new or changed stale row is refused.
+4. **Rows have the suite's shape.** A row that is not stale must hold what a run of the current
+   suite file gives (:func:`.rows.suite_mismatch`): its whole ``suite`` block, ``range`` and
+   ``num_avs``, and every per-scenario array a run records, each with one value per scenario (and
+   AV), so no scenario beyond the suite is appended and no array dropped; any row that does not is
+   refused. Its summary was recomputed from its arrays when it loaded (results.py).
+5. **Policies are deterministic.** A stored ONNX graph may hold no random op, and an artifact row's
+   policy must decide a fixed set of observations the same in batches of other sizes and orders and
+   on a second call (:mod:`overtakezoo.benchmark.run.determinism`, a few dozen observations; ``submit``
+   checks both too): else its full re-run could pass and every later sample fail.
 
 A failure is one line naming the row (and the scenario and step where a policy misbehaved).
 """
@@ -24,7 +34,6 @@ A failure is one line naming the row (and the scenario and step where a policy m
 from __future__ import annotations
 
 import hashlib
-import json
 import zlib
 from pathlib import Path
 from typing import Any, Callable
@@ -32,10 +41,13 @@ from typing import Any, Callable
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard.rows import ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe, load_submissions, reserved_name, stale_reasons, stored_files
+from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe,
+                                                     load_submissions, reserved_name, stale_reasons, stored_files,
+                                                     suite_mismatch)
 from overtakezoo.envs.suites import Suite, load_suite, suite_names
 from overtakezoo.benchmark.leaderboard.batching import Stacked, batches, torch_single_threaded
-from overtakezoo.benchmark.leaderboard.changes import tree_seed
+from overtakezoo.benchmark.leaderboard.changes import fresh_seed
+from overtakezoo.benchmark.run.determinism import check_deterministic, check_onnx_ops, probe_observations
 
 
 def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.ndarray:
@@ -75,6 +87,9 @@ def row_policy(row: Row, root: Path, config: Any) -> Any:
     _same(row, d, artifact_decider(row.name, art), f"its artifact {policy['artifact']}")
     from overtakezoo.benchmark.run.policy import boxed
 
+    if art.kind == "onnx":
+        check_onnx_ops(art.data, f"{row.rel}: {policy['artifact']}")  # no random op (run/determinism.py)
+
     return boxed(art, config, row.rel)
 
 
@@ -101,11 +116,15 @@ def stored_artifact(row: Row, root: Path, policy: dict[str, Any]) -> Any:
         data[rel] = content
     card = None
     if kind == "mlp":
+        from overtakezoo.envs.safe_json import loads
+
+        name = Path(policy["artifact"]).with_suffix(".json").as_posix()
         try:
-            card = json.loads(data[Path(policy["artifact"]).with_suffix(".json").as_posix()])
-            assert isinstance(card, dict) and isinstance(card.get("architecture"), dict)
-        except (ValueError, AssertionError):
-            raise UserError(f"{row.rel}: submission.policy: its model card is not one `overtakezoo submit` stores") from None
+            card = loads(data[name], name)  # bounded: a pull request's card may nest 100k deep
+        except ValueError:
+            card = None
+        if not isinstance(card, dict) or not isinstance(card.get("architecture"), dict):
+            raise UserError(f"{row.rel}: submission.policy: its model card is not one `overtakezoo submit` stores")
     return Artifact(kind, data[policy["artifact"]], card)
 
 
@@ -122,11 +141,14 @@ def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: i
            log: Callable[[str], None] = print) -> int:
     """Re-run every current row (``only``: rows whose ``suite/name`` matches this glob) on every
     scenario of the rows in ``changed`` and on ``sample`` scenarios of the others (all when None),
-    drawn from ``seed`` (default :func:`tree_seed`); raises a UserError at the first row that does
+    drawn from ``seed`` (default :func:`.changes.fresh_seed`, logged); raises a UserError at the first row that does
     not reproduce (suites in name order). ``jobs`` > 1 verifies suites in that many worker
     processes. Returns the number of rows verified."""
     root = Path(root)
-    seed = tree_seed(root) if seed is None else seed
+    if seed is None:
+        seed = fresh_seed()
+        if sample is not None:
+            log(f"sample seed {seed} (fresh; replay this draw with --seed {seed})")
     base = root / "submissions"
     suites = sorted(p.name for p in base.iterdir() if p.is_dir() and p.name != ARTIFACTS) if base.is_dir() else []
     args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ())) for name in suites]
@@ -157,6 +179,7 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
     suite = load_suite(suite_name) if suite_name in suite_names() else None
     lines: list[str] = []
     todo: list[tuple[Row, np.ndarray, Any]] = []
+    probe = None  # the observations every artifact row's policy is probed on (run/determinism.py)
     try:
         for row in load_submissions(root, suite_name, only).get(suite_name, []):
             reasons = stale_reasons(row.results, suite)
@@ -166,9 +189,18 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
                                     "measure the current benchmark; re-run the evaluation")
                 lines.append(f"stale {row.rel}: listed by name only, not re-run (measured on {describe(reasons)})")
                 continue
+            mismatch = suite_mismatch(row.results, suite)  # new or not: never an honest row (rows.py)
+            if mismatch:
+                field, why = mismatch[0]
+                raise UserError(f"{row.rel}: {field}: measured on {why}: not what a run of the current suite file "
+                                "gives (results edited by hand?)")
             full = row.rel in changed
             todo.append((row, sample_indices(suite.count, None if full else sample, seed, row.rel),
                          row_policy(row, root, suite.config)))
+            if "artifact" in row.results.meta["submission"]["policy"]:  # deterministic, or refused (cheap)
+                if probe is None:
+                    probe = probe_observations(suite)
+                check_deterministic(todo[-1][2].inner.act, suite, row.rel, probe)
         for batch in batches(todo, chunk_size):
             with torch_single_threaded():
                 _verify_batch(suite, batch, chunk_size)

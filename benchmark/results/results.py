@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import SIM_VERSION
+from overtakezoo.envs import SIM_VERSION, safe_json
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import atomic_write_text
@@ -177,7 +177,7 @@ class Results:
     def load(cls, path: str | Path) -> "Results":
         path = Path(path)
         try:
-            data = path.read_bytes()
+            data = safe_json.read_bounded(path)
         except OSError as exc:
             raise UserError(f"cannot read results file {path}: {exc.strerror or exc}") from None
         return cls.from_json(data, str(path))
@@ -185,7 +185,9 @@ class Results:
     @classmethod
     def from_json(cls, data: bytes | str, where: str = "results") -> "Results":
         try:
-            doc = json.loads(data, parse_constant=_reject_constant)
+            doc = safe_json.loads(data, where, parse_constant=_reject_constant)  # bounded size and depth
+        except safe_json.JSONInputError as exc:
+            raise UserError(f"{where}: not a valid JSON document: {exc.reason}") from None
         except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
             raise UserError(f"{where}: not a valid JSON document: {str(exc).splitlines()[0][:200]}") from None
         validate(doc, where)
@@ -221,7 +223,7 @@ class Results:
             raise UserError(f"{where}: scenarios: {extra}: only in multi-AV files (num_avs >= 2)")
         per = round_per_scenario(per)
         summary = summary_of(per, meta["seed"], num_avs)
-        if _canonical(summary) != _canonical(doc["summary"]):
+        if not same_summary(summary, doc["summary"]):
             raise UserError(f"{where}: summary: does not match the per-scenario arrays (edited by hand?)")
         return cls(meta, per, summary, doc["timing"])
 
@@ -265,6 +267,11 @@ def _to_list(a: np.ndarray) -> list[Any]:
 
 def _reject_constant(name: str) -> None:
     raise ValueError(f"{name} is not allowed (use null)")
+
+
+def same_summary(a: Any, b: Any) -> bool:
+    """Whether two summaries are the same document (a recorded one against :func:`summary_of`)."""
+    return _canonical(a) == _canonical(b)
 
 
 def _canonical(obj: Any) -> str:

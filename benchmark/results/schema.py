@@ -49,6 +49,13 @@ def per_scenario_keys(num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
     return PER_SCENARIO if num_avs == 1 else {**PER_SCENARIO, **MULTI_PER_SCENARIO}
 
 
+def recorded_keys(num_avs: int = 1, safety: bool = True) -> dict[str, tuple[type, float | None]]:
+    """The per-scenario arrays a run records (``run/runner.py``; ``safety`` off: ``eval --no-safety``).
+    With ``safety`` on: what every leaderboard row must hold, one value per scenario and AV
+    (``leaderboard/rows.py``: ``suite_mismatch``). The one list of them: both read it here."""
+    return {**per_scenario_keys(num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
+
+
 def stored_keys(per: dict[str, Any], num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
     """The per-scenario arrays ``per`` holds: the required ones, and the safety ones when it has them."""
     keys = per_scenario_keys(num_avs)

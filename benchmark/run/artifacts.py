@@ -42,11 +42,19 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import safe_json
 
 NUM_MODES = 3
 SB3_ALGOS = {"dqn": "q-network", "ppo": "policy", "a2c": "policy"}
 _SB3_DEFAULT_ACTIVATION = {"dqn": "relu", "ppo": "tanh", "a2c": "tanh"}
 _ACTIVATIONS = {"ReLU": "relu", "Tanh": "tanh", "ELU": "elu"}
+# An ONNX policy's external data, inlined and stored: this benchmark's networks are KB to a few MB; 256 MiB bounds memory.
+MAX_ONNX_EXTERNAL_BYTES = 256 << 20
+# What a Stable-Baselines3 .zip's members may inflate to (the declared size checked, then enforced while reading).
+# policy.pth: an MlpPolicy's float32 weights are ~25 KB at SB3's [64, 64], ~4.5 MB at [1024, 1024]; 64 MiB bounds memory.
+MAX_SB3_STATE_BYTES = 64 << 20
+# data: SB3's JSON of hyperparameters with base64 cloudpickles, tens of KB; 16 MiB is far beyond any real one.
+MAX_SB3_DATA_BYTES = 16 << 20
 
 
 @dataclass
@@ -180,9 +188,11 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
 
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as z:
-            meta = json.loads(z.read("data"))
-            state_bytes = z.read("policy.pth")
-    except (OSError, KeyError, zipfile.BadZipFile, ValueError, UnicodeDecodeError) as exc:
+            meta = safe_json.loads(zip_member(z, "data", MAX_SB3_DATA_BYTES, f"policy {path}"), "data")
+            state_bytes = zip_member(z, "policy.pth", MAX_SB3_STATE_BYTES, f"policy {path}")
+    except UserError:
+        raise
+    except (OSError, KeyError, zipfile.BadZipFile, ValueError, UnicodeDecodeError, EOFError) as exc:
         raise UserError(f"policy {path}: unreadable Stable-Baselines3 file ({exc})") from None
     if not isinstance(meta, dict):
         raise UserError(f"policy {path}: unreadable Stable-Baselines3 file (data is not a JSON object)")
@@ -236,15 +246,62 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
     return Artifact("mlp", npz, card, "sb3", sha, policy_card=policy_card)
 
 
+def zip_member(z: zipfile.ZipFile, name: str, cap: int, who: str) -> bytes:
+    """The member ``name`` of the zip ``z``, refused (:class:`UserError`) when its declared size is over
+    ``cap``, and read through a bounded stream: a member whose data inflates past its declared size (or
+    the cap) is refused after ``cap`` + 1 bytes, never inflated whole."""
+    info = z.getinfo(name)
+    if info.file_size > cap:
+        raise UserError(f"{who}: {name} declares {info.file_size} bytes uncompressed, at most {cap} are read "
+                        "(a zip bomb, or not a policy this reads)")
+    with z.open(info) as f:
+        out = f.read(min(info.file_size, cap) + 1)
+    if len(out) > min(info.file_size, cap):
+        raise UserError(f"{who}: {name} inflates past its declared {info.file_size} bytes (a zip bomb)")
+    return out
+
+
+def _torch_file_bounded(path: Path, data: bytes, what: str) -> None:
+    """:class:`UserError` when ``data`` (a ``torch.save`` file: a zip) holds a compressed record or records
+    declaring more than :data:`MAX_SB3_STATE_BYTES` in all: torch's reader would inflate them whole
+    (``torch.save`` stores its records uncompressed, so their size is bounded by the file's)."""
+    if not zipfile.is_zipfile(io.BytesIO(data)):
+        return  # (the legacy pickle format: torch's weights-only reader refuses what is not plain data)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as z:
+            infos = z.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise UserError(f"policy {path}: {what} is not a readable torch file ({exc})") from None
+    packed = next((i for i in infos if i.compress_type != zipfile.ZIP_STORED), None)
+    if packed is not None:
+        raise UserError(f"policy {path}: {what}: record {packed.filename} is compressed (torch.save stores records "
+                        "as they are): not a torch.save file")
+    if sum(i.file_size for i in infos) > MAX_SB3_STATE_BYTES:
+        raise UserError(f"policy {path}: {what}: records of {sum(i.file_size for i in infos)} bytes, at most "
+                        f"{MAX_SB3_STATE_BYTES} are read")
+
+
+def _torch_why(exc: BaseException) -> str:
+    """A one-line reason for a refused torch file, without torch's advice to load it with
+    ``weights_only=False`` (which would run the file's code)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    unpickler = next((ln for ln in lines if ln.startswith("WeightsUnpickler error:")), None)
+    if unpickler is not None:
+        return unpickler[:200]
+    plain = [ln for ln in lines if "weights_only" not in ln and "still be loaded" not in ln
+             and "trust the source" not in ln]
+    return (plain or [type(exc).__name__])[0][:200]
+
+
 def _torch_state(path: Path, data: bytes, what: str) -> dict[str, Any]:
     need("torch", "sb3", path)
+    _torch_file_bounded(path, data, what)
     import torch
 
     try:
         state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as exc:  # weights_only refuses anything but tensors and plain containers
-        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
-        raise UserError(f"policy {path}: {what} is not a plain state dict ({why})") from None
+        raise UserError(f"policy {path}: {what} is not a plain state dict ({_torch_why(exc)})") from None
     if not isinstance(state, dict):
         raise UserError(f"policy {path}: {what} is not a state dict")
     return state
@@ -259,6 +316,25 @@ def _zip_names(data: bytes) -> list[str]:
 
 
 # ------------------------------------------------------------------ ONNX
+def _check_policy_file(path: Path, data: bytes) -> None:
+    """:class:`UserError` when ``data`` cannot be a policy file a card belongs to (an ONNX model, or a
+    zip: a Stable-Baselines3 ``.zip``, a TorchScript file): a results file, any other JSON or text."""
+    if path.suffix == ".onnx" or _looks_onnx(data) or zipfile.is_zipfile(io.BytesIO(data)):
+        return
+    doc: Any = None
+    if data.lstrip()[:1] == b"{":
+        try:
+            doc = json.loads(data)
+        except (ValueError, RecursionError):
+            doc = None
+    if isinstance(doc, dict) and (str(doc.get("schema", "")).startswith("overtakezoo-results/")
+                                  or {"scenarios", "summary", "decider"} <= doc.keys()):
+        raise UserError(f"card {path}: a results file (of `overtakezoo eval`), not a policy file: give the policy "
+                        "file you trained (Stable-Baselines3 .zip, TorchScript .pt, .onnx)")
+    what = "a JSON file" if isinstance(doc, (dict, list)) else "not a policy file"
+    raise UserError(f"card {path}: {what}: expected a Stable-Baselines3 .zip, a TorchScript file or an ONNX model")
+
+
 def _looks_onnx(data: bytes) -> bool:
     return data[:1] == b"\x08" and not zipfile.is_zipfile(io.BytesIO(data))  # ModelProto: field 1 (ir_version)
 
@@ -276,28 +352,98 @@ def self_contained_onnx(path: Path, data: bytes) -> bytes:
         model = onnx.load_model_from_string(data)
     except Exception as exc:
         raise UserError(f"policy {path}: not a readable ONNX model ({type(exc).__name__})") from None
+    unused = _unused_initializers(model)
+    if unused:
+        raise UserError(f"policy {path}: initializer {unused[0]!r} is used by no node ({len(unused)} unused): a "
+                        "policy file carries only the weights its graph computes with; export it again")
     tensors = [t for t in _all_tensors(model) if uses_external_data(t)]
     if not tensors:
         return data
     base = path.resolve().parent
+    total = 0
     for t in tensors:
         info = {e.key: e.value for e in t.external_data}
         loc = PurePosixPath(info.get("location", ""))
         if not loc.parts or loc.is_absolute() or ".." in loc.parts:
             raise UserError(f"policy {path}: external data {str(loc)!r} of tensor {t.name!r} is not a file beside "
                             "the model")
-        file = base.joinpath(*loc.parts)
-        if file.is_symlink() or not file.is_file() or file.resolve().parent != base.joinpath(*loc.parts[:-1]).resolve():
-            raise UserError(f"policy {path}: external data {loc} of tensor {t.name!r} is missing (or not a regular "
-                            "file); export with torch.onnx.export(..., external_data=False) or onnx.save_model(..., "
-                            "save_as_external_data=False)")
-        blob = file.read_bytes()
-        offset, length = int(info.get("offset", 0) or 0), info.get("length")
-        chunk = blob[offset: offset + int(length)] if length else blob[offset:]
+        try:
+            offset, length = int(info.get("offset") or 0), int(info["length"]) if info.get("length") else -1
+        except ValueError:
+            raise UserError(f"policy {path}: external data of tensor {t.name!r}: offset/length are not integers") \
+                from None
+        chunk = _external_bytes(path, base, loc, t.name, offset, length, MAX_ONNX_EXTERNAL_BYTES - total)
+        total += len(chunk)
         t.raw_data = chunk
         del t.external_data[:]
         t.data_location = onnx.TensorProto.DEFAULT
     return model.SerializeToString()
+
+
+def _external_bytes(path: Path, base: Path, loc: PurePosixPath, tensor: str, offset: int, length: int,
+                    room: int) -> bytes:
+    """``length`` bytes (-1: to the end) at ``offset`` of the external data file ``loc`` under ``base``:
+    a regular file reached from ``base`` without any symlink on the way (each component opened with
+    ``O_NOFOLLOW``), inside ``base`` once resolved, and of at most ``room`` bytes; :class:`UserError` otherwise."""
+    import os
+    import stat
+
+    missing = (f"policy {path}: external data {loc} of tensor {tensor!r} is missing, or not a regular file inside "
+               "the model's folder reached without a symlink; export with torch.onnx.export(..., external_data=False) "
+               "or onnx.save_model(..., save_as_external_data=False)")
+    resolved = base.joinpath(*loc.parts).resolve()
+    if base.resolve() not in resolved.parents:
+        raise UserError(missing)
+    fds: list[int] = []
+    try:
+        fds.append(os.open(base, os.O_RDONLY | os.O_DIRECTORY))
+        for part in loc.parts[:-1]:  # a symlinked folder fails here (ELOOP), a file not a folder (ENOTDIR)
+            fds.append(os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fds[-1]))
+        fds.append(os.open(loc.parts[-1], os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK, dir_fd=fds[-1]))
+        st = os.fstat(fds[-1])
+        if not stat.S_ISREG(st.st_mode):  # a FIFO, device or folder
+            raise UserError(missing)
+        want = st.st_size - offset if length < 0 else length
+        if offset < 0 or want < 0 or offset + want > st.st_size:
+            raise UserError(f"policy {path}: external data {loc} of tensor {tensor!r}: bytes {offset}..{offset + want} "
+                            f"are not inside the file ({st.st_size} bytes)")
+        if want > room:
+            raise UserError(f"policy {path}: external data of more than {MAX_ONNX_EXTERNAL_BYTES} bytes in all "
+                            f"(tensor {tensor!r}: {want} bytes): not a policy this reads")
+        with os.fdopen(os.dup(fds[-1]), "rb") as f:
+            f.seek(offset)
+            chunk = f.read(want)
+    except OSError:
+        raise UserError(missing) from None
+    finally:
+        for fd in fds:
+            os.close(fd)
+    if len(chunk) != want:
+        raise UserError(f"policy {path}: external data {loc} of tensor {tensor!r}: changed while read")
+    return chunk
+
+
+def _unused_initializers(model: Any) -> list[str]:
+    """The initializers (of the graph and its subgraphs) that no node reads and no graph outputs:
+    weights the network never computes with have no place in a policy file (they would be stored and
+    published with it)."""
+    import onnx
+
+    used: set[str] = set()
+    inits: list[str] = []
+    graphs = [model.graph]
+    while graphs:
+        g = graphs.pop()
+        inits += [t.name for t in g.initializer] + [s.values.name for s in g.sparse_initializer]
+        used |= {o.name for o in g.output}
+        for node in g.node:
+            used |= set(node.input)
+            for attr in node.attribute:
+                if attr.type == onnx.AttributeProto.GRAPH:
+                    graphs.append(attr.g)
+                elif attr.type == onnx.AttributeProto.GRAPHS:
+                    graphs.extend(attr.graphs)
+    return [name for name in inits if name not in used]
 
 
 def _all_tensors(model: Any) -> list[Any]:
@@ -342,6 +488,9 @@ def parse_card(raw: bytes | str, where: str = "policy card") -> dict[str, Any]:
     def constant(name: str) -> Any:
         raise CardError(f"{where}: {name} is not a JSON number")
 
+    if safe_json.depth(raw) > safe_json.MAX_JSON_DEPTH:  # before the decoder recurses into it
+        raise CardError(f"{where}: not JSON (nested {safe_json.depth(raw)} levels deep, at most "
+                        f"{safe_json.MAX_JSON_DEPTH})")
     try:
         card = json.loads(raw.decode("utf-8"), object_pairs_hook=pairs, parse_constant=constant)
     except CardError:
@@ -474,6 +623,11 @@ def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *
     if model_card(path) is not None:
         raise UserError(f"card {path}: weights of `overtakezoo train`: their model card {model_card(path).name} "
                         "already holds the hold and the observation contract")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"card {path}: cannot read ({exc.strerror or exc})") from None
+    _check_policy_file(path, data)
     card: dict[str, Any] = {"card_version": 1, "action_repeat": action_repeat}
     if suite is not None:
         from overtakezoo.envs.suites import load_training
@@ -494,10 +648,6 @@ def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *
         parse_card(text, "the card")
     except CardError as exc:
         raise UserError(f"card {path}: {exc}") from None
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise UserError(f"card {path}: cannot read ({exc.strerror or exc})") from None
     if path.suffix == ".onnx" or _looks_onnx(data):
         try:
             import onnx

@@ -55,15 +55,35 @@ def decision_map(decider: Any, suite: Any, gaps: np.ndarray, distances: np.ndarr
                        decider.name, suite.name)
 
 
-def plot(dm: DecisionMap) -> bytes:
-    """The map as PNG bytes (Agg canvas, no timestamps: identical bytes for identical maps)."""
+# What ``plot`` writes, by the output file's suffix: matplotlib's format name and the metadata that keeps
+# the bytes free of timestamps and version strings (JPEG: Pillow, a dependency of matplotlib).
+FORMATS: dict[str, tuple[str, dict[str, Any] | None]] = {
+    ".png": ("png", {"Software": None}), ".jpg": ("jpeg", None), ".jpeg": ("jpeg", None),
+    ".svg": ("svg", {"Date": None}), ".pdf": ("pdf", {"CreationDate": None, "Producer": None}),
+}
+
+
+def image_format(suffix: str) -> str:
+    """The format an output file's suffix names (no suffix: PNG); ValueError naming the supported ones."""
+    suffix = suffix.lower() or ".png"
+    if suffix not in FORMATS:
+        raise ValueError(f"cannot write a {suffix} image: supported suffixes are {', '.join(FORMATS)}")
+    return FORMATS[suffix][0]
+
+
+def plot(dm: DecisionMap, fmt: str = "png") -> bytes:
+    """The map as image bytes in ``fmt`` (png, jpeg, svg or pdf; Agg canvas, no timestamps: identical
+    bytes for identical maps)."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import ListedColormap
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
-    with matplotlib.rc_context({"font.family": "DejaVu Sans", "font.size": 9}):
+    by_name = dict(FORMATS.values())
+    if fmt not in by_name:
+        raise ValueError(f"unsupported image format {fmt!r} (supported: {', '.join(by_name)})")
+    with matplotlib.rc_context({"font.family": "DejaVu Sans", "font.size": 9, "svg.hashsalt": "overtakezoo"}):
         fig = Figure(figsize=(6.0, 4.5), dpi=100)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot(1, 1, 1)
@@ -80,5 +100,5 @@ def plot(dm: DecisionMap) -> bytes:
                   fontsize=8, framealpha=0.9)
         fig.tight_layout()
         buf = io.BytesIO()
-        fig.savefig(buf, format="png", metadata={"Software": None})
+        fig.savefig(buf, format=fmt, metadata=by_name[fmt])
     return buf.getvalue()

@@ -20,11 +20,17 @@ A SPEC is one of:
   - a TorchScript file (``torch.jit.save``, the same contract as ONNX; deprecated by torch): it runs
     in the sandbox only.
 
-Each decision is held for the policy's ``action_repeat`` (a model card's; a file's policy card, beside a
-``.zip`` or TorchScript file as ``<stem>.card.json``, inside an ONNX file as metadata
-``overtakezoo.card``, :mod:`.artifacts`; else a TorchScript module's ``action_repeat`` attribute or an
-ONNX metadata entry ``action_repeat``; else 1: one env step of the Gymnasium face) combined with the
-suite's ``decision_interval`` by the runner; a card's observation contract must be the suite's. A file policy is named
+Each decision is held for the policy's decision rate, its ``action_repeat``: core steps between its
+decisions when deployed. For a policy file that is a model card's ``decide_every`` when it has one,
+else the *training hold* the file states, the core steps each decision was held in training (a model
+card's ``action_repeat``; a file's policy card, beside a ``.zip`` or TorchScript file as
+``<stem>.card.json``, inside an ONNX file as metadata ``overtakezoo.card``, :mod:`.artifacts`; else a
+TorchScript module's ``action_repeat`` attribute or an ONNX metadata entry ``action_repeat``; else 1:
+one env step of a face made from a raw config, not the 10 of ``overtakezoo/Overtake-v1`` and the
+suite ids), combined
+with the suite's ``decision_interval`` by the runner (:func:`hold_lines` says which, and where it came
+from: ``eval`` and ``submit`` print it, and warn about a policy file without a card). A card's
+observation contract must be the suite's. A file policy is named
 ``<file stem>-<first 8 hex of its sha256>`` (never a zoo name), and its results record the kind and
 the sha256 of what acts (``decider.policy``, ``decider.weights_sha256``; for ONNX with external data,
 of the inlined model). Every expected failure (missing file, corrupted weights, wrong shapes, a
@@ -34,7 +40,6 @@ missing optional dependency, a policy that crashes or hangs) is one :class:`User
 from __future__ import annotations
 
 import importlib
-import json
 import os
 import re
 import sys
@@ -44,11 +49,11 @@ from typing import Any, Callable
 import numpy as np
 
 from overtakezoo import zoo
-from overtakezoo.envs import ConfigError, EnvConfig, observation_size
+from overtakezoo.envs import ConfigError, EnvConfig, observation_size, safe_json
 
 from overtakezoo.benchmark.run.artifacts import Artifact, check_card, read_policy_file
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.run.sandbox import PolicyFailure, SandboxedPolicy, check_modes
+from overtakezoo.benchmark.run.sandbox import BadAnswer, PolicyFailure, SandboxedPolicy, check_modes
 
 NUM_MODES = 3
 FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
@@ -137,6 +142,8 @@ def _load_factory(spec: str, config: EnvConfig) -> zoo.Decider:
     dec = PolicyDecider(obj.act, name, config, {"kind": "module", "spec": spec},
                         action_repeat=getattr(obj, "action_repeat", 1), version=str(getattr(obj, "version", "1")),
                         weights_sha256=getattr(obj, "weights_sha256", None), inner=obj)
+    dec.hold_from = (f"from the action_repeat of {attr}(config)'s {type(obj).__name__}" if hasattr(obj, "action_repeat")
+                     else f"the default: {attr}(config)'s {type(obj).__name__} has no action_repeat")
     dec.privileged = bool(getattr(obj, "privileged", False))
     if dec.privileged:
         dec.bind = obj.bind
@@ -181,6 +188,8 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
         box.close()
         raise
     dec = PolicyDecider(box.act, who, config, {}, action_repeat=repeat, inner=box)
+    dec.hold_from, dec.hold_card = _file_hold_from(art, Path(who), repeat)  # (hold_lines says them)
+    dec.hold_file = who
     dec.row_state = ()  # a policy file is a function of the observation: the runner may drop finished rows
     _probe(dec, config, who)
     return dec
@@ -195,8 +204,8 @@ def _trained_weights(path: Path) -> Path:
                             f"directory, found {', '.join(p.stem for p in cards) or 'none'}")
         return cards[0].with_suffix(".npz")
     try:
-        weights = json.loads(path.read_text()).get("weights_file")
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        weights = safe_json.load_file(path).get("weights_file")
+    except (OSError, ValueError, AttributeError):  # (not JSON, too large, nested too deep)
         weights = None
     if not isinstance(weights, str):
         raise UserError(f"policy {path}: not a model card (no weights_file) of `overtakezoo train`")
@@ -217,6 +226,85 @@ def _probe(dec: zoo.Decider, config: EnvConfig, who: str) -> None:
     d = observation_size(config)
     try:
         dec.act(np.zeros((2, d), np.float32))
+    except BadAnswer as exc:  # it took the observations: its output is wrong, not this suite's observations
+        dec.inner.close()
+        raise UserError(f"policy {who}: its output does not give modes: on observations of shape (2, {d}) it "
+                        f"{exc}") from None
     except PolicyFailure as exc:
         dec.inner.close()
         raise UserError(f"policy {who}: does not accept observations of shape (N, {d}): {exc}") from None
+
+
+# ----------------------------------------------------------------------------- the hold, stated
+def _file_hold_from(art: Artifact, path: Path, repeat: int) -> tuple[str, bool]:
+    """Where a policy file's hold comes from, in words (``from the policy card model.card.json``),
+    and whether a card (a model card or a policy card) states it."""
+    from overtakezoo.benchmark.run.artifacts import CARD_KEY, card_file, model_card
+
+    card = art.card or {}
+    trained = model_card(path)
+    if trained is not None:
+        held = card.get("action_repeat", 1)
+        every = card.get("decide_every", held)
+        rate = f": decide_every {every}, trained at a hold of {held}" if every != held else ""
+        return f"from the model card {trained.name}{rate}", True
+    if art.policy_card or card.get("policy_card"):
+        if art.source_kind == "onnx":
+            return f"from the policy card in {path.name} (ONNX metadata {CARD_KEY})", True
+        return f"from the policy card {card_file(path).name}", True
+    if art.source_kind == "torchscript":
+        if repeat != 1:
+            return f"from the action_repeat attribute of the TorchScript module {path.name}", False
+    elif art.kind == "onnx" and "action_repeat" in _onnx_metadata(art.data):
+        return f"from the ONNX metadata entry action_repeat of {path.name}", False
+    return f"the default: {path.name} has no policy card", False
+
+
+def _onnx_metadata(model: bytes) -> dict[str, str]:
+    try:
+        import onnx
+
+        return {p.key: p.value for p in onnx.load_model_from_string(model).metadata_props}
+    except Exception:  # no onnx package here (the sandbox read it), or not readable: nothing said
+        return {}
+
+
+def _decider_hold_from(decider: Any) -> str:
+    """Where a zoo decider's (or a wrapper's) decision rate comes from, in words."""
+    for d in (decider, getattr(decider, "inner", None)):
+        if getattr(d, "hold_from", None):
+            return d.hold_from
+        card = getattr(d, "model_card", None)
+        if isinstance(card, dict) and card:
+            name = card.get("name", d.name)
+            held = card.get("action_repeat", 1)
+            if "decide_every" in card:
+                return (f"from {name}'s model card: decide_every {card['decide_every']}, its decision rate when "
+                        f"deployed; trained at a hold of {held}")
+            return f"from {name}'s model card: action_repeat {held}, its training hold"
+    if "action_repeat" in vars(decider) or type(decider).action_repeat != zoo.Decider.action_repeat:
+        return f"from {decider.name}'s own action_repeat"
+    return f"the default: {decider.name} declares no action_repeat, so it decides every step"
+
+
+def hold_lines(decider: Any, config: EnvConfig, suite: str | None = None) -> list[str]:
+    """What ``eval`` and ``submit`` print on stderr about the hold: ``hold: 10 core steps per decision
+    (from the policy card model.card.json)``, and for a policy file without a card a warning (an
+    SB3 model trained at the zoo's 1 s scored 81.3 % without its card, 81.8 % with it, silently).
+    ``suite``: named in the warning's ``overtakezoo card`` command."""
+    from overtakezoo.envs.hold import hold_steps
+
+    repeat = int(getattr(decider, "action_repeat", 1))
+    steps = hold_steps(config.decision_interval, repeat)
+    how = "" if steps == repeat else f"action_repeat {repeat} at decision_interval {config.decision_interval}, "
+    src = _decider_hold_from(decider)
+    lines = [f"hold: {steps} core step{'s' if steps != 1 else ''} per decision ({how}{src})"]
+    filed = next((d for d in (decider, getattr(decider, "inner", None))
+                  if getattr(d, "hold_card", None) is False), None)
+    if filed is not None:  # a policy file (or shielded:file) without a card
+        file = getattr(filed, "hold_file", None) or filed.name
+        lines.append(f"warning: policy {file} has no policy card: nothing says how long its decisions were held in "
+                     f"training, so each is held {steps} core step{'s' if steps != 1 else ''}. If it was trained at "
+                     "another hold (gymnasium.make(\"overtakezoo/Overtake-v1\") and the suite ids hold 10, the zoo's "
+                     f"1 s), write its card: overtakezoo card {file} --action-repeat 10 --suite {suite or 'SUITE'}")
+    return lines

@@ -30,6 +30,7 @@ from overtakezoo.envs.hold import hold_steps, run_to_end
 from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
 
 from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
+from overtakezoo.benchmark.results.schema import recorded_keys
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.safety import SafetyMonitor
 from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
@@ -97,7 +98,7 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
     max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10
-    keys = {**per_scenario_keys(scenarios.num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
+    keys = recorded_keys(scenarios.num_avs, safety)
     parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
     compact = (scenarios.num_avs == 1 and getattr(decider, "row_state", None) is not None

@@ -57,6 +57,11 @@ class PolicyFailure(Exception):
         self.rows = rows  # the batch rows at fault, where the failure names some
 
 
+class BadAnswer(PolicyFailure):
+    """The policy took the observations but answered with something that is not modes (a wrong
+    shape, dtype or value): its output is at fault, not the observations."""
+
+
 @dataclass(frozen=True)
 class Limits:
     """What the child may use. ``call_s``: wall seconds per decision batch (and to load);
@@ -93,16 +98,16 @@ def check_modes(modes: Any, n: int) -> np.ndarray:
     if a.ndim == 2 and a.shape[1] == 1:  # (N, 1): one mode per row in a column
         a = a[:, 0]
     if a.shape != (n,):
-        raise PolicyFailure(f"returned shape {a.shape} for {n} observation(s), expected ({n},)")
+        raise BadAnswer(f"returned shape {a.shape} for {n} observation(s), expected ({n},)")
     if a.dtype.kind not in "iub":
         if a.dtype.kind != "f":
-            raise PolicyFailure(f"returned modes of dtype {a.dtype}, expected integers 0, 1 or 2")
+            raise BadAnswer(f"returned modes of dtype {a.dtype}, expected integers 0, 1 or 2")
         bad = ~np.isfinite(a) | (a != np.round(a))
         if bad.any():
-            raise PolicyFailure(f"returned mode {a[bad][0].item()!r}, expected 0, 1 or 2", np.flatnonzero(bad))
+            raise BadAnswer(f"returned mode {a[bad][0].item()!r}, expected 0, 1 or 2", np.flatnonzero(bad))
     bad = (a < 0) | (a >= NUM_MODES)
     if bad.any():
-        raise PolicyFailure(f"returned mode {a[bad][0].item()!r}, expected 0, 1 or 2", np.flatnonzero(bad))
+        raise BadAnswer(f"returned mode {a[bad][0].item()!r}, expected 0, 1 or 2", np.flatnonzero(bad))
     return a.astype(np.int64)
 
 
@@ -110,10 +115,15 @@ def modes_of(out: Any, n: int) -> np.ndarray:
     """A policy's output for n observations as modes: scores (n, 3) -> their argmax (every score
     finite), modes (n,) or (n, 1) checked by :func:`check_modes`."""
     out = np.asarray(out)
+    if out.shape not in ((n,), (n, 1), (n, NUM_MODES)):  # e.g. (n, 5): not the 3 modes' scores
+        raise BadAnswer(f"returned shape {out.shape} for {n} observation(s), expected {NUM_MODES} mode scores "
+                        f"per observation ({n}, {NUM_MODES}) or one mode per observation ({n},) or ({n}, 1)")
+    if out.shape == (n, NUM_MODES) and out.dtype.kind != "f":
+        raise BadAnswer(f"returned {NUM_MODES} scores per observation of dtype {out.dtype}, expected floats")
     if out.ndim == 2 and out.shape[1] == NUM_MODES and out.dtype.kind == "f":
         bad = ~np.isfinite(out).all(axis=1)
         if bad.any():
-            raise PolicyFailure(f"returned non-finite scores {out[bad][0].tolist()}", np.flatnonzero(bad))
+            raise BadAnswer(f"returned non-finite scores {out[bad][0].tolist()}", np.flatnonzero(bad))
         return out.argmax(axis=1).astype(np.int64)
     return check_modes(out, n)
 
@@ -169,7 +179,7 @@ class SandboxedPolicy:
         try:
             out = np.load(io.BytesIO(payload), allow_pickle=False)
         except Exception:
-            raise PolicyFailure("answered with something that is not an array") from None
+            raise BadAnswer("answered with something that is not an array") from None
         return modes_of(out, obs.shape[0])
 
     def export_onnx(self, obs_dim: int) -> bytes:

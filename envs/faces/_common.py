@@ -24,11 +24,17 @@ def as_config(config: EnvConfig | dict[str, Any] | None = None, **overrides: Any
     return EnvConfig.from_dict(config, **overrides)
 
 
+def is_suite(config: Any = None, suite: Any = None) -> bool:
+    """Whether a face is made from a suite (``suite=``, a suite's name or path, or a loaded suite
+    passed as ``config``) rather than from a raw config: :func:`env_hold`'s default differs."""
+    return suite is not None or isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)
+
+
 def suite_config(config: Any = None, suite: Any = None) -> EnvConfig | dict[str, Any] | None:
     """The config of a loaded suite (anything with an :class:`EnvConfig` ``config``, passed as
     ``suite`` or as ``config``; a built-in suite's name or a suite file's path is loaded), else
     ``config`` unchanged."""
-    if suite is None and (isinstance(config, str) or isinstance(getattr(config, "config", None), EnvConfig)):
+    if suite is None and is_suite(config):
         config, suite = None, config
     if suite is None:
         return config
@@ -65,17 +71,27 @@ def check_action(action: Any, n: int, who: str) -> int:
     return int(value)
 
 
-def check_actions(actions: Any, num: int, who: str, n: int = len(MODE_NAMES)) -> np.ndarray:
+def check_actions(actions: Any, num: int, who: str, n: int = len(MODE_NAMES), whole_floats: bool = False) -> np.ndarray:
     """A batch of ``num`` actions as int64, each an integer in ``range(n)``; else a ValueError naming
-    the first bad entry ``who[i]``."""
+    the first bad entry ``who[i]``, in the words of :func:`check_action`. Floats are refused (as the
+    single-action faces refuse ``1.0``) unless ``whole_floats``: a face whose trainer samples the index
+    as a float (rsl-rl's action column) takes ``1.0``, never ``1.7``, NaN or an infinity."""
     arr = np.asarray(actions)
     if arr.shape != (num,):
         raise ValueError(f"{who}: expected shape ({num},), got {arr.shape}")
-    if arr.dtype.kind not in "iu":
+    kind = arr.dtype.kind
+    if kind in "iu":
+        ok = (arr >= 0) & (arr < n)
+    elif kind == "f":
+        ok = (arr >= 0) & (arr < n) & (arr == np.floor(arr))  # NaN fails every comparison
+        if not whole_floats and num and ok.all():  # refused: name the first entry that is no index, else the first
+            ok[0] = False
+    else:
         raise ValueError(f"{who}: expected integers in 0..{n - 1}, got dtype {arr.dtype}")
-    bad = np.flatnonzero((arr < 0) | (arr >= n))
-    if len(bad):
-        raise ValueError(f"{who}[{bad[0]}]: action {arr[bad[0]].item()!r} is not an integer in 0..{n - 1}")
+    if not ok.all():
+        i = int(np.argmin(ok))
+        shown = str(arr[i]) if kind == "f" else repr(arr[i].item())  # str: 1.7 for a float32 1.7, not 1.70000005
+        raise ValueError(f"{who}[{i}]: action {shown} is not an integer in 0..{n - 1}")
     return arr.astype(np.int64, copy=False)
 
 
@@ -92,11 +108,18 @@ def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
     return out
 
 
-def env_hold(hold_steps: Any, config: EnvConfig) -> int:
+def env_hold(hold_steps: Any, config: EnvConfig, from_suite: bool = False) -> int:
     """Core steps one env step holds an action: ``hold_steps`` (a positive multiple of the config's
-    ``decision_interval``), or ``decision_interval`` when None; else a :class:`ConfigError`."""
+    ``decision_interval``) when given; else, for a face made from a suite (``from_suite``,
+    :func:`is_suite`), the zoo's 1 s at the config's dt, what the suite's registered id holds
+    (:func:`~overtakezoo.envs.suites.zoo_hold`: 10 at dt = 0.1 s), and for a face made from a raw
+    config its ``decision_interval``. Anything else is a :class:`ConfigError`."""
     interval = config.decision_interval
     if hold_steps is None:
+        if from_suite:
+            from overtakezoo.envs.suites import zoo_hold
+
+            return zoo_hold(config.dt, interval)
         return interval
     if isinstance(hold_steps, (bool, np.bool_)) or not isinstance(hold_steps, (int, np.integer)) or hold_steps < 1:
         raise ConfigError(f"hold_steps: expected a positive integer (core steps per env step), got {hold_steps!r}")

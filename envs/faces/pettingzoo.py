@@ -8,10 +8,13 @@ other.
 Building: ``parallel_env(config, **overrides)`` with an :class:`EnvConfig` or a dict (keyword
 arguments are EnvConfig keys), or ``parallel_env(suite)`` / ``parallel_env(suite=suite)`` with a
 loaded suite (``overtakezoo.envs.suites.load_suite("duel")``, or the name ``"duel"``, or a suite
-file's path: its simulator settings and scenario distribution). ``hold_steps`` (default: the
-config's ``decision_interval``) is how many core steps one env step holds the actions
-(:func:`~overtakezoo.envs.hold.hold`); the registered suite ids (``pettingzoo.make("parallel",
-"overtakezoo/duel-v1")``) hold the zoo's 1 s, 10 steps. Each ``reset(seed=s)`` draws
+file's path: its simulator settings and scenario distribution). ``hold_steps`` is how many core
+steps one env step holds the actions (:func:`~overtakezoo.envs.hold.hold`): an explicit value
+wins; otherwise an env made from a suite holds the zoo's 1 s (10 steps at dt = 0.1 s,
+:func:`~overtakezoo.envs.suites.zoo_hold`), as the suite's registered id does, so
+``parallel_env("duel")`` and ``pettingzoo.make("parallel", "overtakezoo/duel-v1")`` are the same env;
+an env made from a raw config (an :class:`EnvConfig`, a dict, ``suite.config``) holds its
+``decision_interval`` (1 by default). Each ``reset(seed=s)`` draws
 the road from the distribution with the env's generator (``ScenarioDistribution.sample(1, rng)``;
 without a seed, the next draw of the generator, first seeded by the config's ``seed``), or starts on
 ``options={"scenarios": <Scenarios of one row>}``.
@@ -53,17 +56,22 @@ PettingZoo-shaped. The recommended route is SuperSuit's vector of envs::
     vec = supersuit.pettingzoo_env_to_vec_env_v1(supersuit.black_death_v3(parallel_env(suite)))
     vec = supersuit.concat_vec_envs_v1(vec, num_vec_envs=k, base_class="gymnasium")  # k * E rows
 
-(a Gymnasium ``VectorEnv`` that resets each road when it ends; ``base_class="stable_baselines3"`` for
-SB3, ``num_cpus`` for processes). Trainers that want speed step :class:`~.core.OvertakeCore`
+(a Gymnasium ``VectorEnv`` that resets each road when it ends; ``num_cpus`` for processes). For
+Stable-Baselines3 use :func:`sb3_vec_env` (``overtakezoo.envs.sb3_vec_env(parallel_env(suite),
+num_roads=k)``, extra ``marl``): SuperSuit 3.11's own ``base_class="stable_baselines3"`` wrapper
+fails in ``PPO(..., seed=0)`` (``'ConcatVecEnv' object has no attribute 'seed'``); this one seeds.
+Trainers that want speed step :class:`~.core.OvertakeCore`
 directly: ``reset`` on N roads gives ``E * N`` AV rows (AV ``e`` of road ``n`` in row ``e * N + n``)
 stepped as one array, with ``auto_reset=True`` refilling each road when its last AV is done.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
+from gymnasium import error as gymnasium_error
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
@@ -75,7 +83,7 @@ from overtakezoo.envs.faces.rendering import RendersFirstRow
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
-from overtakezoo.envs.faces._common import as_config, check_action, env_hold, row_info, suite_config
+from overtakezoo.envs.faces._common import as_config, check_action, env_hold, is_suite, row_info, suite_config
 
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
@@ -102,7 +110,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
     def __init__(self, config: Any = None, *, suite: Any = None, hold_steps: int | None = None,
                  **overrides: Any) -> None:
         self.config = as_config(suite_config(config, suite), **overrides)
-        self.hold_steps = env_hold(hold_steps, self.config)  # core steps per env step
+        self.hold_steps = env_hold(hold_steps, self.config, is_suite(config, suite))  # core steps per env step
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
@@ -278,13 +286,109 @@ def parallel_env(config: Any = None, *, suite: Any = None, hold_steps: int | Non
                  **overrides: Any) -> OvertakeParallelEnv:
     """The PettingZoo ``ParallelEnv`` of one road: ``config`` an :class:`EnvConfig`, a dict, a loaded
     suite, a built-in suite's name or a suite file's path (or ``suite=``); ``hold_steps`` core steps
-    per env step (default: ``decision_interval``; the registered suite ids: the zoo's 1 s, 10 steps);
-    other keyword arguments are :class:`EnvConfig` keys."""
+    per env step: an explicit value wins, else the zoo's 1 s (10 at dt = 0.1 s) for a suite, as its
+    registered id ``pettingzoo.make("parallel", "overtakezoo/<suite>-v<version>")`` holds, and
+    ``decision_interval`` for a raw config; other keyword arguments are :class:`EnvConfig` keys."""
     return OvertakeParallelEnv(config, suite=suite, hold_steps=hold_steps, **overrides)
 
 
 def env(config: Any = None, *, suite: Any = None, hold_steps: int | None = None, **overrides: Any):
-    """The AEC version (PettingZoo's own conversion, with its bounds and order checks)."""
+    """The AEC version (PettingZoo's own conversion, with its bounds and order checks); the same
+    arguments and the same hold as :func:`parallel_env`."""
     aec = parallel_to_aec_wrapper(parallel_env(config, suite=suite, hold_steps=hold_steps, **overrides))
     aec = wrappers.AssertOutOfBoundsWrapper(aec)
     return wrappers.OrderEnforcingWrapper(aec)
+
+
+class MultiAVSuiteError(gymnasium_error.NameNotFound):
+    """``gymnasium.make`` / ``gymnasium.make_vec`` of a multi-AV suite id: several AVs share a road, so
+    it is a PettingZoo env only; the message shows the PettingZoo call. (A ``NameNotFound``, as
+    before these ids were registered with Gymnasium, so code catching that keeps working.)"""
+
+
+def gymnasium_refusal(*, suite: str = "", **_: Any) -> Any:
+    """The Gymnasium entry point (and vector entry point) of a multi-AV suite's id
+    (:func:`~.gym.register_envs`): raises :class:`MultiAVSuiteError` pointing at the PettingZoo face."""
+    from overtakezoo.envs.suites import suite_env_ids
+
+    ids = [env_id for env_id, entry in suite_env_ids().items() if entry.name == suite]
+    env_id = ids[0] if ids else f"overtakezoo/{suite}"
+    raise MultiAVSuiteError(
+        f"{env_id} is a multi-AV suite (several automated vehicles share each road, one agent each), so it "
+        f"is a PettingZoo env, not a Gymnasium one: use pettingzoo.make(\"parallel\", \"{env_id}\") or "
+        f"overtakezoo.envs.parallel_env(\"{suite}\") (one shared policy with Stable-Baselines3: "
+        f"overtakezoo.envs.sb3_vec_env(parallel_env(\"{suite}\"), num_roads=k))")
+
+
+def sb3_vec_env(par: Any, num_roads: int = 1, base_class: str = "stable_baselines3", num_cpus: int = 0) -> Any:
+    """SuperSuit's vector of ``num_roads`` copies of the PettingZoo env ``par`` (one row per AV:
+    ``num_roads * E`` rows; every AV driven by one shared policy), ready for Stable-Baselines3:
+    ``supersuit.black_death_v3`` (a finished AV gets zero observations and rewards until its road
+    ends), ``pettingzoo_env_to_vec_env_v1``, then ``concat_vec_envs_v1`` (module docstring). Needs the
+    ``marl`` extra (``pip install 'overtakezoo[marl]'``), imported here only.
+
+    Unlike SuperSuit 3.11's own SB3 wrapper (whose ``seed()`` fails with ``AttributeError:
+    'ConcatVecEnv' object has no attribute 'seed'``, e.g. in ``PPO(..., seed=0)``), seeding works as in
+    SB3's own vector envs: ``seed(s)`` (what ``PPO(seed=s)`` calls) seeds the next ``reset()``, road
+    ``i`` with ``s + i``. ``base_class="gymnasium"`` gives SuperSuit's Gymnasium ``VectorEnv`` instead
+    (seeded by ``reset(seed=s)``); ``num_cpus`` as SuperSuit's (0: all roads in this process). E.g.::
+
+        from stable_baselines3 import PPO
+        from overtakezoo.envs import parallel_env
+        from overtakezoo.envs.faces.pettingzoo import sb3_vec_env
+
+        vec = sb3_vec_env(parallel_env("duel"), num_roads=8)
+        model = PPO("MlpPolicy", vec, seed=0).learn(100_000)
+    """
+    try:
+        import supersuit
+    except ImportError:
+        raise ImportError("sb3_vec_env needs SuperSuit and Stable-Baselines3: pip install 'overtakezoo[marl]'") from None
+    if base_class not in ("stable_baselines3", "gymnasium"):
+        raise ValueError(f"base_class {base_class!r}: expected 'stable_baselines3' or 'gymnasium'")
+    if isinstance(num_roads, bool) or not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
+        raise ValueError(f"num_roads {num_roads!r}: expected a positive integer")
+    vec = supersuit.pettingzoo_env_to_vec_env_v1(supersuit.black_death_v3(par))
+    vec = supersuit.concat_vec_envs_v1(vec, num_vec_envs=int(num_roads), num_cpus=num_cpus, base_class="gymnasium")
+    if base_class == "gymnasium":
+        return vec
+    return _seeded_sb3_wrapper()(vec)
+
+
+@functools.lru_cache(maxsize=None)
+def _seeded_sb3_wrapper() -> type:
+    """SuperSuit's SB3 wrapper with SB3's seeding (built on first use: it imports Stable-Baselines3)."""
+    try:
+        from supersuit.vector.sb3_vector_wrapper import SB3VecEnvWrapper
+    except ImportError:
+        raise ImportError("sb3_vec_env needs Stable-Baselines3: pip install 'overtakezoo[marl]'") from None
+
+    class SeededSB3VecEnv(SB3VecEnvWrapper):
+        """``seed(s)`` (what ``PPO(seed=s)`` calls) applies at the next ``reset()``, road ``i`` with ``s + i``."""
+
+        _next_seed: int | None = None
+        _next_options: dict[str, Any] | None = None
+
+        def seed(self, seed: int | None = None) -> list[int | None]:
+            if seed is None:  # as SB3's VecEnv.seed: a fresh seed, so that copies differ
+                seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
+            self._next_seed = int(seed)
+            return [self._next_seed + i for i in range(self.num_envs)]
+
+        def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> np.ndarray:
+            if seed is not None:
+                self.seed(seed)
+            seed, self._next_seed = self._next_seed, None
+            options, self._next_options = options if options is not None else self._next_options, None
+            observations, self.reset_infos = self.venv.reset(seed=seed, options=options)
+            return observations
+
+        def set_options(self, options: dict[str, Any] | list[dict[str, Any]] | None = None) -> None:
+            """As SB3's: options for the next ``reset()`` (one dict for every road)."""
+            if isinstance(options, list):
+                if any(o != options[0] for o in options):
+                    raise ValueError("SuperSuit's vector resets every road with the same options")
+                options = options[0] if options else None
+            self._next_options = options
+
+    return SeededSB3VecEnv

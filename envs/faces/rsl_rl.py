@@ -4,10 +4,15 @@ One :class:`OvertakeCore` with ``auto_reset=True`` steps ``num_envs`` scenarios;
 refilled from ``source`` (or pass ``core``, e.g. a :class:`~.mixture.MixedCore` over several
 suites). ``transform`` (obs -> obs) maps what the policy sees, e.g. a decider's input features. The
 action is one column holding the mode index as a float (what a categorical action distribution
-samples); observations are a TensorDict with one group,
+samples): a whole number in 0..2, anything else (1.7, -1, NaN) is refused with the ValueError every
+face raises, never rounded; observations are a TensorDict with one group,
 ``"policy"``, which the runner's ``obs_groups`` route to both actor and critic. With
 ``action_repeat`` = k one env step holds the decision for k core steps (:func:`.hold.hold`,
-rewards summed).
+rewards summed): the *training hold* a model card records as its ``action_repeat``. The face is
+built from a config (or a core), not a suite, so it keeps its own default of 1 core step; the
+faces made from a suite (``make_vec(suite=...)``, ``parallel_env("duel")``, the registered ids)
+hold the zoo's 1 s instead, ``zoo_hold(cfg.dt, cfg.decision_interval)`` = 10 at dt = 0.1 s
+(:func:`overtakezoo.envs.suites.zoo_hold`): pass that as ``action_repeat`` to train at the zoo's hold.
 
 rsl-rl and torch are optional dependencies (the ``train`` extra); nothing else in ``envs`` needs
 them, so this module is imported explicitly, never from ``overtakezoo.envs``.
@@ -27,6 +32,7 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython
 from rsl_rl.env import VecEnv  # noqa: E402
 
 from overtakezoo.envs.config import EnvConfig  # noqa: E402
+from overtakezoo.envs.faces._common import check_actions  # noqa: E402
 from overtakezoo.envs.core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
 from overtakezoo.envs.hold import hold  # noqa: E402
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
@@ -62,7 +68,7 @@ class OvertakeRslRlEnv(VecEnv):
         self.bootstrap_timeouts = bootstrap_timeouts
         if action_repeat < 1:
             raise ValueError(f"action_repeat must be >= 1, got {action_repeat}")
-        self.action_repeat = action_repeat  # a decision is held this many core steps (one env step)
+        self.action_repeat = action_repeat  # the training hold: core steps one env step holds a decision
         self.num_envs = num_envs
         self.num_actions = 1
         self.device = torch.device(device)
@@ -90,8 +96,23 @@ class OvertakeRslRlEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         return self._tensordict(self._obs)
 
+    def _modes(self, actions: torch.Tensor) -> np.ndarray:
+        """The action column as mode indices; a ValueError like every face's (:func:`check_actions`)
+        for anything but a whole number in 0..2 (rsl-rl samples the index as a float: 1.0 is mode 1;
+        1.7, -1, 5 or NaN is refused, never rounded or clamped into a mode)."""
+        n, tensor = self.num_envs, isinstance(actions, torch.Tensor)
+        shape = tuple(actions.shape) if tensor else np.shape(actions)
+        if shape not in ((n, 1), (n,)):
+            raise ValueError(f"actions: expected shape ({n}, 1), got {shape}")
+        if tensor:
+            col = actions.detach().reshape(n).to("cpu")
+            col = (col.float() if col.dtype == torch.bfloat16 else col).numpy()  # numpy has no bfloat16
+        else:
+            col = np.reshape(actions, n)
+        return check_actions(col, n, "actions", whole_floats=True)
+
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        modes = actions.detach().reshape(self.num_envs, -1)[:, 0].round().clamp(0, 2).to("cpu", torch.int64).numpy()
+        modes = self._modes(actions)
         # A row whose episode ended during the hold has been refilled: it follows (the reset mode)
         # until the next decision; those few steps' rewards belong to no decision and are dropped.
         res = hold(self.core, modes, self.action_repeat)

@@ -17,8 +17,9 @@ from the config's ``scenario`` distribution, in one of Gymnasium's two autoreset
 In both modes the other keys of ``infos`` are the per-row info of the current episodes, each with its
 ``_key`` mask.
 
-The decision hold (``hold_steps``, default the config's ``decision_interval``; the suite ids
-``overtakezoo/<suite>-v<version>`` hold the zoo's 1 s, 10 steps) applies per row: one env step holds
+The decision hold (``hold_steps``; by default the zoo's 1 s, 10 steps at dt = 0.1 s, for an env made
+from a suite, as its id ``overtakezoo/<suite>-v<version>`` holds, and the config's
+``decision_interval`` for one made from a raw config) applies per row: one env step holds
 each row's action for ``hold_steps`` core steps (:func:`~overtakezoo.envs.hold.hold`, rewards summed
 over the row's own steps). A row whose episode ends during the hold is frozen by the core from that
 core step on and is reported at this env step (terminated / truncated, the observation of the step
@@ -38,7 +39,7 @@ from gymnasium.vector.utils import batch_space
 from overtakezoo.envs.config import MODE_NAMES, EnvConfig
 from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium's own on 1.1+, a same-valued Enum on 1.0
 from overtakezoo.envs.core import OvertakeCore
-from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, single_ego, suite_config
+from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, is_suite, single_ego, suite_config
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space
@@ -61,7 +62,7 @@ class OvertakeVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode: expected AutoresetMode.NEXT_STEP or SAME_STEP, got {autoreset_mode!r}")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.config = single_ego(as_config(suite_config(config, suite), **overrides), "OvertakeVectorEnv")
-        self.hold_steps = env_hold(hold_steps, self.config)
+        self.hold_steps = env_hold(hold_steps, self.config, is_suite(config, suite))  # core steps per env step
         if self.config.render_mode not in (None, "rgb_array"):
             raise ValueError(f"OvertakeVectorEnv renders only 'rgb_array' (row 0), not {self.config.render_mode!r}")
         self.render_mode = self.config.render_mode
@@ -178,7 +179,9 @@ def make_vec(num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None
              autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, *, suite: Any = None,
              hold_steps: int | None = None, **overrides: Any) -> OvertakeVectorEnv:
     """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv`` (NEXT_STEP
-    autoreset unless ``autoreset_mode`` says SAME_STEP); ``suite`` a suite's name or file path (its
-    settings and distribution), ``hold_steps`` core steps per env step (default: the config's
-    ``decision_interval``); other keyword arguments are :class:`EnvConfig` keys."""
+    autoreset unless ``autoreset_mode`` says SAME_STEP); ``suite`` a suite's name, file path or
+    loaded suite (its settings and distribution); ``hold_steps`` core steps per env step: an explicit
+    value wins, else the zoo's 1 s (10 at dt = 0.1 s) for a suite, as
+    ``gymnasium.make_vec("overtakezoo/<suite>-v<version>")`` holds, and the config's
+    ``decision_interval`` for a raw config; other keyword arguments are :class:`EnvConfig` keys."""
     return OvertakeVectorEnv(num_envs, config, autoreset_mode, suite=suite, hold_steps=hold_steps, **overrides)

@@ -10,11 +10,14 @@ differs (truncated, modified) with :class:`WeightsError`. Loading reads local fi
 is in float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
 argmax; in float64 a result does not depend on how rows happen to be batched.
 
-Each decision is held ``action_repeat`` core steps in training (the card's: 10 for dqn, double-dqn,
-ps-dqn, ppo and dagger, 1 for bc and cql, whose datasets hold one transition per step). Deployed, a
-member re-decides every ``decide_every`` steps where its card has one (chosen after training on the
-training splits, ``scripts/decision_rate.py``: a value learned for a 1 s hold, re-read more often, is
-a receding horizon), else at its training hold. The decider only declares it, whoever steps the core
+Two holds, two names. The *training hold* is the core steps each decision was held in training, the
+card's ``action_repeat`` (10 for dqn, double-dqn, ps-dqn, ppo and dagger, 1 for bc and cql, whose
+datasets hold one transition per step). The *decision rate* (deployed hold) is the core steps between
+the member's decisions when deployed, the card's ``decide_every`` where it has one (chosen after
+training on the training splits, ``scripts/decision_rate.py``: a value learned for a 1 s hold,
+re-read more often, is a receding horizon; dqn's is 1), else its training hold. The decider's
+``action_repeat`` attribute is the decision rate (:func:`deployed_repeat`), not the card's
+``action_repeat``. The decider only declares it, whoever steps the core
 applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the trainers), combined with the
 configuration's ``decision_interval``. A card's ``overtake_offset`` is added to the OVERTAKE score
 before the argmax: a decision threshold (cost-sensitive classification, Elkan 2001) that makes the
@@ -33,13 +36,12 @@ its lane the ego may not resume the overtake (abort / overtake flip-flops were t
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size, safe_json
 
 from overtakezoo.zoo.base import Decider, member, names, register
 from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
@@ -64,10 +66,12 @@ def read_card(path: str | Path, who: str) -> dict[str, Any]:
     """A model card (JSON); one-line :class:`WeightsError` when missing or unreadable."""
     path = Path(path)
     try:
-        return json.loads(path.read_text())
+        return safe_json.load_file(path, f"model card {path}")  # (bounded: a card may come from outside)
     except FileNotFoundError:
         raise WeightsError(f"{who}: model card {path} not found (no pretrained weights for this decider)") from None
-    except (OSError, json.JSONDecodeError) as exc:
+    except safe_json.JSONInputError as exc:
+        raise WeightsError(f"{who}: {exc}") from None
+    except OSError as exc:
         raise WeightsError(f"{who}: model card {path}: unreadable ({exc})") from None
 
 
@@ -127,7 +131,7 @@ def load_weights(weights: str | Path, card: dict[str, Any], who: str | None = No
 
 class MLPDecider(Decider):
     """A learned member: argmax of the network's scores over the allowed modes (each decision held
-    ``action_repeat`` core steps by the runner)."""
+    ``self.action_repeat`` core steps by the runner: the decision rate, :func:`deployed_repeat`)."""
 
     privileged = False
     row_state = ()
@@ -145,7 +149,7 @@ class MLPDecider(Decider):
         self.net, self.name = net, name
         self.model_card = card = card or {}
         self.weights_sha256 = card.get("weights_sha256")
-        self.action_repeat = deployed_repeat(name, card)
+        self.action_repeat = deployed_repeat(name, card)  # the decision rate, not the card's training hold
         self.overtake_offset = deployed_offset(name, card)
         # The decision rate and threshold are part of the behaviour: results and cross-play tables name them.
         every = "" if self.action_repeat == card.get("action_repeat", 1) else f".every{self.action_repeat}"
@@ -182,8 +186,9 @@ class MLPDecider(Decider):
 
 
 def deployed_repeat(name: str, card: dict[str, Any]) -> int:
-    """Core steps between the member's decisions when deployed: the card's ``decide_every`` (chosen
-    after training on the training splits, ``scripts/decision_rate.py``), else its training hold. A
+    """The decision rate (deployed hold), the member's ``action_repeat``: core steps between its
+    decisions when deployed, the card's ``decide_every`` (chosen after training on the training splits,
+    ``scripts/decision_rate.py``), else its training hold (the card's ``action_repeat``). A
     network with memory reads one observation per decision, so it keeps the rate it was trained at."""
     held = card.get("action_repeat", 1)
     every = card.get("decide_every", held)

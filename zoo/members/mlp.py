@@ -126,7 +126,18 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
+# A member's weights are ~100 KB; an outside .npz declaring more than this once inflated is refused
+# before a byte is inflated (zipfile never yields more than a member's declared size).
+MAX_NPZ_BYTES = 64 << 20
+
+
 def read_npz(data: bytes) -> dict[str, np.ndarray]:
-    """Arrays of an ``.npz`` held in memory (pickles refused)."""
+    """Arrays of an ``.npz`` held in memory (pickles refused; at most :data:`MAX_NPZ_BYTES` inflated)."""
+    try:
+        declared = sum(info.file_size for info in zipfile.ZipFile(io.BytesIO(data)).infolist())
+    except zipfile.BadZipFile as exc:
+        raise ValueError(f"not an .npz (zip) file: {exc}") from None
+    if declared > MAX_NPZ_BYTES:
+        raise ValueError(f"the .npz inflates to {declared} bytes, more than the {MAX_NPZ_BYTES} a weights file may")
     with np.load(io.BytesIO(data), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
