@@ -181,20 +181,22 @@ def _rates(net_or_card, algo, suite):
     return summary["success_rate"], summary["crash_rate"]
 
 
-@pytest.mark.parametrize("n_step", [1, 3])
+# One-step targets learn slower and less surely at this length (seed 2 passed nothing on two of three
+# kernel settings), so that variant runs with the slow tests; 3-step returns are dqn.toml's.
+@pytest.mark.parametrize("n_step", [pytest.param(1, marks=pytest.mark.slow), 3])
 def test_short_training_beats_an_untrained_network(tmp_path, n_step):
     torch.manual_seed(0)
     hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
     untrained = QNetwork(observation_size(EnvConfig()), hp.hidden, hp.dueling)
     scen = load_suite("table1")
     s0, c0 = _rates(untrained, "dqn", scen)
-    # ~25 s of CPU each. The untrained net never passes (0 % success, 0 % crash). Short runs are
-    # chaotic: the bits of the trained net depend on the CPU's float kernels, and at 40-60k steps one
-    # CPU's run passed 15-90 % of table1's first 200 while another's passed 0-2.5 %. At 100k steps,
-    # measured over seeds 0-2 and torch kernels (ATEN_CPU_CAPABILITY default / avx2 / avx512): one-step
-    # targets 21-63 % success, 0-3.5 % crashes; 3-step returns 83-93 %, 7.5-16.5 %. So this checks
-    # that learning started -- safe passes appear, and crashes stay below rule-fsm's 29 % -- with room
-    # for any CPU, not how far it gets (the slow tests do).
+    # ~25 s of CPU. The untrained net never passes (0 % success, 0 % crash). Short runs are chaotic:
+    # the bits of the trained net depend on the CPU's float kernels, and at 60k steps one CPU's
+    # 3-step run passed 90.5 % of table1's first 200 while the same seed on another passed none. At
+    # 100k steps, measured on an AVX-512 Xeon over seeds 0-2 and torch kernels (ATEN_CPU_CAPABILITY
+    # default / avx2 / avx512): 3-step returns 83.5-93 % success, 7-16.5 % crashes; one-step targets
+    # 0-87 %, 0-12 % (seed 0: 34.5-47.5 %). So this checks that learning started -- safe passes
+    # appear, crashes stay below rule-fsm's 29 % -- with room for any CPU, not how far it gets.
     trained = train(load_training("table1-train"), member="dqn", steps=100_000, seed=0, out=tmp_path, progress=False,
                     overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 50000,
                                "log_every": 10000, "n_step": n_step})
