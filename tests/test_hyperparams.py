@@ -104,3 +104,28 @@ def test_schema_helper_for_other_trainers():
         build(Tiny, {"epochs": 3, "kind": "x"}, "offline.toml")
     with pytest.raises(HyperparameterError, match="epochs: missing"):
         build(Tiny, {}, "offline.toml")
+
+
+def test_a_cards_reproduce_line_carries_the_overrides_it_was_trained_with():
+    # A run trained with --set must not reproduce as if it had the file's values (the shipped ppo's
+    # card says train.overtake_bias=0 since ppo.toml's default changed).
+    import shlex
+
+    from overtakezoo.zoo.train.contract import (hyperparams_file, load_hyperparams, model_card, parse_overrides,
+                                                set_flags)
+    from overtakezoo.zoo.train.dqn import DQNHyperparams
+
+    given = {"num_envs": 64, "hidden": [64, 64], "lr": 1e-5, "steps": 10, "action_repeat": 5}
+    hp, name = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"), given)
+    flags = set_flags(hp, name)
+    again, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"),
+                                {**parse_overrides(shlex.split(" ".join(flags))), "steps": 10})
+    assert again == hp and not any(f.startswith("steps=") for f in flags)
+    plain, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
+    assert set_flags(plain, name) == []
+    card = model_card("dqn", algorithm="x", architecture={"kind": "q-network"}, hp=hp, hp_file=name,
+                      action_repeat=5, action_mask=True, source={}, steps=10, steps_unit="decisions", seed=0,
+                      wall_time_s=0.0, training={}, reproduce="overtakezoo train dqn --suite s --steps 10 --seed 0",
+                      torch=False)
+    assert card["reproduce"] == "overtakezoo train dqn --suite s --steps 10 --seed 0 " + " ".join(
+        f"--set {f}" for f in flags)

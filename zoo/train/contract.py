@@ -158,6 +158,31 @@ def reproduce(name: str, source: dict[str, Any], steps: int, seed: int) -> str:
     return f"overtakezoo train {name} {what} --steps {steps} --seed {seed}"
 
 
+def set_flags(hp: Any, hp_file: str) -> list[str]:
+    """The ``--set KEY=VALUE`` flags (shell-quoted, TOML values) that turn the shipped file ``hp_file``
+    into ``hp``: what a card's ``reproduce`` line needs besides ``--steps`` and ``--seed``, so that a
+    run trained with overrides (e.g. the shipped ppo's ``train.overtake_bias=0``) says so. None for a
+    file that is not one of the zoo's (its values are in the card's ``hyperparameters``)."""
+    import shlex
+
+    path = HYPERPARAMS / hp_file
+    if not path.is_file():
+        return []
+    try:
+        base, _ = load_hyperparams(type(hp), path)
+    except (HyperparameterError, ConfigError):
+        return []
+
+    def leaves(d: Any, prefix: str = "") -> dict[str, Any]:
+        if isinstance(d, dict):
+            return {k: v for key, sub in d.items() for k, v in leaves(sub, f"{prefix}{key}.").items()}
+        return {prefix[:-1]: d}
+
+    now, was = leaves(as_dict(hp)), leaves(as_dict(base))
+    return [shlex.quote(f"{key}={json.dumps(value, separators=(',', ':'))}") for key, value in sorted(now.items())
+            if key.rsplit(".", 1)[-1] not in ("steps", "seed") and was.get(key) != value]
+
+
 def model_card(name: str, *, algorithm: str, architecture: dict[str, Any], hp: Any, hp_file: str, action_repeat: int,
                action_mask: bool, source: dict[str, Any], steps: int, steps_unit: str, seed: int,
                wall_time_s: float, training: dict[str, Any], reproduce: str,
@@ -171,6 +196,9 @@ def model_card(name: str, *, algorithm: str, architecture: dict[str, Any], hp: A
         import torch as _torch
 
         used["torch"] = _torch.__version__
+    if hp_file != f"{name}.toml" and (HYPERPARAMS / hp_file).is_file() and "--hyperparams" not in reproduce:
+        reproduce += f" --hyperparams zoo/hyperparams/{hp_file}"
+    reproduce += "".join(f" --set {flag}" for flag in set_flags(hp, hp_file) if f" --set {flag}" not in reproduce)
     return {
         "name": name, "version": "1", "algorithm": algorithm, "architecture": dict(architecture),
         "features": FEATURES_VERSION, "action_repeat": int(action_repeat), "action_mask": bool(action_mask),
