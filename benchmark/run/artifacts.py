@@ -427,8 +427,6 @@ def _unused_initializers(model: Any) -> list[str]:
     """The initializers (of the graph and its subgraphs) that no node reads and no graph outputs:
     weights the network never computes with have no place in a policy file (they would be stored and
     published with it)."""
-    import onnx
-
     used: set[str] = set()
     inits: list[str] = []
     graphs = [model.graph]
@@ -438,12 +436,21 @@ def _unused_initializers(model: Any) -> list[str]:
         used |= {o.name for o in g.output}
         for node in g.node:
             used |= set(node.input)
-            for attr in node.attribute:
-                if attr.type == onnx.AttributeProto.GRAPH:
-                    graphs.append(attr.g)
-                elif attr.type == onnx.AttributeProto.GRAPHS:
-                    graphs.extend(attr.graphs)
+            graphs += subgraphs(node)
     return [name for name in inits if name not in used]
+
+
+def subgraphs(node: Any) -> list[Any]:
+    """The graphs an ONNX node carries in its attributes (If branches, Loop and Scan bodies)."""
+    import onnx
+
+    out: list[Any] = []
+    for attr in node.attribute:
+        if attr.type == onnx.AttributeProto.GRAPH:
+            out.append(attr.g)
+        elif attr.type == onnx.AttributeProto.GRAPHS:
+            out.extend(attr.graphs)
+    return out
 
 
 def _all_tensors(model: Any) -> list[Any]:

@@ -38,6 +38,8 @@ def random_ops(model: bytes) -> list[str]:
     subgraphs and the model's local functions included)."""
     import onnx
 
+    from overtakezoo.benchmark.run.artifacts import subgraphs
+
     m = onnx.load_model_from_string(model)
     opset = next((o.version for o in m.opset_import if o.domain in _STANDARD), 0)
     found: list[str] = []
@@ -53,12 +55,9 @@ def random_ops(model: bytes) -> list[str]:
                     found.append(label)
             elif any(w in node.op_type.lower() for w in _RANDOM_WORDS):
                 found.append(f"{node.domain}.{label}")
-            for attr in node.attribute:  # If / Loop / Scan bodies see the outer graph's names
-                graphs = [attr.g] if attr.type == onnx.AttributeProto.GRAPH else \
-                    list(attr.graphs) if attr.type == onnx.AttributeProto.GRAPHS else []
-                for g in graphs:
-                    bodies.append((g.node, inputs | {i.name for i in g.input},
-                                   {**consts, **_constants(g.initializer, g.node)}))
+            for g in subgraphs(node):  # If / Loop / Scan bodies see the outer graph's names
+                bodies.append((g.node, inputs | {i.name for i in g.input},
+                               {**consts, **_constants(g.initializer, g.node)}))
     return found
 
 
