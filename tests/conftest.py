@@ -81,21 +81,37 @@ needs_shipped_weights = pytest.mark.skipif(
     reason="the shipped weights take 32 features, the observation has 33: retrained weights ship at integration")
 
 
+@pytest.fixture(autouse=True)
+def seeded_fresh_draws(monkeypatch):
+    """The seeds `submit` and `verify` take from fresh randomness (a row's fresh draw, the sample, verify's
+    own draw) come from a seeded generator in tests: each still differs from the last, and a test
+    replays bit for bit."""
+    from overtakezoo.benchmark.leaderboard import changes, verify
+
+    rng = np.random.default_rng(20261204)
+    draw = lambda: int(rng.integers(0, 2**63 - 1))  # noqa: E731
+    monkeypatch.setattr(changes, "fresh_seed", draw)
+    monkeypatch.setattr(verify, "fresh_seed", draw)
+
+
 @pytest.fixture
 def tiny_suite(tmp_path, monkeypatch):
     """``tiny_suite(count)``: the name of a built-in suite of ``count`` short table1 scenarios (the
     suite registry points at tmp_path: a leaderboard row needs a built-in suite); eval, submit, the
-    policy loader and verify are the real ones."""
+    policy loader and verify are the real ones. ``base`` names another suite to shorten, and
+    ``time_limit`` (default 20 s: no scenario can succeed) the episodes' length."""
     import re
 
     from overtakezoo.envs import suites
 
-    def make(count: int) -> str:
+    original = suites.SUITES_DIR
+
+    def make(count: int, base: str = "table1", time_limit: float = 20.0) -> str:
         builtin = tmp_path / "suites"
         builtin.mkdir(exist_ok=True)
-        text = (suites.SUITES_DIR / "table1.toml").read_text()
-        for pattern, repl in ((r'(?m)^name = "table1"', 'name = "tiny"'), (r"(?m)^count = \d+", f"count = {count}"),
-                              (r"(?m)^time_limit = [\d.]+", "time_limit = 20.0")):
+        text = (original / f"{base}.toml").read_text()
+        for pattern, repl in ((rf'(?m)^name = "{base}"', 'name = "tiny"'), (r"(?m)^count = \d+", f"count = {count}"),
+                              (r"(?m)^time_limit = [\d.]+", f"time_limit = {time_limit}")):
             text, n = re.subn(pattern, repl, text)
             assert n == 1, pattern
         (builtin / "tiny.toml").write_text(text)

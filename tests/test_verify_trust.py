@@ -135,7 +135,7 @@ def test_new_and_changed_rows_are_verified_in_full(root, capsys):
     seeds = []
     for _ in range(2):
         verify(root, sample=1, log=seeds.append, only="table1/rule-fsm")
-    assert all(s.startswith("sample seed ") for s in (seeds[0], seeds[2])) and seeds[0] != seeds[2]
+    assert all(s.startswith("verify seed ") for s in (seeds[0], seeds[2])) and seeds[0] != seeds[2]
     with pytest.raises(UserError, match="not a git revision"):
         changed_rows(root, "no-such-rev")
 
@@ -188,8 +188,10 @@ def test_untracked_rows_are_new_and_counted_as_rows(tiny, tmp_path, capsys, lear
         assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0  # base: the target, from the environment
         out = capsys.readouterr().out
         assert f"rows new or changed against {base[:12]} (untracked rows are new): 1 row(s), verified in full" in out
-        assert f"verified {rel}: 12 of 12 scenarios reproduce exactly (new or changed: every scenario)" in out
-        assert f"verified submissions/{tiny}/always-follow.json: 1 of 12 scenarios reproduce exactly\n" in out
+        assert (f"verified {rel}: 12 of 12 scenarios reproduce exactly; fresh draw: 12 of 12 reproduce, verify's own "
+                "draw of 12 agrees (new or changed: every scenario)") in out
+        assert (f"verified submissions/{tiny}/always-follow.json: 1 of 12 scenarios reproduce exactly; fresh draw: "
+                "1 of 12 reproduce\n") in out
     # --only counts the rows it selects; a deleted row is on no board: nothing to verify.
     assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--only", "*/always-*"]) == 0
     assert "(untracked rows are new): 0 row(s)" in capsys.readouterr().out

@@ -20,9 +20,12 @@ def register(subparsers: Any) -> None:
                    "(artifacts in a sandboxed child process) on its scenarios: all of them for rows new or changed\n"
                    "against the git base (--base; a row file git does not track yet is new; with no base, every\n"
                    "row), K of each other row with --sample K, drawn from --seed (default: fresh randomness,\n"
-                   "printed). Every per-scenario value must equal the recorded one; the first\n"
-                   "row that does not reproduce is named with its first mismatching scenario (exit 2). Stale\n"
-                   "rows show no numbers and are not re-run; a new or changed stale row is refused. Every mode\n"
+                   "printed). Every per-scenario value must equal the recorded one, and so must the row's\n"
+                   "recorded fresh draw (its suite's distribution with a seed nobody knew at submission);\n"
+                   "a row verified in full also runs a draw of verify's own (from --seed), which must agree\n"
+                   "with the recorded one. The first row that does not reproduce is named with its first\n"
+                   "mismatching scenario (exit 2). Stale rows show no numbers and are not re-run; a new or\n"
+                   "changed stale row is refused. Every mode\n"
                    "finds its leaderboard as `submit` does (--root).",
                    ["overtakezoo leaderboard", "overtakezoo leaderboard --check",
                     "overtakezoo leaderboard --verify --sample 1     # CI: changed rows in full, 1 scenario of the rest",
@@ -34,8 +37,9 @@ def register(subparsers: Any) -> None:
                    "its per-scenario results to match exactly")
     p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios of each row unchanged "
                    "against --base (default: every scenario); new or changed rows are always verified in full")
-    p.add_argument("--seed", type=int, help="with --verify --sample: the draw's seed (default: fresh randomness, "
-                   "printed, so nobody can compute the draw before pushing; pass it back to replay a failure)")
+    p.add_argument("--seed", type=int, help="with --verify: the seed of the sample and of verify's own fresh "
+                   "draws (default: fresh randomness, printed, so nobody can compute them before pushing; pass it "
+                   "back to replay a failure)")
     p.add_argument("--base", metavar="REV", help="with --verify: the git revision rows are new or changed against "
                    "(default: $OVERTAKEZOO_VERIFY_BASE, else the merge base of HEAD with origin/$GITHUB_BASE_REF, "
                    "fetched if missing, or origin/HEAD; none outside git or when that merge base is HEAD itself, "

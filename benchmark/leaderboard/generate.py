@@ -25,6 +25,7 @@ from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import safe_json
 from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.benchmark.leaderboard import crossplay
+from overtakezoo.benchmark.leaderboard import fresh
 from overtakezoo.benchmark.leaderboard import headline
 from overtakezoo.benchmark.leaderboard import multi as multi_leaderboard
 from overtakezoo.benchmark.leaderboard import paper_table
@@ -77,13 +78,15 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         suite = load_suite(name) if name in suite_names() else None
         rows = subs.get(name, [])
         reasons = {row.rel: board_reasons(row.results, suite) for row in rows}  # stale, or not the suite's shape
-        if name in MULTI:
-            multi[name] = _multi_suite(name, suite, rows, reasons, files, cross_index.get(name))
-            continue
-        live = sorted((row for row in rows if not reasons[row.rel]), key=_rank_key)
+        flagged = [row for row in sorted(rows, key=_rank_key) if not reasons[row.rel] and fresh.flag(row.results)]
+        out = {row.rel for row in flagged}  # (rows whose fresh draw disagrees with the public suite: fresh.py)
+        live = sorted((row for row in rows if not reasons[row.rel] and row.rel not in out), key=_rank_key)
         ranked = [row for row in live if not row.privileged]
         bounds = [row for row in live if row.privileged]  # they see the future: shown apart, never ranked
         stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
+        if name in MULTI:
+            multi[name] = _multi_suite(name, suite, live, flagged, stale, files, cross_index.get(name))
+            continue
         suite_ref = ref if ref and ref["suite"] == name else None
         live_rows[name] = live
         paper = _paper_section(ranked, suite_ref, root) if suite_ref else ""
@@ -91,7 +94,7 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
             e["suites"].get(name, {}).get("suite_sha256") == suite.hash for e in d["seeds"])}
         if covered:  # learned members as the mean and spread over their training seeds
             paper += headline.seed_lines(covered, name) + "\n"
-        files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref, paper).encode()
+        files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref, paper, flagged).encode()
         if live:
             files[f"{name}.png"] = rate_plot(name, ranked, bounds)
         index["suites"][name] = {
@@ -100,6 +103,7 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
             "plot": f"{name}.png" if live else None,
             "entries": [_entry(row) for row in ranked],
             "upper_bounds": [_entry(row) for row in bounds],
+            "flagged": [{**_entry(row), "why": fresh.flag(row.results)} for row in flagged],
             "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
                       for row, why in stale],
             "reference": REFERENCE.as_posix() if suite_ref else None,
@@ -123,18 +127,19 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     return files
 
 
-def _multi_suite(name: str, suite: Any, rows: list[Row], reasons: dict[str, Any], files: dict[str, bytes],
+def _multi_suite(name: str, suite: Any, live: list[Row], flagged: list[Row], stale: list, files: dict[str, bytes],
                  cross: dict[str, Any] | None) -> dict[str, Any]:
     """A multi-agent suite's table and plot (into ``files``); returns its index entry."""
     ml = multi_leaderboard
-    ranked = sorted((row for row in rows if not reasons[row.rel]), key=ml.rank_key)
-    stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
-    files[f"{name}.md"] = ml.markdown(name, suite, ranked, stale, _policy_cell, cross and cross["table"]).encode()
+    ranked = sorted(live, key=ml.rank_key)
+    files[f"{name}.md"] = ml.markdown(name, suite, ranked, stale, _policy_cell, cross and cross["table"],
+                                      flagged).encode()
     if ranked:
         files[f"{name}.png"] = ml.plot(name, ranked)
     return {"version": suite.version if suite else None, "hash": suite.hash if suite else None,
             "count": suite.count if suite else None, "table": f"{name}.md", "plot": f"{name}.png" if ranked else None,
             "entries": [ml.entry(row, _entry(row)) for row in ranked],
+            "flagged": [{**ml.entry(row, _entry(row)), "why": fresh.flag(row.results)} for row in flagged],
             "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
                       for row, why in stale]}
 
@@ -189,7 +194,7 @@ def _entry(row: Row) -> dict[str, Any]:
     return {"name": row.name, "decider": r.decider["name"], "version": r.decider["version"], "file": row.rel,
             "policy": (r.meta.get("submission") or {}).get("policy"), "privileged": row.privileged,
             "overtakezoo": r.meta["package"]["version"], "sim_version": r.meta.get("sim_version"),
-            **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}}
+            **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}, "fresh": fresh.summary(r)}
 
 
 def write(root: str | Path = "leaderboards") -> list[str]:
@@ -259,26 +264,26 @@ def _policy_cell(row: Row) -> str:
 
 def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
     head = (["rank"] if ranked else []) + ["name", "policy", *[_LABELS[k] for k, _, _ in _RANK_COLUMNS],
-                                           "overtakezoo", "commit"]
+                                           multi_leaderboard.FRESH_LABEL, "overtakezoo", "commit"]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for i, row in enumerate(rows, 1):
         r = row.results
         cells = ([str(i)] if ranked else []) + [
             md_link(row.name, row.rel), _policy_cell(row),
-            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS],
+            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS], fresh.cell(r),
             md(r.meta["package"]["version"]), md((r.meta["git_commit"] or "-")[:10])]
         out.append("| " + " | ".join(cells) + " |")
     return out
 
 
 def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale: list,
-              ref: dict[str, Any] | None, paper: str = "") -> str:
+              ref: dict[str, Any] | None, paper: str = "", flagged: list[Row] = ()) -> str:
     out = multi_leaderboard.page_header(name, name, suite)
     out += ["## Measured", ""]
     if ranked or bounds:
         out.append("Sorted by success rate, then crash rate. Values with 95 % confidence intervals "
                    "(Wilson for rates, seeded bootstrap for means). Every row re-runs with "
-                   "`overtakezoo leaderboard --verify`.")
+                   "`overtakezoo leaderboard --verify`. " + multi_leaderboard.FRESH_NOTE)
         out.append("")
         out += _rows_table(ranked, ranked=True) if ranked else ["No ranked submissions yet."]
         out += ["", md_image("success vs crash rate", f"{name}.png"), ""]
@@ -309,7 +314,8 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
         out.append("")
     if paper:
         out.append(paper)
-    return "\n".join(out + multi_leaderboard.stale_section(stale))
+    return "\n".join(out + multi_leaderboard.flagged_section(list(flagged), _policy_cell)
+                     + multi_leaderboard.stale_section(stale))
 
 
 def _reported(value: Any, kind: str, unit: str) -> str:

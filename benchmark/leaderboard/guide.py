@@ -129,11 +129,20 @@ never run code from either:
   content hashes, and provenance (`git_commit`, `package.version`, `timing`) must match strict
   patterns. Every string the pages render is escaped (Markdown and HTML).
 - **What CI verifies.** Every row that is new or changed against the pull request's base (a
-  `git diff` of `submissions/`, uncommitted files included; a changed artifact counts for each row
-  that uses it) is re-run on every scenario; every other row on `--sample K` scenarios, drawn from
-  a seed derived from the sha256 of the whole submissions tree, so the draw is unknown until the tree
-  is final and moves with any edit. A new or changed stale row is refused; stale rows show no
-  numbers, only their names.
+  `git diff` of `submissions/`, untracked files included; a changed artifact counts for each row
+  that uses it) is re-run on every scenario; with no base to compare with (a fresh clone of the
+  branch under test, as CI runs) every row is. Every other row runs on `--sample K` scenarios drawn
+  from a seed of fresh randomness, printed so that a failure replays with `--seed`: nobody can
+  compute the draw before pushing. A row must have its suite's shape (every array, one value per
+  scenario), and an artifact's policy must decide the same in batches of other sizes and orders. A
+  new or changed stale row is refused; stale rows show no numbers, only their names.
+- **Draws nobody knew.** Every suite is public, so a policy could memorise its scenarios. `submit`
+  also runs the policy on a *fresh draw* of the suite's distribution (a seed from fresh randomness)
+  and records it in the row; the pages show its success and crash rates beside the public ones. A
+  row whose fresh draw disagrees with its public scenarios (more than 5 standard errors apart) is
+  flagged: listed apart, never ranked, out of the score. `--verify` re-runs the recorded draw and
+  runs one of its own (a seed chosen when it runs), which must agree with the recorded one, so a
+  recorded draw the policy was fit to is refused.
 - **Regeneration owns only its files** (the list in `index.json`), refuses symlinks, FIFOs and
   devices anywhere under the leaderboard root, and `submit` holds a lock on `submissions/` while it
   files a row and prunes unused artifacts.

@@ -12,6 +12,7 @@ from typing import Any
 
 from overtakezoo.benchmark.results.metrics import format_metric, render_table
 from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
+from overtakezoo.benchmark.leaderboard import fresh
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
 from overtakezoo.benchmark.leaderboard.rows import Row, describe
 from overtakezoo.benchmark.leaderboard.safety_board import safety_section
@@ -45,13 +46,14 @@ def entry(row: Row, policy_entry: dict[str, Any]) -> dict[str, Any]:
 
 def _rows_table(rows: list[Row], policy_cell: Any) -> list[str]:
     head = ["rank", "name", "policy", *[_JOINT[k][0] for k in JOINT_COLUMNS],
-            *[f"{_LABELS[k]} (per AV)" for k, _, _ in AGENT_COLUMNS], "overtakezoo", "commit"]
+            *[f"{_LABELS[k]} (per AV)" for k, _, _ in AGENT_COLUMNS], FRESH_LABEL + " (per AV)", "overtakezoo",
+            "commit"]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for i, row in enumerate(rows, 1):
         r = row.results
         cells = [str(i), md_link(row.name, row.rel), policy_cell(row),
                  *[format_metric(r.summary["joint"][k], *_JOINT[k][1:]) for k in JOINT_COLUMNS],
-                 *[format_metric(r.summary[k], kind, unit) for k, kind, unit in AGENT_COLUMNS],
+                 *[format_metric(r.summary[k], kind, unit) for k, kind, unit in AGENT_COLUMNS], fresh.cell(r),
                  md(r.meta["package"]["version"]), md((r.meta["git_commit"] or "-")[:10])]
         out.append("| " + " | ".join(cells) + " |")
     return out
@@ -77,7 +79,7 @@ def page_header(title: str, name: str, suite: Any, per_scenario: str = "") -> li
 
 
 def markdown(name: str, suite: Any, ranked: list[Row], stale: list, policy_cell: Any,
-             crossplay: str | None = None) -> str:
+             crossplay: str | None = None, flagged: list[Row] = ()) -> str:
     num_avs = suite.num_avs if suite is not None else None
     out = page_header(f"{name} (multi-agent)", name, suite,
                       f" with {num_avs} automated vehicles (AVs) each" if suite is not None else "")
@@ -106,7 +108,33 @@ def markdown(name: str, suite: Any, ranked: list[Row], stale: list, policy_cell:
                                 table=MULTI_TABLE).rstrip())
         out.append("")
     out += safety_section(ranked, "## Safety (per AV, pooled)")
-    return "\n".join(out + stale_section(stale))
+    return "\n".join(out + flagged_section(flagged, policy_cell) + stale_section(stale))
+
+
+FRESH_LABEL = "fresh draw: success / crash (scenarios)"
+FRESH_NOTE = ("*Fresh draw*: the row's policy on its suite's distribution drawn with a seed nobody knew when it "
+              "was submitted (recorded by `overtakezoo submit`; `leaderboard --verify` re-runs it and checks it "
+              "against a draw of its own).")
+
+
+def flagged_section(flagged: list[Row], policy_cell: Any) -> list[str]:
+    """The rows whose fresh draw disagrees with their public scenarios (or that have none): listed, never
+    ranked (single-ego and multi-agent pages alike; :mod:`.fresh`)."""
+    if not flagged:
+        return []
+    out = ["## Flagged: not ranked", "",
+           "These rows do markedly better on the public scenarios than on a fresh draw of the same "
+           f"distribution (success or crash rate more than {fresh.Z_LIMIT:g} standard errors apart), which an "
+           "honest policy almost never does (fewer than one row in a million): a policy fit to the public "
+           "scenarios, not to the task. " + FRESH_NOTE, "",
+           "| name | policy | success rate (public) | crash rate (public) | " + FRESH_LABEL + " | why |",
+           "|---|---|---|---|---|---|"]
+    for row in flagged:
+        s = row.results.summary
+        out.append(f"| {md_link(row.name, row.rel)} | {policy_cell(row)} | {format_metric(s['success_rate'], 'rate', '%')} "
+                   f"| {format_metric(s['crash_rate'], 'rate', '%')} | {fresh.cell(row.results)} | "
+                   f"{md(fresh.flag(row.results))} |")
+    return out + [""]
 
 
 def stale_section(stale: list) -> list[str]:

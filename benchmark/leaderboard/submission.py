@@ -30,6 +30,7 @@ from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, Row, artifact_dec
 from overtakezoo.benchmark.run.sandbox import PolicyFailure
 from overtakezoo.envs.io import file_sha256
 from overtakezoo.envs.suites import Suite, load_suite, suite_names
+from overtakezoo.benchmark.leaderboard import fresh
 from overtakezoo.benchmark.leaderboard.untrusted import check_tree
 from overtakezoo.benchmark.leaderboard.verify import compare, torch_single_threaded
 
@@ -68,6 +69,9 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
             raise UserError(f"--name {name!r}: a built-in zoo member is filed under its own name "
                             f"({decider['name']!r}); a policy of your own needs --policy FILE")
         block = _builtin_block(results, suite, source, said)
+        from overtakezoo.benchmark.run.policy import load_zoo
+
+        drawn = _fresh_block(suite, load_zoo(decider["name"], suite.config, hint=""))
     else:
         reserved_name(name, "--name")
         if decider["name"].endswith("+shield"):
@@ -78,8 +82,8 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         art = _converted(Path(policy), decider, suite)
         _not_zoo_weights(art, Path(policy))  # a member's weights under a new name would rank beside the member
         meta = {**results.meta, "decider": artifact_decider(name, art)}
-        _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source,
-                    said)
+        drawn = _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy),
+                            source, said)
     with submissions_lock(root):
         check_tree(root)  # no symlink or FIFO planted under the root is written through
         path = root / "submissions" / suite.name / f"{name}.json"
@@ -92,9 +96,10 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         if policy is not None:
             block = _store_artifact(art, root, path, Path(policy))
             results = Results(meta, results.per, results.summary, results.timing)
-        filed = Results({**results.meta, "submission": {"name": name, "policy": block}}, results.per,
+        filed = Results({**results.meta, "submission": {"name": name, "policy": block, "fresh": drawn}}, results.per,
                         results.summary, results.timing)
         filed.save(path)
+        said += _fresh_lines(filed)
         prune_artifacts(root, locked=True)
     for line in said if report is not None else ():
         report(line)
@@ -276,6 +281,7 @@ def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, sou
         check_deterministic(dec.inner.act, suite, who)
         with torch_single_threaded():
             got = run_indices(suite, dec, np.arange(suite.count))
+        drawn = _fresh_block(suite, dec)
     except RunFailure as exc:
         raise UserError(f"{source}: the stored form of --policy {policy} fails: {exc}") from None
     finally:
@@ -285,6 +291,30 @@ def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, sou
     except UserError as exc:
         raise UserError(f"{exc} [the stored {art.kind} form of --policy {policy}: evaluate it with `overtakezoo eval "
                         "--policy` and submit those results]") from None
+    return drawn
+
+
+def _fresh_block(suite: Suite, decider: Any) -> dict[str, Any]:
+    """The row's fresh draw (:mod:`.fresh`): ``decider`` on its suite's distribution drawn with a seed
+    from fresh randomness, so nobody knew its scenarios when the policy was made."""
+    from overtakezoo.benchmark.leaderboard.changes import fresh_seed
+    seed, public = fresh_seed(), fresh.public_seeds()
+    while seed in public:  # (2^-63 odds; a built-in suite's seed is no fresh draw)
+        seed = fresh_seed()
+    with torch_single_threaded():
+        return fresh.block(seed, fresh.fresh_count(suite), fresh.run_fresh(suite, decider, seed))
+
+
+def _fresh_lines(row: Results) -> list[str]:
+    """What ``submit`` says about the row's fresh draw, and its flag if it has one."""
+    s, why = fresh.summary(row), fresh.flag(row)
+    lines = [f"fresh draw: seed {s['seed']}, {s['count']} scenarios: success {100 * s['success_rate']:.1f} %, "
+             f"crash {100 * s['crash_rate']:.1f} % (the public suite: success "
+             f"{100 * row.summary['success_rate']['value']:.1f} %, crash {100 * row.summary['crash_rate']['value']:.1f} %)"]
+    if why:
+        lines.append(f"flagged: {why}: the row is listed apart and not ranked (a policy that does as well on "
+                     "scenarios nobody knew in advance ranks)")
+    return lines
 
 
 def _store_artifact(art: Artifact, root: Path, row: Path, policy: Path) -> dict[str, Any]:

@@ -28,6 +28,12 @@ For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
    on a second call (:mod:`overtakezoo.benchmark.run.determinism`, a few dozen observations; ``submit``
    checks both too): else its full re-run could pass and every later sample fail.
 
+6. **Policies meet draws nobody knew** (:mod:`.fresh`). A row's recorded fresh draw (its suite's
+   distribution with another seed) is re-run like its public scenarios (in full or on ``sample`` of
+   them), and a row verified in full also runs ``fresh.CHECK_COUNT`` scenarios of a draw made from
+   ``seed``, which must agree with the recorded one: a policy fit to the public scenarios (and to the
+   recorded draw) is caught here; one fit to the public scenarios alone is flagged on the pages.
+
 A failure is one line naming the row (and the scenario and step where a policy misbehaved).
 """
 
@@ -35,12 +41,15 @@ from __future__ import annotations
 
 import hashlib
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard import fresh
+from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
 from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe,
                                                      load_submissions, reserved_name, stale_reasons, stored_files,
                                                      suite_mismatch)
@@ -147,8 +156,8 @@ def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: i
     root = Path(root)
     if seed is None:
         seed = fresh_seed()
-        if sample is not None:
-            log(f"sample seed {seed} (fresh; replay this draw with --seed {seed})")
+        log(f"verify seed {seed} (fresh: it draws the sample and verify's own fresh draws; replay them with "
+            f"--seed {seed})")
     base = root / "submissions"
     suites = sorted(p.name for p in base.iterdir() if p.is_dir() and p.name != ARTIFACTS) if base.is_dir() else []
     args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ())) for name in suites]
@@ -173,13 +182,41 @@ def _log_all(lines: list[str], log: Callable[[str], None]) -> int:
     return sum(line.startswith("verified ") for line in lines)
 
 
+@dataclass
+class Plan:
+    """What one row's policy re-runs in a batch, as consecutive pieces of one scenario batch: ``public``
+    (the row's scenarios ``idx``), ``fresh`` (scenarios ``idx`` of its recorded fresh draw) and
+    ``check`` (verify's own draw of the suite, only for rows verified in full)."""
+
+    row: Row
+    pieces: list[tuple[str, np.ndarray, Any]]  # (kind, indices, Scenarios)
+
+    @property
+    def size(self) -> int:
+        return sum(idx.size for _, idx, _ in self.pieces)
+
+
+class _Draws:
+    """One suite's scenario batches, each drawn once per verify run: the public suite, rows' recorded
+    fresh draws, verify's own draw."""
+
+    def __init__(self, suite: Suite) -> None:
+        self.suite, self._cache = suite, {}
+
+    def get(self, seed: int, count: int) -> Any:
+        if (seed, count) not in self._cache:
+            self._cache[seed, count] = fresh.fresh_suite(self.suite, seed, count).scenarios()
+        return self._cache[seed, count]
+
+
 def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, only: str | None,
                  chunk_size: int = 4096, changed: frozenset[str] = frozenset()) -> list[str]:
     """Verify the rows of one suite (see :func:`verify`); returns one report line per row."""
     suite = load_suite(suite_name) if suite_name in suite_names() else None
     lines: list[str] = []
-    todo: list[tuple[Row, np.ndarray, Any]] = []
+    todo: list[tuple[Row, Plan, Any]] = []
     probe = None  # the observations every artifact row's policy is probed on (run/determinism.py)
+    public = fresh.public_seeds()
     try:
         for row in load_submissions(root, suite_name, only).get(suite_name, []):
             reasons = stale_reasons(row.results, suite)
@@ -194,19 +231,21 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
                 field, why = mismatch[0]
                 raise UserError(f"{row.rel}: {field}: measured on {why}: not what a run of the current suite file "
                                 "gives (results edited by hand?)")
-            full = row.rel in changed
-            todo.append((row, sample_indices(suite.count, None if full else sample, seed, row.rel),
-                         row_policy(row, root, suite.config)))
+            policy = row_policy(row, root, suite.config)  # (labels first: they name what the row claims to be)
+            todo.append((row, None, policy))
             if "artifact" in row.results.meta["submission"]["policy"]:  # deterministic, or refused (cheap)
                 if probe is None:
                     probe = probe_observations(suite)
-                check_deterministic(todo[-1][2].inner.act, suite, row.rel, probe)
+                check_deterministic(policy.inner.act, suite, row.rel, probe)
+            bad = fresh.shape_error(row.results, suite, public)
+            if bad:
+                raise UserError(f"{row.rel}: {bad}")
+            todo[-1] = (row, _plan(row, suite, sample, seed, row.rel in changed), policy)
         for batch in batches(todo, chunk_size):
             with torch_single_threaded():
-                _verify_batch(suite, batch, chunk_size)
-            lines += [f"verified {row.rel}: {idx.size} of {suite.count} scenarios reproduce exactly"
-                      + (" (new or changed: every scenario)" if row.rel in changed else "")
-                      for row, idx, _ in batch]
+                _verify_batch(suite, batch, chunk_size, seed)
+            lines += [_report(row, plan, suite) + (" (new or changed: every scenario)" if row.rel in changed else "")
+                      for row, plan, _ in batch]
     finally:
         for _, _, dec in todo:
             if hasattr(getattr(dec, "inner", None), "close"):
@@ -214,22 +253,86 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
     return lines
 
 
-def _verify_batch(suite: Suite, batch: list, chunk_size: int) -> None:
-    from overtakezoo.benchmark.run.runner import RunFailure, run_indices
+def _plan(row: Row, suite: Suite, sample: int | None, seed: int, full: bool) -> Plan:
+    draws = _draw_cache(suite)
+    rec = row.results.meta["submission"]["fresh"]
+    n = None if full else sample
+    pieces = [("public", sample_indices(suite.count, n, seed, row.rel), draws.get(suite.seed, suite.count)),
+              ("fresh", sample_indices(rec["count"], n, seed, row.rel + "#fresh"), draws.get(rec["seed"], rec["count"]))]
+    if full or sample is None:  # a row verified in full also meets a draw nobody knew before this run
+        count = min(fresh.CHECK_COUNT, suite.count)
+        pieces.append(("check", np.arange(count), draws.get(fresh.check_seed(seed, suite.name), count)))
+    return Plan(row, [(kind, idx, scen.take(idx)) for kind, idx, scen in pieces])
 
-    indices = np.concatenate([idx for _, idx, _ in batch])
+
+_DRAWS: dict[str, _Draws] = {}
+
+
+def _draw_cache(suite: Suite) -> _Draws:
+    if suite.name not in _DRAWS or _DRAWS[suite.name].suite != suite:
+        _DRAWS.clear()  # one suite at a time: a suite's draws are dropped once its rows are planned
+        _DRAWS[suite.name] = _Draws(suite)
+    return _DRAWS[suite.name]
+
+
+def _report(row: Row, plan: Plan, suite: Suite) -> str:
+    n = {kind: idx.size for kind, idx, _ in plan.pieces}
+    rec = row.results.meta["submission"]["fresh"]
+    return (f"verified {row.rel}: {n['public']} of {suite.count} scenarios reproduce exactly; fresh draw: "
+            f"{n['fresh']} of {rec['count']} reproduce" + (f", verify's own draw of {n['check']} agrees" if "check" in n else ""))
+
+
+def _verify_batch(suite: Suite, batch: list, chunk_size: int, seed: int) -> None:
+    from overtakezoo.benchmark.run.runner import RunFailure, run_scenarios
+    from overtakezoo.envs.scenarios import Scenarios
+
     e = batch[0][0].results.num_avs  # rows of one suite: the same number of AVs
-    decider = batch[0][2] if len(batch) == 1 else Stacked([(d, idx.size) for _, idx, d in batch], e)
+    decider = batch[0][2] if len(batch) == 1 else Stacked([(d, plan.size) for _, plan, d in batch], e)
+    pieces = [piece for _, plan, _ in batch for piece in plan.pieces]
+    scenarios = Scenarios.concat([scen for _, _, scen in pieces])
+    labels = np.concatenate([idx for _, idx, _ in pieces])
     # A stacked batch fits one chunk by construction (the runner resets deciders per chunk).
     try:
-        got = run_indices(suite, decider, indices, chunk_size=chunk_size if len(batch) == 1 else indices.size)
+        got = run_scenarios(suite, decider, scenarios, labels, chunk_size if len(batch) == 1 else labels.size)
     except RunFailure as exc:
         row = batch[exc.part or 0][0]
         raise UserError(f"{row.rel}: {exc}") from None
     lo = 0
-    for row, idx, _ in batch:  # (multi-AV arrays are AV-major: each AV's block holds every row's scenarios)
-        compare(row, idx, {k: v.reshape(e, -1)[:, lo:lo + idx.size].reshape(-1) for k, v in got.items()})
-        lo += idx.size
+    for row, plan, _ in batch:  # (multi-AV arrays are AV-major: each AV's block holds every row's scenarios)
+        for kind, idx, _ in plan.pieces:
+            part = {k: v.reshape(e, -1)[:, lo:lo + idx.size].reshape(-1) for k, v in got.items()}
+            lo += idx.size
+            if kind == "public":
+                compare(row, idx, part)
+            elif kind == "fresh":
+                compare_fresh(row, idx, part["outcome"])
+            else:
+                compare_check(row, part["outcome"], fresh.check_seed(seed, suite.name))
+
+
+def compare_fresh(row: Row, indices: np.ndarray, outcome: np.ndarray) -> None:
+    """Raise naming the first scenario of the row's recorded fresh draw whose outcome the re-run does not give."""
+    rec = row.results.meta["submission"]["fresh"]
+    e = row.results.num_avs
+    want = fresh.decode(rec["outcomes"]).reshape(e, -1)[:, indices].reshape(-1)
+    bad = np.flatnonzero(want != outcome)
+    if bad.size:
+        i = int(np.tile(indices, e)[bad].min())
+        j = int(bad[np.argmin(np.tile(indices, e)[bad])])
+        raise UserError(f"{row.rel}: submission.fresh (seed {rec['seed']}): scenario {i}"
+                        + (f", AV {j // indices.size}" if e > 1 else "")
+                        + f": outcome recorded {OUTCOME_NAMES[want[j]]}, the re-run gives {OUTCOME_NAMES[outcome[j]]} "
+                        "(results edited by hand, or not produced by this policy)")
+
+
+def compare_check(row: Row, outcome: np.ndarray, check_seed: int) -> None:
+    """Raise when verify's own draw disagrees with the row's recorded fresh draw (:mod:`.fresh`)."""
+    rec = row.results.meta["submission"]["fresh"]
+    why = fresh.disagreement(fresh.rates(outcome), fresh.rates(fresh.decode(rec["outcomes"])))
+    if why is not None:
+        raise UserError(f"{row.rel}: submission.fresh: verify's own draw of the suite (seed {check_seed}) against "
+                        f"the recorded fresh draw (seed {rec['seed']}): {why}: a recorded draw must be one the "
+                        "policy never saw, not a seed it was fit to")
 
 
 def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:

@@ -70,9 +70,16 @@ def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int
     indices = np.asarray(indices, dtype=np.int64)
     if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
         raise ValueError(f"scenario indices must lie in [0, {suite.count})")
-    scenarios = suite.scenarios().take(indices)
+    return run_scenarios(suite, decider, suite.scenarios().take(indices), indices, chunk_size, safety)
+
+
+def run_scenarios(suite: Suite, decider: Any, scenarios: Any, labels: np.ndarray, chunk_size: int = CHUNK_SIZE,
+                  safety: bool = True) -> dict[str, np.ndarray]:
+    """Per-scenario arrays of ``decider`` on ``scenarios`` (any batch drawn from ``suite``'s distribution,
+    run with its settings; ``labels`` name the rows in errors): what verify runs on a public sample, a
+    fresh draw and its own draw at once."""
     _check_multi_av(suite, scenarios, decider, None)
-    return _run(suite, decider, scenarios, indices, chunk_size, False, None, safety)[0]
+    return _run(suite, decider, scenarios, np.asarray(labels, np.int64), chunk_size, False, None, safety)[0]
 
 
 def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -> None:
