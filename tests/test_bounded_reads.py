@@ -408,3 +408,31 @@ def test_an_npz_weights_bomb_is_refused_before_inflating():
     assert len(buf.getvalue()) < 1 << 20
     with pytest.raises(ValueError, match="inflates to"):
         read_npz(buf.getvalue())
+
+
+# ----------------------------------------------------------------------------- 2d. a memory cap around every parse
+def test_a_parse_past_its_memory_budget_is_one_error_and_the_limit_is_restored():
+    import resource
+
+    from overtakezoo.benchmark.memory_cap import memory_cap
+
+    before = resource.getrlimit(resource.RLIMIT_AS)
+    with pytest.raises(UserError, match=r"^thing\.bin: reading it needs more than 64 MiB of memory"):
+        with memory_cap("thing.bin", budget=64 << 20):
+            np.ones(512 << 20, np.uint8)  # a parser inflating half a GiB
+    assert resource.getrlimit(resource.RLIMIT_AS) == before
+    assert np.ones(512 << 20, np.uint8).sum() == 512 << 20  # the process is whole again
+    with memory_cap("small.bin", budget=64 << 20):
+        assert np.ones(8 << 20, np.uint8).size == 8 << 20  # within the budget: untouched
+
+
+def test_an_archive_whose_honest_chunk_exceeds_the_parse_budget_is_one_error(tmp_path, capsys, monkeypatch):
+    """Past the size checks (a chunk that declares what it inflates to, under the chunk cap) the memory
+    cap still holds: with a 16 MiB budget, a 48 MiB chunk ends `replay` with one line."""
+    from overtakezoo.benchmark import memory_cap
+
+    archive = _mcap_bomb(tmp_path / "big.mcap", 48 << 20, 48 << 20)
+    monkeypatch.setattr(memory_cap, "PARSE_BUDGET", 16 << 20)
+    err = one_line_error(capsys, ["replay", str(archive), "--episode", "0", "--out", str(tmp_path / "e.png")])
+    assert "big.mcap: reading it needs more than 16 MiB of memory" in err, err
+    assert not (tmp_path / "e.png").exists()

@@ -121,6 +121,17 @@ class Writer(torch.nn.Module):
         t.copy_(torch.full([8], 65, dtype=torch.uint8))
         return x[:, :3] + t[:3].to(torch.float32) * 0.0  # (used: the JIT keeps the write)
 
+class Reader(torch.nn.Module):
+    """Reads 8 bytes of `path` whenever it acts (what a policy would smuggle out in its decisions,
+    or in the ONNX file `submit` converts it to)."""
+    def __init__(self, path: str):
+        super().__init__()
+        self.path = path
+
+    def forward(self, x):
+        t = torch.from_file(self.path, shared=False, size=8, dtype=torch.uint8)
+        return x[:, :3] + t[:3].to(torch.float32) * 0.0
+
 class Slow(torch.nn.Module):
     """Fast on the load probe's zeros, then a loop of minutes (TorchScript ignores SIGTERM)."""
     def forward(self, x):
@@ -180,6 +191,27 @@ def test_torchscript_that_writes_files_writes_nothing(tmp_path, tiny, capsys, sc
             assert code == 2 and err.startswith("error: ") and "\n" not in err, err
         assert not (outside / "conftest.py").exists()
         assert (outside / "existing.py").read_text() == "# a file of the checkout\n"
+
+
+def test_torchscript_reads_no_file_outside_the_code_it_imports(tmp_path_factory, tmp_path, tiny, capsys, scripts,
+                                                               monkeypatch):
+    """A secret in the user's home (here a folder of its own, on no sys.path) or in /etc: the box
+    refuses the read; the same module reads it unboxed (the payload is real)."""
+    if landlock_abi() < 1:
+        pytest.skip("this kernel has no Landlock (Linux >= 5.13)")
+    secret = tmp_path_factory.mktemp("home") / ".token"
+    secret.write_bytes(b"API-TOKEN-0123456789")
+    for target in (secret, Path("/etc/passwd")):
+        if not target.is_file():
+            continue
+        torch.jit.save(torch.jit.script(scripts.Reader(str(target))), tmp_path / "reader.pt")
+        assert torch.jit.load(str(tmp_path / "reader.pt"))(torch.ones(1, D)).shape == (1, 3)  # reads, unboxed
+        code, err = evaluate(capsys, tiny, tmp_path / "reader.pt", tmp_path / "r.json")
+        assert code == 2 and err.startswith("error: ") and "\n" not in err, err
+        assert "Permission denied" in err, err
+        assert not (tmp_path / "r.json").exists()
+    monkeypatch.setenv("OVERTAKEZOO_SANDBOX_LANDLOCK", "0")  # the box without Landlock: the read goes through
+    assert evaluate(capsys, tiny, tmp_path / "reader.pt", tmp_path / "r.json")[0] == 0
 
 
 def test_without_landlock_no_file_grows(tmp_path, tiny, capsys, scripts, monkeypatch):

@@ -257,3 +257,28 @@ def test_a_seeds_file_whose_shipped_seed_differs_from_its_verified_row_is_refuse
     forged = load_seeds(_seeds_root(tmp_path, "dqn", claim_all))
     with pytest.raises(UserError, match="shipped seed 0 on dense"):
         build_table(rows, forged, hashes)
+
+
+def test_a_suite_added_to_the_score_never_drops_a_members_seeds_silently(tmp_path, monkeypatch, capsys):
+    """A copy of the board whose dqn seeds file covers table1 but not dense, scored on table1, then with
+    dense added to the scoring suites: the headline would fall from dqn's 3 seeds to one run (before:
+    "regenerated", dqn's score from one run); generation refuses with one line naming the file and
+    the suite instead."""
+    from overtakezoo.benchmark.leaderboard import generate
+
+    root = tmp_path / "lb"
+    for suite in ("table1", "dense"):
+        (root / "submissions" / suite).mkdir(parents=True)
+        shutil.copy(REPO_LEADERBOARDS / "submissions" / suite / "dqn.json", root / "submissions" / suite)
+    doc = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
+    for entry in doc["seeds"]:
+        del entry["suites"]["dense"]  # (as for a suite that joins the score after the seeds were evaluated)
+    (root / "seeds").mkdir()
+    (root / "seeds" / "dqn.json").write_text(json.dumps(doc))
+    monkeypatch.setattr(generate, "CORE", ("table1",))
+    scores = json.loads(generate.generate(root)["index.json"])["headline"]["scores"]
+    assert scores["dqn"]["seeds"] == 3  # the seeds cover table1
+    monkeypatch.setattr(generate, "CORE", ("table1", "dense"))
+    assert main(["leaderboard", "--root", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: seeds/dqn.json: seed 0 has no result on the scoring suite dense") and "\n" not in err

@@ -212,8 +212,8 @@ def test_crossplay_changed_only_reruns_just_the_pairs_of_a_changed_decider(tmp_p
     assert main(base + ["--deciders", "rule-fsm,always-overtake,fuzzy"]) == 0
     full = (root / "crossplay" / "duel.json").read_bytes()
     ran = []
-    real = crossplay._pair_counts
-    monkeypatch.setattr(crossplay, "_pair_counts", lambda suite, a, b, k: ran.append((a, b)) or real(suite, a, b, k))
+    real = crossplay.run_pairs
+    monkeypatch.setattr(crossplay, "run_pairs", lambda suite, wanted, k, jobs=1: ran.extend(wanted) or real(suite, wanted, k, jobs))
     doc = json.loads(full)
     doc["deciders"][[d["name"] for d in doc["deciders"]].index("fuzzy")]["weights_sha256"] = "0" * 64  # "retrained"
     (root / "crossplay" / "duel.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")

@@ -85,6 +85,8 @@ def test_every_shipped_row_reproduces_as_ci_runs(capsys):
     out = capsys.readouterr().out
     assert f"verified {rows} row(s): every re-run reproduces" in out
     assert ("every row counts as changed" in out) == (base is None)
+    for matrix in sorted(REPO.glob("crossplay/*.json")):  # and the cross-play matrices, 12 pairs each
+        assert f"verified crossplay/{matrix.name}: 12 of " in out
     with capsys.disabled():
         print(f"\nverified {rows} rows ({'all in full: no base' if base is None else f'against {base[:12]}'}) "
               f"in {time.perf_counter() - t0:.1f} s")

@@ -25,6 +25,7 @@ from overtakezoo.benchmark.archive.cdr import RECORD_HEAD
 from overtakezoo.benchmark.archive.format import FORMAT_VERSION, INF_FIELDS, STATE_TOPICS
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import safe_json
+from overtakezoo.benchmark.memory_cap import memory_cap, out_of_memory
 
 # A chunk's records are inflated at most this far: the recorder writes chunks of ~4 MiB of whole
 # episodes (one long episode's scene a few MiB more), so a chunk declaring or inflating past 256 MiB is a bomb.
@@ -96,6 +97,8 @@ class _JsonDecoderFactory:
 
 
 def _corrupt(path: Path, exc: BaseException) -> UserError:
+    if out_of_memory(exc):  # not a damaged file: past the memory cap, which says so
+        raise exc
     detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return UserError(f"{path}: not a readable MCAP archive (truncated or corrupt: {detail})")
 
@@ -118,7 +121,9 @@ class _Archive:
             self.reader = make_reader(self._f, validate_crcs=True, decoder_factories=[_JsonDecoderFactory()])
             try:
                 summary = self.reader.get_summary()
-            except Exception:  # a cut file: its end is not a footer
+            except Exception as exc:  # a cut file: its end is not a footer
+                if out_of_memory(exc):
+                    raise
                 summary = None
             if summary is None:
                 meta, entries = self._scan()
@@ -360,6 +365,17 @@ def _entry(m: dict[str, str]) -> EpisodeEntry:
                         float(m["episode_return"]))
 
 
+def _capped(read: Any) -> Any:
+    """``read(path, ...)`` under a memory cap (benchmark/memory_cap.py): an archive is an outside file."""
+    @functools.wraps(read)
+    def wrapper(path: str | os.PathLike, *args: Any) -> Any:
+        with memory_cap(f"archive {path}"):
+            return read(path, *args)
+
+    return wrapper
+
+
+@_capped
 def read_index(path: str | os.PathLike) -> ArchiveIndex:
     """The whole episodes (index, time range, outcome), the run's metadata, and a note if the file
     was cut; from the summary section only (or a scan of the record headers of a cut file)."""
@@ -372,11 +388,13 @@ def list_episodes(path: str | os.PathLike) -> list[EpisodeEntry]:
     return read_index(path).entries
 
 
+@_capped
 def read_archive_meta(path: str | os.PathLike) -> dict[str, str]:
     with _Archive(path) as ar:
         return dict(ar.meta)
 
 
+@_capped
 def read_episode(path: str | os.PathLike, k: int) -> Episode:
     """Episode ``k`` (its global scenario index), reading only the chunks of its time window."""
     with _Archive(path) as ar:
@@ -390,6 +408,7 @@ def read_episode(path: str | os.PathLike, k: int) -> Episode:
         return b.build(ar.path)
 
 
+@_capped
 def read_archive(path: str | os.PathLike) -> list[Episode]:
     """Every (whole) episode of the archive, in scenario order."""
     with _Archive(path) as ar:

@@ -25,7 +25,10 @@ def register(subparsers: Any) -> None:
                    "a row verified in full also runs a draw of verify's own (from --seed), which must agree\n"
                    "with the recorded one. The first row that does not reproduce is named with its first\n"
                    "mismatching scenario (exit 2). Stale rows show no numbers and are not re-run; a new or\n"
-                   "changed stale row is refused. Every mode\n"
+                   "changed stale row is refused. The cross-play matrices (crossplay/<suite>.json) are re-run\n"
+                   "too: every pair of a new or changed one, max(K, 12) pairs of the others (and of every one\n"
+                   "with no base), all pairs without --sample; each pair's counts must equal the stored ones.\n"
+                   "Every mode\n"
                    "finds its leaderboard as `submit` does (--root).",
                    ["overtakezoo leaderboard", "overtakezoo leaderboard --check",
                     "overtakezoo leaderboard --verify --sample 1     # CI: changed rows in full, 1 scenario of the rest",
@@ -35,8 +38,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--check", action="store_true", help="write nothing; exit 1 if the files are stale")
     p.add_argument("--verify", action="store_true", help="write nothing; re-run every row's policy and require "
                    "its per-scenario results to match exactly")
-    p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios of each row unchanged "
-                   "against --base (default: every scenario); new or changed rows are always verified in full")
+    p.add_argument("--sample", type=int, metavar="K", help="with --verify: K scenarios of each row and max(K, 12) pairs "
+                   "of each cross-play matrix unchanged against --base (default: all); new or changed ones are "
+                   "always verified in full")
     p.add_argument("--seed", type=int, help="with --verify: the seed of the sample and of verify's own fresh "
                    "draws (default: fresh randomness, printed, so nobody can compute them before pushing; pass it "
                    "back to replay a failure)")
@@ -45,8 +49,8 @@ def register(subparsers: Any) -> None:
                    "fetched if missing, or origin/HEAD; none outside git or when that merge base is HEAD itself, "
                    "a fresh clone of the branch under test as CI runs: then every row is verified in full)")
     p.add_argument("--jobs", type=int, default=1, help="with --verify: suites verified in parallel processes")
-    p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows matching this glob, "
-                   "e.g. 'table1/*' or '*/my-policy'")
+    p.add_argument("--only", metavar="SUITE/NAME", help="with --verify: only rows (and cross-play "
+                   "matrices, as crossplay/SUITE) matching this glob, e.g. 'table1/*', '*/my-policy' or 'crossplay/duel'")
     p.add_argument("--root", metavar="PATH", default=None, help=root_help())
     p.set_defaults(handler=run)
 
@@ -61,18 +65,22 @@ def run(args: Any) -> int:
     args.root = leaderboard_root(args.root)
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
-        from overtakezoo.benchmark.leaderboard.changes import changed_rows, default_base
-        from overtakezoo.benchmark.leaderboard.verify import verify
+        from overtakezoo.benchmark.leaderboard.changes import changed_files, changed_rows, default_base
+        from overtakezoo.benchmark.leaderboard.crossplay import VERIFY_PAIRS
+        from overtakezoo.benchmark.leaderboard.verify import matrices, verify
 
         if args.sample is not None and args.sample < 1:
             raise UserError(f"--sample {args.sample}: must be >= 1")
         if args.jobs < 1:
             raise UserError(f"--jobs {args.jobs}: must be >= 1")
         base = args.base or default_base(args.root)
-        changed = changed_rows(args.root, base) if base else set()
+        changed = changed_rows(args.root, base) | {f"crossplay/{rel}" for rel in changed_files(args.root, base, "crossplay")} \
+            if base else set()
+        pairs = None if args.sample is None else max(args.sample, VERIFY_PAIRS)
         if not base and args.sample is not None:
             print("no git base to compare with (outside git, or a fresh clone of the branch under test, as CI "
-                  "runs): every row counts as changed and is verified in full")
+                  f"runs): every row counts as changed and is verified in full; cross-play matrices: {pairs} "
+                  "pairs each, drawn from the seed (all of them without --sample)")
             args.sample = None
         if base:
             shown = changed if args.only is None else {  # the rows --only selects (suite/name, as load_submissions)
@@ -80,8 +88,9 @@ def run(args: Any) -> int:
                                                               args.only)}
             print(f"rows new or changed against {base[:12]} (untracked rows are new): {len(shown)} row(s), "
                   "verified in full")
-        n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs, changed=changed)
-        if n == 0 and args.only is not None:
+        n = verify(args.root, sample=args.sample, seed=args.seed, only=args.only, jobs=args.jobs, changed=changed,
+                   pair_sample=pairs)
+        if n == 0 and args.only is not None and not matrices(args.root, args.only):
             raise UserError(f"--only {args.only!r}: no current row matches")
         print(f"verified {n} row(s): every re-run reproduces its recorded per-scenario results")
         return 0

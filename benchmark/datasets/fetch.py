@@ -15,6 +15,7 @@ from typing import Callable
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir, file_sha256
+from overtakezoo.benchmark.memory_cap import memory_cap
 from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
 from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets_dir, install, minari_module, staging_root
 
@@ -143,7 +144,7 @@ def _extract(archive: Path, root: Path, name: str) -> None:
     root = root.resolve()
     target = (root / name).resolve()
     try:
-        with tarfile.open(archive, "r:*") as tar:
+        with memory_cap(f"dataset archive {archive.name}"), tarfile.open(archive, "r:*") as tar:
             members = tar.getmembers()
             for m in members:
                 p = PurePosixPath(m.name)

@@ -55,20 +55,8 @@ def changed_rows(root: str | Path, base: str) -> set[str]:
     untracked row is new, staged or not), and a row that references a stored artifact that is. A
     deleted row is on no board, so it is not counted. :class:`UserError` when ``base`` is no revision."""
     root = Path(root)
-    top = _git(root, "rev-parse", "--show-toplevel")
-    if top is None or _git(root, "rev-parse", "--verify", "--quiet", f"{base}^{{commit}}") is None:
-        raise UserError(f"--base {base}: not a git revision of the repository holding {root}")
     sub = (root / "submissions").resolve()
-    # Both lists name paths from the repository's top (ls-files would name them from `root` without
-    # --full-name); no --exclude-standard: an ignored row file is still read by the board, so it is new.
-    listed = (_git(root, "diff", "-z", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
-             (_git(root, "ls-files", "-z", "--others", "--full-name", "--", str(sub)) or "")
-    top_path = Path(top.strip()).resolve()
-    files = set()
-    for line in listed.split("\0"):
-        path = (top_path / line).resolve() if line else None
-        if path is not None and path.is_relative_to(sub):
-            files.add(path.relative_to(sub).as_posix())
+    files = changed_files(root, base, "submissions")
     changed = {f"submissions/{rel}" for rel in files if is_row(rel) and (sub / rel).is_file()}
     artifacts = {rel.split("/", 1)[1] for rel in files if rel.startswith(f"{ARTIFACTS}/")}
     if artifacts:
@@ -78,6 +66,27 @@ def changed_rows(root: str | Path, base: str) -> set[str]:
                 if any(rel.split("/", 1)[1] in artifacts for rel in stored_files(sub_block.get("policy") or {})):
                     changed.add(row.rel)
     return changed
+
+
+def changed_files(root: str | Path, base: str, folder: str) -> set[str]:
+    """Files under ``root/folder`` (relative to it) that differ from ``base`` or are untracked (new, staged
+    or not; ignored ones too: the board reads them). :class:`UserError` when ``base`` is no revision."""
+    root = Path(root)
+    top = _git(root, "rev-parse", "--show-toplevel")
+    if top is None or _git(root, "rev-parse", "--verify", "--quiet", f"{base}^{{commit}}") is None:
+        raise UserError(f"--base {base}: not a git revision of the repository holding {root}")
+    sub = (root / folder).resolve()
+    # Both lists name paths from the repository's top (ls-files would name them from `root` without
+    # --full-name); no --exclude-standard: an ignored file is still read by the board, so it is new.
+    listed = (_git(root, "diff", "-z", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
+             (_git(root, "ls-files", "-z", "--others", "--full-name", "--", str(sub)) or "")
+    top_path = Path(top.strip()).resolve()
+    files = set()
+    for line in listed.split("\0"):
+        path = (top_path / line).resolve() if line else None
+        if path is not None and path.is_relative_to(sub):
+            files.add(path.relative_to(sub).as_posix())
+    return files
 
 
 def _git(root: str | Path, *args: str) -> str | None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -50,27 +51,53 @@ def zoo_deciders(config: Any) -> list[str]:
     return sorted(zoo.names("rule") + zoo.names("learned"))
 
 
-def _pair_counts(suite: Suite, a: str, b: str, scenarios: int) -> dict[str, list[int]]:
-    from overtakezoo import zoo
+# Pairs of an unchanged matrix `leaderboard --verify --sample K` re-runs (at least; K when more): one
+# decider's row of the matrix on average, about 40 s for the three shipped matrices on 2 cores. A whole
+# matrix takes minutes (2 min 22 s for duel's 144 pairs with --jobs 2, 2-core Xeon), so CI samples it.
+VERIFY_PAIRS = 12
+BATCH_ROADS = 8192  # roads stepped together: pairs share one batch (fewer Python steps, the same bits)
 
+
+def _pairing(suite: Suite, a: str, b: str) -> Any:
+    from overtakezoo import zoo
     from overtakezoo.benchmark.run.pairing import Pairing
-    from overtakezoo.benchmark.run.runner import run_suite
 
     others = [zoo.load(b, suite.config) for _ in range(suite.num_avs - 1)]
-    pairing = Pairing([zoo.load(a, suite.config), *others], suite.config.decision_interval)
-    s = run_suite(suite, pairing, limit=scenarios, progress=False).summary
-    counts = {key: [s["joint"][key]["k"], s["joint"][key]["n"]] for key, _ in MEASURES if key in s["joint"]}
-    av, rest = s["per_av"][0], s["per_av"][1:]  # B's counts: summed over its AVs (per AV, not per road)
+    return Pairing([zoo.load(a, suite.config), *others], suite.config.decision_interval)
+
+
+def _counts(summary: dict[str, Any]) -> dict[str, list[int]]:
+    counts = {key: [summary["joint"][key]["k"], summary["joint"][key]["n"]] for key, _ in MEASURES
+              if key in summary["joint"]}
+    av, rest = summary["per_av"][0], summary["per_av"][1:]  # B's counts: summed over its AVs (per AV, not per road)
     for mine, theirs, key in (("a_success", "b_success", "success_rate"), ("a_yielded", "b_yielded", "yielded")):
         counts[mine] = [av[key]["k"], av[key]["n"]]
         counts[theirs] = [sum(r[key]["k"] for r in rest), sum(r[key]["n"] for r in rest)]
     return {key: counts[key] for key, _ in MEASURES}
 
 
-def _row(args: tuple[str, str, list[str], int]) -> list[dict[str, Any]]:
-    suite_name, a, names, scenarios = args
-    suite = load_suite(suite_name)
-    return [{"a": a, "b": b, **_pair_counts(suite, a, b, scenarios)} for b in names]
+def _run_group(args: tuple[str, list[tuple[str, str]], int]) -> list[dict[str, Any]]:
+    """Pairs run as one batch: each pair's :class:`~.pairing.Pairing` drives its own block of roads (a
+    copy of the suite's first ``scenarios``), stacked as verify stacks rows (:class:`.batching.Stacked`).
+    Roads never interact and every decider sees the rows it would see alone, so each pair's counts
+    are those of its own run (``tests/test_crossplay_verify.py`` holds them to a pair run alone)."""
+    from overtakezoo.benchmark.leaderboard.batching import Stacked
+    from overtakezoo.benchmark.results.results import round_per_scenario, summary_of
+    from overtakezoo.benchmark.run.runner import run_scenarios
+    from overtakezoo.envs.scenarios import Scenarios
+
+    where, pairs, scenarios = args
+    suite = load_suite(where)
+    e = suite.num_avs
+    base = suite.scenarios().take(np.arange(scenarios))
+    stacked = Stacked([(_pairing(suite, a, b), scenarios) for a, b in pairs], e)
+    batch = Scenarios.concat([base] * len(pairs))
+    per = run_scenarios(suite, stacked, batch, np.tile(np.arange(scenarios), len(pairs)), batch.num, safety=False)
+    out = []
+    for i, (a, b) in enumerate(pairs):
+        mine = {k: v.reshape(e, -1)[:, i * scenarios:(i + 1) * scenarios].reshape(-1) for k, v in per.items()}
+        out.append({"a": a, "b": b, **_counts(summary_of(round_per_scenario(mine), suite.seed, e))})
+    return out
 
 
 def reusable(stored: dict[str, Any] | None, suite: Suite, scenarios: int, deciders: list[dict[str, Any]]) -> set[str]:
@@ -83,47 +110,115 @@ def reusable(stored: dict[str, Any] | None, suite: Suite, scenarios: int, decide
     return {d["name"] for d in deciders if before.get(d["name"]) == (d["version"], d["weights_sha256"])}
 
 
+def labels(suite: Suite, names: list[str]) -> list[dict[str, Any]]:
+    """The ``deciders`` block of a matrix of ``names``: each zoo member's name, version and weights,
+    derived from the zoo (never read from a file)."""
+    from overtakezoo import zoo
+
+    out = []
+    for name in names:
+        d = zoo.load(name, suite.config)
+        if getattr(d, "privileged", False):
+            raise UserError(f"{name}: privileged deciders cannot share a road in cross-play")
+        out.append({"name": name, "version": str(d.version), "weights_sha256": d.weights_sha256})
+    return out
+
+
+def run_pairs(suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs: int = 1) -> dict[tuple[str, str], dict]:
+    """Each ordered pair of ``wanted`` run on the suite's first ``scenarios`` roads, as ``{(a, b): pair}``:
+    pairs that hold their decisions equally long share a batch of up to :data:`BATCH_ROADS` roads
+    (:func:`_run_group`); ``jobs`` > 1 runs the batches in that many worker processes."""
+    where = suite.name if suite.builtin else str(suite.path)
+    by_hold: dict[int, list[tuple[str, str]]] = {}
+    for a, b in wanted:
+        by_hold.setdefault(_pairing(suite, a, b).action_repeat, []).append((a, b))
+    per_batch = max(1, BATCH_ROADS // scenarios)
+    if jobs > 1:  # batches small enough that every worker gets some
+        per_batch = max(1, min(per_batch, -(-len(wanted) // jobs)))
+    todo = [(where, group[i:i + per_batch], scenarios) for group in by_hold.values()
+            for i in range(0, len(group), per_batch)]
+    if jobs > 1 and len(todo) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a forked copy of a process that already ran torch's thread pool can hang.
+        with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            groups = list(pool.map(_run_group, todo))
+    else:
+        groups = [_run_group(t) for t in todo]
+    return {(p["a"], p["b"]): p for group in groups for p in group}
+
+
+def _check_scenarios(suite: Suite, scenarios: int, flag: str = "--limit") -> None:
+    if suite.num_avs < 2:
+        raise UserError(f"suite {suite.name!r} has one automated vehicle per scenario; cross-play pairs deciders "
+                        "on multi-AV suites (duel, platoon, mixed-traffic)")
+    if not 1 <= scenarios <= suite.count:
+        raise UserError(f"{flag} {scenarios}: must lie in [1, {suite.count}] (the suite's scenarios)")
+
+
 def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAULT_SCENARIOS,
             jobs: int = 1, stored: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run every ordered pair of ``names`` (default: :func:`zoo_deciders`) on the suite's first
     ``scenarios`` roads; returns the data document (deterministic: no timing in it). With ``stored``
     (an earlier matrix) a pair of two unchanged deciders (:func:`reusable`) is copied, not re-run:
     every pair is a deterministic function of the suite and the two deciders."""
-    from overtakezoo import zoo
-
-    num_avs = suite.num_avs
-    if num_avs < 2:
-        raise UserError(f"suite {suite.name!r} has one automated vehicle per scenario; cross-play pairs deciders "
-                        "on multi-AV suites (duel, platoon, mixed-traffic)")
-    if not 1 <= scenarios <= suite.count:
-        raise UserError(f"--limit {scenarios}: must lie in [1, {suite.count}] (the suite's scenarios)")
+    _check_scenarios(suite, scenarios)
     names = zoo_deciders(suite.config) if names is None else list(names)
-    deciders = []
-    for name in names:
-        d = zoo.load(name, suite.config)
-        if getattr(d, "privileged", False):
-            raise UserError(f"{name}: privileged deciders cannot share a road in cross-play")
-        deciders.append({"name": name, "version": str(d.version), "weights_sha256": d.weights_sha256})
+    deciders = labels(suite, names)
     same = reusable(stored, suite, scenarios, deciders)
     old = {(p["a"], p["b"]): p for p in stored["pairs"]} if same else {}
-    where = suite.name if suite.builtin else str(suite.path)
-    todo = [(where, a, [b for b in names if not (a in same and b in same)], scenarios) for a in names]
-    todo = [t for t in todo if t[2]]
-    if jobs > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        # spawn: a forked copy of a process that already ran torch's thread pool can hang.
-        with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            rows = list(pool.map(_row, todo))
-    else:
-        rows = [_row(t) for t in todo]
-    new = {(p["a"], p["b"]): p for row in rows for p in row}
+    new = run_pairs(suite, [(a, b) for a in names for b in names if not (a in same and b in same)], scenarios, jobs)
     pairs = [new.get((a, b)) or old[(a, b)] for a in names for b in names]
     return {"generated_by": "overtakezoo crossplay",
             "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
             "config_sha256": config_sha256(suite.config), "sim_version": SIM_VERSION, "scenarios": scenarios,
             "deciders": deciders, "pairs": pairs}
+
+
+def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, jobs: int = 1) -> str:
+    """Re-derive a stored matrix as ``leaderboard --verify`` does: its suite, config and simulator
+    are the current ones, its ``deciders`` block is the zoo's (derived), and every pair re-run
+    (``sample`` None) or ``sample`` pairs drawn from ``seed`` give exactly the stored counts.
+    Returns the report line; :class:`UserError` naming the file (and the pair) otherwise."""
+    from overtakezoo.envs.suites import suite_names
+
+    rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+    doc = load(path)
+    name = doc["suite"]["name"]
+    if path.stem != name:
+        raise UserError(f"{rel}: suite.name {name!r} filed as {path.stem!r}")
+    suite = load_suite(name) if name in suite_names() else None
+    stale = _stale(doc, suite)
+    if stale:
+        raise UserError(f"{rel}: measured on {'; '.join(stale)}: the board shows only what a re-run gives; "
+                        f"re-run `overtakezoo crossplay --suite {name}`")
+    _check_scenarios(suite, doc["scenarios"], f"{rel}: scenarios:")
+    if doc["suite"] != {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count}:
+        raise UserError(f"{rel}: suite: {doc['suite']!r} is not the suite file's block (edited by hand?)")
+    names = [d["name"] for d in doc["deciders"]]
+    from overtakezoo import zoo
+
+    unknown = sorted(set(names) - set(zoo.known_names()))
+    if unknown:
+        raise UserError(f"{rel}: deciders: {unknown[0]!r} is no zoo member (cross-play pairs the zoo's own)")
+    derived = labels(suite, names)
+    for got, want in zip(doc["deciders"], derived):
+        if got != want:
+            raise UserError(f"{rel}: deciders: recorded {got!r}, derived {want!r} from the zoo (labels are derived, "
+                            f"never declared; re-run `overtakezoo crossplay --suite {name}` after a zoo change)")
+    pairs = [(p["a"], p["b"]) for p in doc["pairs"]]
+    if sample is not None and sample < len(pairs):
+        rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
+        pairs = [pairs[i] for i in np.sort(rng.choice(len(pairs), size=sample, replace=False))]
+    stored = {(p["a"], p["b"]): p for p in doc["pairs"]}
+    got = run_pairs(suite, pairs, doc["scenarios"], jobs)
+    for a, b in pairs:
+        for key, label in MEASURES:
+            if stored[a, b][key] != got[a, b][key]:
+                raise UserError(f"{rel}: pair A={a}, B={b}: {key} ({label}): recorded {stored[a, b][key]}, the re-run "
+                                f"gives {got[a, b][key]} (edited by hand, or measured on other code)")
+    return f"verified {rel}: {len(pairs)} of {len(stored)} pairs reproduce exactly"
 
 
 def to_bytes(doc: dict[str, Any]) -> bytes:

@@ -158,10 +158,11 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
             if row.privileged:
                 privileged.add(row.name)
     table = headline.build_table(rows, seeds, hashes)
-    scores = {name: headline.score(runs) for name, runs in table.items()}
+    scores = {name: headline.score(runs, CORE) for name, runs in table.items()}
     learned = sorted(set(seeds) | (LEARNED & set(table)))
     safety = safety_board.safety_column(means) if any(m["rss"] == m["rss"] for m in means.values()) else None
-    text = (headline.render(table, privileged, safety=safety) + "\n" + headline.generalization(table, learned)
+    text = (headline.render(table, privileged, suites=CORE, safety=safety) + "\n"
+            + headline.generalization(table, learned, suites=CORE)
             + "\n" + headline.seed_lines(seeds))
     return text, {"core": list(CORE), "k": headline.K, "scores": scores}
 

@@ -105,9 +105,11 @@ A pull request to this leaderboard is untrusted input, and so is a policy file y
 `overtakezoo leaderboard --verify` (run by CI and by reviewers) and `overtakezoo eval --policy FILE`
 never run code from either:
 
-- **Trusted:** the OvertakeZoo code of the base branch (simulator, zoo members, verifier), the suite
-  files in `envs/suites/`, and the maintainers' inputs (`reference/`, `seeds/`, `crossplay/`),
-  which only change with the code that writes them.
+- **Trusted:** the OvertakeZoo code of the base branch (simulator, zoo members and their shipped
+  weights, verifier) and the suite files in `envs/suites/`. Everything else the pages show is
+  re-derived: rows and cross-play matrices by `--verify` (below); a `seeds/` file speaks for the
+  member its file name names, and its shipped seed must equal that member's verified rows;
+  `reference/` figures cite their source and never rank.
 - **Stored formats are data.** A row's policy is a built-in zoo member (by name, version and
   weights sha256) or an artifact in one of two formats: the project's `.npz` MLP with its model card
   (read with `numpy.load(allow_pickle=False)`) or one self-contained `.onnx` file (run by
@@ -135,7 +137,10 @@ never run code from either:
   from a seed of fresh randomness, printed so that a failure replays with `--seed`: nobody can
   compute the draw before pushing. A row must have its suite's shape (every array, one value per
   scenario), and an artifact's policy must decide the same in batches of other sizes and orders. A
-  new or changed stale row is refused; stale rows show no numbers, only their names.
+  new or changed stale row is refused; stale rows show no numbers, only their names. A cross-play
+  matrix (`crossplay/<suite>.json`) is re-run the same way: its deciders' labels derived from the
+  zoo, every pair of a new or changed matrix (or with no base), `--sample K` pairs of the others,
+  and each pair's counts must equal the stored ones.
 - **Draws nobody knew.** Every suite is public, so a policy could memorise its scenarios. `submit`
   also runs the policy on a *fresh draw* of the suite's distribution (a seed from fresh randomness)
   and records it in the row; the pages show its success and crash rates beside the public ones. A

@@ -223,9 +223,9 @@ def _anchored(path: Path, doc: dict[str, Any]) -> None:
 
 def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dict[str, Any]],
                 hashes: dict[str, str]) -> dict[str, dict[str, list[Counts]]]:
-    """Counts per decider and suite: a member's training seeds where its seeds file covers the suite
-    at the current suite hash, else its leaderboard row (one run). ``rows[decider][suite]`` is a
-    results summary."""
+    """Counts per decider and suite: a member's training seeds (its seeds file must cover every scoring
+    suite at the current suite hash: a member never silently falls from its seeds to one run), else
+    its leaderboard row (one run). ``rows[decider][suite]`` is a results summary."""
     table: dict[str, dict[str, list[Counts]]] = {}
     for name, by_suite in rows.items():
         doc = seeds.get(name)
@@ -233,17 +233,19 @@ def build_table(rows: dict[str, dict[str, dict[str, Any]]], seeds: dict[str, dic
             per_seed = []
             if doc is not None:
                 per_seed = [e["suites"].get(suite) for e in doc["seeds"]]
-                ok = all(c is not None and c["suite_sha256"] == hashes.get(suite) for c in per_seed)
-                per_seed = [Counts(c["success"], c["crash"], c["n"]) for c in per_seed] if ok else []
+                missing = [e["seed"] for e, c in zip(doc["seeds"], per_seed)
+                           if c is None or c["suite_sha256"] != hashes.get(suite)]
+                if missing:
+                    raise UserError(f"seeds/{name}.json: seed {missing[0]} has no result on the scoring suite {suite} "
+                                    "at its current hash, so the headline would fall back to one run: evaluate every "
+                                    f"seed there (scripts/seed_results.py {name} RUN_DIRS) or leave {suite} out of "
+                                    "the score")
+                per_seed = [Counts(c["success"], c["crash"], c["n"]) for c in per_seed]
                 shipped = [c for e, c in zip(doc["seeds"], per_seed) if e["seed"] == doc["shipped_seed"]]
                 if shipped and shipped[0] != counts_from_summary(summary):  # the row `--verify` re-runs
                     raise UserError(f"seeds/{name}.json: shipped seed {doc['shipped_seed']} on {suite}: "
                                     f"{shipped[0]} is not its leaderboard row's {counts_from_summary(summary)}")
             table.setdefault(name, {})[suite] = per_seed or [counts_from_summary(summary)]
-    # A member with seeds on some suites and one run on others: use its single runs everywhere.
-    for name, by_suite in table.items():
-        if len({len(v) for v in by_suite.values()}) > 1:
-            table[name] = {s: [counts_from_summary(rows[name][s])] for s in by_suite}
     return table
 
 

@@ -34,11 +34,16 @@ For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
    ``seed``, which must agree with the recorded one: a policy fit to the public scenarios (and to the
    recorded draw) is caught here; one fit to the public scenarios alone is flagged on the pages.
 
+7. **Cross-play matrices are rows too** (:func:`verify_crossplay`): a stored matrix must be of the
+   current suite, config and simulator, its ``deciders`` block the zoo's own, and its pairs re-run
+   (all of a new or changed matrix, ``sample`` of the others) must give its counts exactly.
+
 A failure is one line naming the row (and the scenario and step where a policy misbehaved).
 """
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import zlib
 from dataclasses import dataclass
@@ -147,10 +152,11 @@ def _same(row: Row, recorded: dict[str, Any], derived: dict[str, Any], source: s
 # ------------------------------------------------------------------ verification
 def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: int | None = None,
            only: str | None = None, chunk_size: int = 4096, jobs: int = 1, changed: set[str] | None = None,
-           log: Callable[[str], None] = print) -> int:
+           log: Callable[[str], None] = print, pair_sample: int | None = None) -> int:
     """Re-run every current row (``only``: rows whose ``suite/name`` matches this glob) on every
     scenario of the rows in ``changed`` and on ``sample`` scenarios of the others (all when None),
-    drawn from ``seed`` (default :func:`.changes.fresh_seed`, logged); raises a UserError at the first row that does
+    drawn from ``seed`` (default :func:`.changes.fresh_seed`, logged); then the cross-play matrices:
+    every pair of those in ``changed``, ``pair_sample`` pairs of the others (all when None); raises a UserError at the first row that does
     not reproduce (suites in name order). ``jobs`` > 1 verifies suites in that many worker
     processes. Returns the number of rows verified."""
     root = Path(root)
@@ -168,8 +174,33 @@ def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: i
         # spawn: a forked copy of a process that already ran torch's thread pool can hang.
         with ProcessPoolExecutor(min(jobs, len(suites)), mp_context=multiprocessing.get_context("spawn")) as pool:
             reports = pool.map(_verify_suite_star, args)
-            return sum(_log_all(lines, log) for lines in reports)
-    return sum(_log_all(verify_suite(*a), log) for a in args)
+            n = sum(_log_all(lines, log) for lines in reports)
+    else:
+        n = sum(_log_all(verify_suite(*a), log) for a in args)
+    verify_crossplay(root, pair_sample, seed, only, jobs, changed or set(), log)
+    return n
+
+
+def matrices(root: Path, only: str | None = None) -> list[Path]:
+    """The stored cross-play matrices (those ``only`` matches as ``crossplay/<suite>``)."""
+    from overtakezoo.benchmark.leaderboard.crossplay import DATA
+
+    return [p for p in sorted((root / DATA).glob("*.json"))
+            if only is None or fnmatch.fnmatchcase(f"{DATA.as_posix()}/{p.stem}", only)]
+
+
+def verify_crossplay(root: Path, sample: int | None, seed: int, only: str | None, jobs: int, changed: set[str],
+                     log: Callable[[str], None]) -> None:
+    """Re-run the stored cross-play matrices (``crossplay/<suite>.json``, those ``only`` matches as
+    ``crossplay/<suite>``): every pair of a matrix in ``changed`` (or with ``sample`` None), else
+    ``sample`` pairs drawn from ``seed`` (:func:`.crossplay.verify_matrix`)."""
+    from overtakezoo.benchmark.leaderboard import crossplay
+
+    for path in matrices(root, only):
+        rel = path.relative_to(root).as_posix()
+        full = sample is None or rel in changed
+        log(crossplay.verify_matrix(root, path, None if full else sample, seed, jobs)
+            + (" (new or changed: every pair)" if full and sample is not None else ""))
 
 
 def _verify_suite_star(args: tuple) -> list[str]:
@@ -179,7 +210,7 @@ def _verify_suite_star(args: tuple) -> list[str]:
 def _log_all(lines: list[str], log: Callable[[str], None]) -> int:
     for line in lines:
         log(line)
-    return sum(line.startswith("verified ") for line in lines)
+    return sum(line.startswith("verified submissions/") for line in lines)
 
 
 @dataclass

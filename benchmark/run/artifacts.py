@@ -43,6 +43,7 @@ from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import safe_json
+from overtakezoo.benchmark.memory_cap import memory_cap, out_of_memory
 
 NUM_MODES = 3
 SB3_ALGOS = {"dqn": "q-network", "ppo": "policy", "a2c": "policy"}
@@ -94,7 +95,13 @@ class Artifact:
 
 
 def read_policy_file(path: Path, data: bytes, config: Any) -> Artifact:
-    """The artifact of the policy file ``path`` (holding ``data``); :class:`UserError` when it is none."""
+    """The artifact of the policy file ``path`` (holding ``data``); :class:`UserError` when it is none.
+    Parsed under a memory cap (benchmark/memory_cap.py): a policy file is an outside file."""
+    with memory_cap(f"policy {path}"):
+        return _read_policy_file(path, data, config)
+
+
+def _read_policy_file(path: Path, data: bytes, config: Any) -> Artifact:
     sha = hashlib.sha256(data).hexdigest()
     card_path = model_card(path)
     if card_path is not None:
@@ -301,6 +308,8 @@ def _torch_state(path: Path, data: bytes, what: str) -> dict[str, Any]:
     try:
         state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as exc:  # weights_only refuses anything but tensors and plain containers
+        if out_of_memory(exc):
+            raise
         raise UserError(f"policy {path}: {what} is not a plain state dict ({_torch_why(exc)})") from None
     if not isinstance(state, dict):
         raise UserError(f"policy {path}: {what} is not a state dict")
@@ -351,6 +360,8 @@ def self_contained_onnx(path: Path, data: bytes) -> bytes:
     try:
         model = onnx.load_model_from_string(data)
     except Exception as exc:
+        if out_of_memory(exc):
+            raise
         raise UserError(f"policy {path}: not a readable ONNX model ({type(exc).__name__})") from None
     unused = _unused_initializers(model)
     if unused:
@@ -586,6 +597,8 @@ def onnx_card(model: bytes, path: Path | str) -> dict[str, Any] | None:
     try:
         props = {p.key: p.value for p in onnx.load_model_from_string(model).metadata_props}
     except Exception as exc:
+        if out_of_memory(exc):
+            raise
         raise UserError(f"policy {path}: not a readable ONNX model ({type(exc).__name__})") from None
     if CARD_KEY not in props:
         return None

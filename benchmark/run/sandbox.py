@@ -8,8 +8,10 @@ Every policy *file* (``eval --policy FILE``, and every stored artifact ``leaderb
   stdin / stdout (``allow_pickle=False`` both ways: neither side unpickles what the other sent);
 - it starts in an empty temporary directory with an empty environment, under resource limits
   (CPU seconds, address space, file size, open files, no core dumps) and, where the kernel has it,
-  Landlock (Linux >= 5.13): it may read files but write, create or remove none outside its temporary
-  directory, open no TCP connection (ABI 4) and signal no process outside itself (ABI 6);
+  Landlock (Linux >= 5.13): it may write, create or remove no file outside its temporary directory,
+  read none outside it but the code it imports and the system's libraries (:func:`readable_paths`:
+  no ``/etc``, home folder or other process's ``/proc``), open no TCP connection (ABI 4) and signal
+  no process outside itself (ABI 6);
 - the parent gives each call a wall-clock limit and kills the child's whole process group
   (SIGKILL: a policy that ignores SIGTERM cannot outlive it); every failure (a crash, a hang, a
   policy that cannot be loaded, an answer of the wrong shape, NaN, a mode outside {0, 1, 2}) is one
@@ -269,6 +271,7 @@ def _json_object(payload: bytes) -> dict[str, Any]:
 _PR_SET_NO_NEW_PRIVS = 38
 _SYS_CREATE_RULESET, _SYS_ADD_RULE, _SYS_RESTRICT_SELF = 444, 445, 446  # the same on every architecture
 _FS_WRITE = sum(1 << b for b in (1, 4, 5, 6, 7, 8, 9, 10, 11, 12))  # write, remove, make anything
+_READ_FILE, _FS_READ = 1 << 2, (1 << 2) | (1 << 3)  # read a file; list a directory too
 _FS_BY_ABI = {2: 1 << 13, 3: 1 << 14, 5: 1 << 15}  # refer (link/rename across), truncate, ioctl on devices
 
 
@@ -282,34 +285,59 @@ def landlock_abi() -> int:
     return max(int(abi), 0)
 
 
-def _restrict_writes(writable: str) -> int:
-    """Landlock this process: no writes outside ``writable``, no TCP (ABI 4), no signals or abstract
-    sockets outside (ABI 6). Returns the ABI applied (0: unavailable)."""
+def readable_paths() -> tuple[list[str], list[str]]:
+    """(directories, files) the child may read besides its temporary directory: the code it imports
+    (Python's prefixes, its ``sys.path``, OvertakeZoo's own packages: not the rest of a checkout),
+    system libraries, and what CPU and thread-count probes read. Not ``/etc``, home folders or
+    another process's ``/proc`` entry (a parent's ``environ`` holds its secrets)."""
+    import importlib.util
+
+    dirs = {sys.prefix, sys.base_prefix, sys.exec_prefix, *(p for p in sys.path if p)}
+    for sub in ("envs", "zoo", "benchmark"):  # an editable install maps these from a checkout
+        spec = importlib.util.find_spec(f"overtakezoo.{sub}")
+        dirs |= set(spec.submodule_search_locations or []) if spec else set()
+    dirs |= {"/usr/lib", "/usr/lib64", "/lib", "/lib64", "/usr/local/lib", "/usr/share/zoneinfo",
+             "/sys/devices/system/cpu", "/sys/fs/cgroup", f"/proc/{os.getpid()}"}
+    files = {"/etc/ld.so.cache", "/dev/null", "/dev/urandom", "/proc/cpuinfo", "/proc/meminfo", "/proc/stat"}
+    return sorted(d for d in dirs if os.path.isdir(d)), sorted(f for f in files if os.path.exists(f))
+
+
+def _restrict(writable: str) -> int:
+    """Landlock this process: no writes outside ``writable``, no reads outside it and
+    :func:`readable_paths`, no TCP (ABI 4), no signals or abstract sockets outside (ABI 6). Returns
+    the ABI applied (0: unavailable)."""
     abi = landlock_abi()
     if abi < 1:
         return 0
     libc = ctypes.CDLL(None, use_errno=True)
-    fs = _FS_WRITE | sum(bit for v, bit in _FS_BY_ABI.items() if abi >= v)
+    fs = _FS_WRITE | _FS_READ | sum(bit for v, bit in _FS_BY_ABI.items() if abi >= v)
     net = 0b11 if abi >= 4 else 0  # bind, connect
     scoped = 0b11 if abi >= 6 else 0  # abstract unix sockets, signals
     attr = struct.pack("<QQQ", fs, net, scoped)[: 8 if abi < 4 else 16 if abi < 6 else 24]
     fd = libc.syscall(_SYS_CREATE_RULESET, attr, ctypes.c_size_t(len(attr)), ctypes.c_uint32(0))
     if fd < 0:
         return 0
-    allowed = os.open(writable, os.O_PATH | os.O_DIRECTORY)
-    rule = struct.pack("<Qi", fs, allowed)  # struct landlock_path_beneath_attr (packed)
-    if libc.syscall(_SYS_ADD_RULE, fd, ctypes.c_int(1), rule, ctypes.c_uint32(0)) != 0:
-        return 0
+    dirs, files = readable_paths()
+    rules = [(writable, fs), *((d, _FS_READ) for d in dirs), *((f, _READ_FILE) for f in files)]
+    for path, allowed in rules:
+        try:
+            handle = os.open(path, os.O_PATH | (os.O_DIRECTORY if allowed != _READ_FILE else 0))
+        except OSError:
+            continue  # gone since it was listed: nothing to allow
+        rule = struct.pack("<Qi", allowed, handle)  # struct landlock_path_beneath_attr (packed)
+        added = libc.syscall(_SYS_ADD_RULE, fd, ctypes.c_int(1), rule, ctypes.c_uint32(0)) == 0
+        os.close(handle)
+        if not added and path == writable:
+            return 0
     if libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0 or libc.syscall(_SYS_RESTRICT_SELF, fd,
                                                                          ctypes.c_uint32(0)) != 0:
         return 0
-    os.close(allowed)
     os.close(fd)
     return abi
 
 
 def _confine(cpu_s: int, memory: int, open_files: int) -> int:
-    landlock = _restrict_writes(os.getcwd()) if os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK") != "0" else 0
+    landlock = _restrict(os.getcwd()) if os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK") != "0" else 0
     for res, value in ((resource.RLIMIT_CPU, cpu_s), (resource.RLIMIT_AS, memory),
                        (resource.RLIMIT_NOFILE, open_files), (resource.RLIMIT_CORE, 0),
                        # Without Landlock no file may grow at all (a backstop, not a wall).
@@ -335,8 +363,10 @@ def _write_frame(stream: Any, tag: bytes, payload: bytes) -> None:
 
 
 def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+    text = [line for line in str(exc).strip().splitlines() if line.strip()]
+    if text and text[0].startswith("The following operation failed in the TorchScript interpreter"):
+        text = text[-1:]  # the interpreter's traceback ends with the error itself
+    return f"{type(exc).__name__}: {text[0].strip()}" if text else type(exc).__name__
 
 
 def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[str, Any]]:
