@@ -15,12 +15,7 @@ from overtakezoo.zoo.testing import check_decider
 
 from conftest import LEARNED, needs_shipped_weights
 
-MEMBERS = ["always-follow", "always-overtake", "always-abort", "rule-fsm", "fuzzy", "oracle", "dqn", "double-dqn",
-           "ps-dqn", "ppo", "bc", "cql", "dagger"]
-
-
-def test_every_member_is_listed():
-    assert set(MEMBERS) == set(zoo.names())
+MEMBERS = sorted(zoo.names())  # the registry itself: a new member is checked here without touching this file
 
 
 def member(name, learned_dir):

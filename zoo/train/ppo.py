@@ -1,7 +1,7 @@
 """PPO training with rsl-rl-lib's ``OnPolicyRunner`` (the ``ppo`` member; acting is
 :mod:`overtakezoo.zoo.members.learned`, numpy only, as for every learned member).
 
-Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.rsl_rl_env.OvertakeRslRlEnv`
+Training (:func:`train`) runs rsl-rl's PPO on :class:`overtakezoo.envs.faces.rsl_rl.OvertakeRslRlEnv`
 with our categorical action distribution (:mod:`.categorical`) plugged in through
 ``actor.distribution_cfg["class_name"]``. The hyperparameters are data (``zoo/hyperparams/ppo.toml``),
 typed by :class:`PPOHyperparams`: ``[train]`` and ``[env]`` are ours; ``[runner]``, ``[algorithm]``,
