@@ -253,7 +253,7 @@ def report(results: dict[str, list[dict]], command: str) -> tuple[str, dict]:
         "leaderboard's (mean over suites of success - 2 x crash, %, mean over seeds, 95 % bootstrap CI over seeds "
         "and scenarios). Cells: success / crash (%), mean over seeds. Nothing was chosen from these numbers.", "",
         *(f"- `{k}`: {v['what']}" for k, v in doc["variants"].items()), "",
-        *([f"Not in this table (defined in the script, not run here): "
+        *(["Not in this table (defined in the script, not run here): "
            + "; ".join(f"`{k}` ({v['what']})" for k, v in VARIANTS.items() if k not in results), ""]
           if set(VARIANTS) - set(results) else []),
         *head, "",

@@ -29,7 +29,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     suite, default = load_suite(args.suite), runner.MIN_COMPACT_ROWS
-    print(f"| decider | whole batch (CPU s) | finished rows dropped (CPU s) | ratio | same bits |\n|---|---|---|---|---|")
+    print("| decider | whole batch (CPU s) | finished rows dropped (CPU s) | ratio | same bits |\n|---|---|---|---|---|")
     for name in args.deciders:
         times: dict[int, list[float]] = {NEVER: [], default: []}
         per: dict[int, dict[str, np.ndarray]] = {}

@@ -122,6 +122,12 @@ def tiny_suite(tmp_path, monkeypatch):
 
 
 @pytest.fixture
+def tiny(tiny_suite):
+    """A built-in suite of 12 short scenarios (submit needs a built-in suite)."""
+    return tiny_suite(12)
+
+
+@pytest.fixture
 def one_torch_thread():
     """Small networks run fastest on one thread (and the machine is shared); restored afterwards."""
     torch = pytest.importorskip("torch")
@@ -157,3 +163,13 @@ def last_error_line(capsys, argv):
     errors = [line for line in lines if line.startswith("error: ")]
     assert len(errors) == 1 and lines[-1] == errors[0], lines
     return errors[0]
+
+
+@pytest.fixture
+def home(tmp_path, monkeypatch):
+    """A private dataset cache dir and an empty registry (tests of datasets)."""
+    monkeypatch.setenv("OVERTAKEZOO_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
+    monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(tmp_path / "registry.json"))
+    (tmp_path / "registry.json").write_text(json.dumps({"datasets": {}}))
+    return tmp_path

@@ -446,7 +446,7 @@ def test_scene_at_every_step_ends_with_the_outcome(run):
         lines = roll[-1][1].entities[0].lines
         chosen = [j for j, line in enumerate(lines) if line.thickness == 0.25]
         assert chosen == [int(ep.rollout[-1])]
-        (clear, _), (t_end, shown) = sc["/scene/outcome"][0], sc["/scene/outcome"][-1]
+        t_end, shown = sc["/scene/outcome"][-1]
         assert sc["/scene/outcome"][0][1].deletions[0].type == 1 and t_end == e.end_ns
         words = shown.entities[0].texts[0].text.strip()
         assert words.startswith(e.outcome.upper())

@@ -22,6 +22,11 @@ REPO_LEADERBOARDS = Path(__file__).resolve().parents[1] / "leaderboards"
 
 @pytest.fixture
 def root(tmp_path):
+    return fake_board(tmp_path)
+
+
+def fake_board(tmp_path):
+    """A board of two fake rows (alpha, beta) on table1 beside the paper's reference numbers."""
     root = tmp_path / "lb"
     shutil.copytree(REPO_LEADERBOARDS / "reference", root / "reference")
     for seed, name in ((1, "alpha"), (2, "beta")):

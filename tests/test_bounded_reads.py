@@ -27,7 +27,7 @@ from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import EnvConfig, observation_size
 
-from test_submissions import one_line_error, tiny  # noqa: F401 (fixture)
+from test_submissions import one_line_error
 
 D = observation_size(EnvConfig())
 DEEP = b"[" * 100_000 + b"]" * 100_000  # 200 KB on disk; json.loads: RecursionError

@@ -14,7 +14,7 @@ import pytest
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.datasets.recipes import RECIPES_FILE, read_recipes
 
-from test_datasets import RangeHandler, home, load_minari, server  # noqa: F401 - fixtures
+from test_datasets import RangeHandler, load_minari, server  # noqa: F401 - server: a fixture
 
 RECIPES = """
 version = 0

@@ -21,16 +21,6 @@ from test_benchmark_cli import one_line_error
 NAME = "overtakezoo/table1/test-v0"
 
 
-@pytest.fixture
-def home(tmp_path, monkeypatch):
-    """A private cache dir and registry for every test."""
-    monkeypatch.setenv("OVERTAKEZOO_HOME", str(tmp_path / "home"))
-    monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
-    monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(tmp_path / "registry.json"))
-    (tmp_path / "registry.json").write_text(json.dumps({"datasets": {}}))
-    return tmp_path
-
-
 def load_minari(path, name):
     """Load with Minari's own code, pointed at ``path`` the documented way."""
     import os

@@ -16,7 +16,6 @@ from overtakezoo.benchmark.run.determinism import random_ops
 from overtakezoo.envs import EnvConfig, observation_size
 
 from conftest import last_error_line
-from test_submissions import tiny  # noqa: F401 (a fixture)
 
 onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")

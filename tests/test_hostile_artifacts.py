@@ -23,7 +23,7 @@ from overtakezoo.benchmark.results.results import Results
 from overtakezoo.benchmark.run.sandbox import landlock_abi
 from overtakezoo.envs import EnvConfig, observation_size
 
-from test_submissions import one_line_error, scripted_policy, tiny  # noqa: F401 (fixture)
+from test_submissions import one_line_error, scripted_policy
 
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

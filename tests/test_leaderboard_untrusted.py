@@ -15,10 +15,15 @@ from overtakezoo.benchmark.leaderboard.generate import generate
 from overtakezoo.benchmark.leaderboard.untrusted import md, plot_text
 
 from test_benchmark_cli import one_line_error
-from test_benchmark_leaderboard import REPO_LEADERBOARDS, file_row, root  # noqa: F401 (root: a fixture)
+from test_benchmark_leaderboard import REPO_LEADERBOARDS, fake_board, file_row
 from test_benchmark_results import fake_results
 
 HOSTILE = "1 | ![t](https://x/t.png) | <b>x</b> `c` *e* _u_ [l] $m$ ~~s~~ &amp; \\ #h\nnext\x00\u202e"
+
+
+@pytest.fixture
+def root(tmp_path):
+    return fake_board(tmp_path)
 
 
 def _regenerate(root):

@@ -25,7 +25,6 @@ from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs import SUCCESS
 from overtakezoo.envs.suites import load_suite
 
-from test_submissions import tiny  # noqa: F401 (a fixture)
 
 NAME = "always-overtake"
 

@@ -126,12 +126,6 @@ def test_edited_per_scenario_outcome_is_refused_naming_the_scenario(root, capsys
 
 
 # ------------------------------------------------------------------ a policy file, end to end through the CLI
-@pytest.fixture
-def tiny(tiny_suite):
-    """A built-in suite of 12 short scenarios (submit needs a built-in suite)."""
-    return tiny_suite(12)
-
-
 def scripted_policy(path, seed, favour):
     """A TorchScript MLP (N, D) float32 -> 3 logits with seeded weights, leaning towards mode ``favour``."""
     torch = pytest.importorskip("torch")

@@ -22,7 +22,7 @@ from overtakezoo.benchmark.leaderboard.verify import sample_indices, verify
 from overtakezoo.benchmark.cli import main
 from overtakezoo.envs.io import file_sha256
 
-from test_submissions import REPO, one_line_error, shipped, tiny  # noqa: F401 (tiny: a fixture)
+from test_submissions import REPO, one_line_error, shipped
 
 ROWS = ("always-follow", "always-overtake", "oracle", "rule-fsm")
 

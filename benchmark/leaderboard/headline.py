@@ -275,5 +275,8 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
         by_rule.setdefault(text, []).append(name)
     said = (next(iter(by_rule)) if len(by_rule) == 1 else
             "; ".join(f"{', '.join(names)}: {text}" for text, names in sorted(by_rule.items(), key=lambda kv: kv[1])))
-    out += ["", "Shipped seed: " + (said if rules else "-"), ""]
+    out += ["", "Shipped seed: " + (said if rules else "-"), "",
+            "Verified: the shipped seed (its weights are the zoo's, and its counts must equal the member's rows, "
+            "which `overtakezoo leaderboard --verify` re-runs). The other seeds' counts are as `scripts/seed_results.py` "
+            "measured them; their weights are not stored yet, so they cannot be re-run.", ""]
     return "\n".join(out)
