@@ -23,11 +23,13 @@ settings.load_profile("overtakezoo")
 # ----------------------------------------------------------------------------- learned members
 import json  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from overtakezoo import zoo  # noqa: E402
+from overtakezoo.envs import suites as suites_module  # noqa: E402
 
 LEARNED = tuple(zoo.names("learned"))  # the registry's list: dqn, double-dqn, ps-dqn, ppo, bc, cql
 PRETRAINED = Path(__file__).resolve().parents[1] / "zoo" / "pretrained"
@@ -94,27 +96,41 @@ def seeded_fresh_draws(monkeypatch):
     monkeypatch.setattr(verify, "fresh_seed", draw)
 
 
+BUILTIN_SUITES = suites_module.SUITES_DIR  # (tiny_suite points the registry elsewhere; the texts stay these)
+
+
+def suite_text(base: str = "table1", **settings: Any) -> str:
+    """A built-in suite file's text with top-level settings replaced, as TOML values: ``name="tiny"``,
+    ``count=6``, ``time_limit=20.0``, ``decision_interval=5``, ``lead_gap=[8.0, 30.0]`` (each key must be
+    in the file once). The one way tests shorten a suite."""
+    import re
+
+    text = (BUILTIN_SUITES / f"{base}.toml").read_text()
+    for key, value in settings.items():
+        text, n = re.subn(rf"(?m)^{key} = .*$", f"{key} = {json.dumps(value)}", text)
+        assert n == 1, f"{base}.toml: {key} set {n} times"
+    return text
+
+
+def suite_file(path: Path, count: int, base: str = "table1", **settings: Any) -> Path:
+    """``base``'s first ``count`` scenarios as a suite file at ``path`` (a user's own suite, given by
+    path), named after the file."""
+    path.write_text(suite_text(base, name=path.stem, count=count, **settings))
+    return path
+
+
 @pytest.fixture
 def tiny_suite(tmp_path, monkeypatch):
     """``tiny_suite(count)``: the name of a built-in suite of ``count`` short table1 scenarios (the
     suite registry points at tmp_path: a leaderboard row needs a built-in suite); eval, submit, the
     policy loader and verify are the real ones. ``base`` names another suite to shorten, and
     ``time_limit`` (default 20 s: no scenario can succeed) the episodes' length."""
-    import re
-
     from overtakezoo.envs import suites
-
-    original = suites.SUITES_DIR
 
     def make(count: int, base: str = "table1", time_limit: float = 20.0) -> str:
         builtin = tmp_path / "suites"
         builtin.mkdir(exist_ok=True)
-        text = (original / f"{base}.toml").read_text()
-        for pattern, repl in ((rf'(?m)^name = "{base}"', 'name = "tiny"'), (r"(?m)^count = \d+", f"count = {count}"),
-                              (r"(?m)^time_limit = [\d.]+", f"time_limit = {time_limit}")):
-            text, n = re.subn(pattern, repl, text)
-            assert n == 1, pattern
-        (builtin / "tiny.toml").write_text(text)
+        (builtin / "tiny.toml").write_text(suite_text(base, name="tiny", count=count, time_limit=time_limit))
         monkeypatch.setattr(suites, "SUITES_DIR", builtin)
         return "tiny"
 

@@ -24,6 +24,7 @@ from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
 from overtakezoo.zoo.base import Decider
 from test_benchmark_cli import one_line_error
+from conftest import suite_file
 
 SHARD = (3, 150)  # table1 has 3000 scenarios: the 4th of 150 slices is scenarios 60..79
 
@@ -503,11 +504,8 @@ def test_replay_help_has_examples(capsys):
 
 def test_eval_archive_end_to_end(tmp_path, capsys):
     from overtakezoo.benchmark.archive.reader import read_archive_meta
-    from overtakezoo.envs.suites import SUITES_DIR
 
-    suite = tmp_path / "tiny.toml"
-    suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 8")
-                     .replace('name = "table1"', 'name = "tiny"'))
+    suite = suite_file(tmp_path / "tiny.toml", 8)
     out, mcap = tmp_path / "res.json", tmp_path / "run.mcap"
     assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(out),
                  "--archive", str(mcap), "--no-progress"]) == 0

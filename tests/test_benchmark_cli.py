@@ -5,16 +5,13 @@ import json
 import pytest
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.envs.suites import SUITES_DIR
+from conftest import suite_file
 
 COMMANDS = ["suites", "eval", "compare", "submit", "leaderboard", "decision-map"]
 
 
 def small_suite_file(tmp_path, count=20, name="small", lead_gap="[8.0, 25.0]"):
-    path = tmp_path / f"{name}.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", f"count = {count}")
-                    .replace('name = "table1"', f'name = "{name}"').replace("lead_gap = [8.0, 25.0]",
-                                                                           f"lead_gap = {lead_gap}"))
+    path = suite_file(tmp_path / f"{name}.toml", count, lead_gap=json.loads(lead_gap))
     return path
 
 

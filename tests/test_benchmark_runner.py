@@ -9,15 +9,13 @@ from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import Results, merge
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import SUITES_DIR, load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
+from conftest import suite_file
 
 
 def small_suite(tmp_path, count=60, name="small"):
-    path = tmp_path / f"{name}.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", f"count = {count}")
-                    .replace('name = "table1"', f'name = "{name}"'))
-    return load_suite(path)
+    return load_suite(suite_file(tmp_path / f"{name}.toml", count))
 
 
 def test_always_follow_on_table1_is_safe_and_never_succeeds():
@@ -99,9 +97,7 @@ class Recorder:
 
 
 def test_decision_interval_privileged_bind_and_recorder(tmp_path):
-    path = tmp_path / "k.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 6")
-                    .replace('name = "table1"', 'name = "k"').replace("decision_interval = 1", "decision_interval = 5"))
+    path = suite_file(tmp_path / "k.toml", 6, decision_interval=5)
     suite = load_suite(path)
     spy, rec = Spy(), Recorder()
     r = run_suite(suite, spy, shard=(1, 2), chunk_size=2, progress=False, recorder=rec)

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from overtakezoo.envs.suites import SuiteError
 from overtakezoo.envs.suites import SUITES_DIR, load_suite, parse_shard, parse_suite, shard_bounds, suite_names
+from conftest import suite_file
 
 EXPECTED = {"table1", "table1-train", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
             "adversarial", "occluded"}
@@ -33,9 +34,7 @@ def test_builtin_suites_load_with_file_hash():
 
 
 def test_load_by_path_and_shards(tmp_path):
-    path = tmp_path / "mine.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 10")
-                    .replace('name = "table1"', 'name = "mine"'))
+    path = suite_file(tmp_path / "mine.toml", 10)
     s = load_suite(str(path))
     assert s.name == "mine" and s.count == 10 and not s.builtin
     full = s.scenarios()

@@ -23,6 +23,7 @@ from overtakezoo.benchmark.cli import main
 from overtakezoo.envs import OvertakeEnv, env as aec_env, make_vec, parallel_env
 from overtakezoo.envs.hold import hold_steps
 from overtakezoo.envs.suites import SUITES_DIR, load_suite, suite_env_ids
+from conftest import suite_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -213,9 +214,7 @@ def test_eval_and_submit_say_a_policy_files_hold_and_warn_without_a_card(capsys,
 
 
 def test_eval_prints_the_hold_on_stderr_only(tmp_path):
-    suite = tmp_path / "small.toml"
-    suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 4")
-                     .replace('name = "table1"', 'name = "small"'))
+    suite = suite_file(tmp_path / "small.toml", 4)
     p = subprocess.run([sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", "--suite", str(suite),
                         "--decider", "always-follow", "--out", str(tmp_path / "r.json"), "--no-progress"],
                        capture_output=True, text=True, timeout=300)

@@ -10,9 +10,8 @@ import sys
 
 import pytest
 
-from overtakezoo.envs.suites import SUITES_DIR
 
-from conftest import shipped_weights_current
+from conftest import shipped_weights_current, suite_file
 
 HEAVY = ("torch", "rsl_rl", "tensordict", "matplotlib", "mcap", "minari", "ray")
 
@@ -34,10 +33,7 @@ print(json.dumps({"rc": rc, "modes": modes.tolist(), "loaded": [m for m in %r if
 
 @pytest.fixture
 def suite(tmp_path):
-    path = tmp_path / "tiny.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 4")
-                    .replace('name = "table1"', 'name = "tiny"').replace("time_limit = 60.0", "time_limit = 10.0"))
-    return path
+    return suite_file(tmp_path / "tiny.toml", 4, time_limit=10.0)
 
 
 @pytest.mark.parametrize("name", ["dqn", "ppo"])

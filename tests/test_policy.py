@@ -15,9 +15,10 @@ import pytest
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.run.policy import load_policy
-from overtakezoo.envs.suites import SUITES_DIR, load_suite
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import EnvConfig, observation_size
 from overtakezoo.zoo.testing import check_decider
+from conftest import suite_file
 
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
@@ -28,10 +29,7 @@ D = observation_size(EnvConfig())
 @pytest.fixture
 def suite(tmp_path):
     """table1's first scenarios, shortened: a few seconds of simulation per policy."""
-    path = tmp_path / "tiny.toml"
-    path.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 6")
-                    .replace('name = "table1"', 'name = "tiny"').replace("time_limit = 60.0", "time_limit = 20.0"))
-    return path
+    return suite_file(tmp_path / "tiny.toml", 6, time_limit=20.0)
 
 
 @pytest.fixture(autouse=True)

@@ -8,7 +8,7 @@ import os
 import subprocess
 import sys
 
-from overtakezoo.envs.suites import SUITES_DIR
+from conftest import suite_file
 
 FACTORY = '''
 import numpy as np
@@ -25,8 +25,7 @@ def make(config):
 
 def test_module_factory_resolves_from_the_current_directory(tmp_path):
     (tmp_path / "mypolicy.py").write_text(FACTORY)
-    (tmp_path / "tiny.toml").write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 4")
-                                        .replace('name = "table1"', 'name = "tiny"'))
+    suite_file(tmp_path / "tiny.toml", 4)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     # -P: no script directory or cwd put on sys.path, as for the installed `overtakezoo` script
     cmd = [sys.executable, "-P", "-c", "import sys; from overtakezoo.benchmark.cli import main; sys.exit(main())",

@@ -17,12 +17,13 @@ from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  
 from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.train.categorical import CategoricalDistribution  # noqa: E402
-from overtakezoo.envs.suites import SUITES_DIR, load_training  # noqa: E402
+from overtakezoo.envs.suites import load_training  # noqa: E402
 from overtakezoo.zoo.train import ppo  # noqa: E402
 from overtakezoo.zoo.train.contract import check_card, hyperparams_file, load_hyperparams  # noqa: E402
 from overtakezoo.zoo.members.learned import PRETRAINED, MLPDecider, WeightsError, load_pretrained, sha256_bytes  # noqa: E402
 
 from conftest import needs_shipped_weights  # noqa: E402
+from conftest import suite_file
 
 
 @pytest.fixture(scope="module")
@@ -181,9 +182,7 @@ def test_train_command_writes_a_results_file_for_ppo_as_for_every_trainer(tmp_pa
     from overtakezoo.benchmark.cli import main
     from overtakezoo.benchmark.results.results import Results
 
-    suite = tmp_path / "tiny.toml"  # table1's first scenarios, shortened
-    suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 6")
-                     .replace('name = "table1"', 'name = "tiny"').replace("time_limit = 60.0", "time_limit = 20.0"))
+    suite = suite_file(tmp_path / "tiny.toml", 6, time_limit=20.0)  # table1's first scenarios, shortened
     out = tmp_path / "run"
     assert main(["train", "ppo", "--hyperparams", str(_tiny_ppo_toml(tmp_path)), "--steps", str(16 * 8),
                  "--out", str(out), "--eval-suite", str(suite), "--no-progress"]) == 0

@@ -16,6 +16,7 @@ from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
 from overtakezoo.envs.suites import SUITES_DIR
 from overtakezoo.zoo.train.contract import run_files
+from conftest import suite_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,9 +67,7 @@ def test_train_help_names_the_members_the_zoos_suites_and_the_files(capsys):
 
 def test_train_help_lists_exactly_the_files_a_dqn_run_writes(tmp_path, capsys):
     pytest.importorskip("torch")
-    suite = tmp_path / "tiny.toml"
-    suite.write_text((SUITES_DIR / "table1.toml").read_text().replace("count = 3000", "count = 4")
-                     .replace('name = "table1"', 'name = "tiny"'))
+    suite = suite_file(tmp_path / "tiny.toml", 4)
     out = tmp_path / "run"
     assert main(["train", "dqn", "--steps", "600", "--seed", "0", "--out", str(out), "--eval-suite", str(suite),
                  "--no-progress", "--set", "learning_starts=100", "--set", "num_envs=16"]) == 0
