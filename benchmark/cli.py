@@ -18,10 +18,9 @@ import signal
 import sys
 import threading
 
-from overtakezoo.envs import ConfigError
-
 from overtakezoo.benchmark import commands
 from overtakezoo.benchmark.errors import UserError, one_line
+from overtakezoo.envs import ConfigError
 from overtakezoo.envs.io import WriteError
 from overtakezoo.envs.safe_json import JSONInputError
 
@@ -39,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="overtakezoo",
         description="OvertakeZoo: a benchmark for abortable overtaking with oncoming traffic.",
         epilog="examples:\n  overtakezoo suites\n  overtakezoo eval --suite table1 --decider rule-fsm\n"
-               "  overtakezoo COMMAND --help",
+        "  overtakezoo COMMAND --help",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

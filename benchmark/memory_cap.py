@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import resource
-from typing import Iterator
+from collections.abc import Iterator
 
 from overtakezoo.benchmark.errors import UserError
 
@@ -36,8 +36,9 @@ def out_of_memory(exc: BaseException) -> bool:
     if isinstance(exc, MemoryError):
         return True
     text = str(exc).lower()  # torch and onnx re-raise std::bad_alloc as RuntimeError
-    return isinstance(exc, RuntimeError) and ("bad_alloc" in text or "not enough memory" in text
-                                              or "failed to allocate" in text)
+    return isinstance(exc, RuntimeError) and (
+        "bad_alloc" in text or "not enough memory" in text or "failed to allocate" in text
+    )
 
 
 @contextlib.contextmanager
@@ -59,8 +60,10 @@ def memory_cap(what: str, budget: int | None = None) -> Iterator[None]:
         yield
     except Exception as exc:
         if cap is not None and out_of_memory(exc):
-            raise UserError(f"{what}: reading it needs more than {budget >> 20} MiB of memory (a compression "
-                            "bomb, or not what it claims to be)") from None
+            raise UserError(
+                f"{what}: reading it needs more than {budget >> 20} MiB of memory (a compression "
+                "bomb, or not what it claims to be)"
+            ) from None
         raise
     finally:
         if cap is not None:

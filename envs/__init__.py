@@ -1,15 +1,42 @@
 """OvertakeZoo simulation: scenarios, the batched core, the shared planner and the env faces."""
 
-from overtakezoo.envs.config import ABORT, FOLLOW, MODE_NAMES, OVERTAKE, ConfigError, EnvConfig, ModeParams, PlannerConfig
+from overtakezoo.envs.config import (
+    ABORT,
+    FOLLOW,
+    MODE_NAMES,
+    OVERTAKE,
+    ConfigError,
+    EnvConfig,
+    ModeParams,
+    PlannerConfig,
+)
 from overtakezoo.envs.core import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, OvertakeCore, StepResult
 from overtakezoo.envs.model.observation import observation_layout, observation_size
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios, make_scenario
 from overtakezoo.envs.version import SIM_VERSION
 
 __all__ = [
-    "ABORT", "FOLLOW", "OVERTAKE", "MODE_NAMES", "ConfigError", "EnvConfig", "ModeParams", "PlannerConfig",
-    "CRASH", "OFFROAD", "OUTCOME_NAMES", "RUNNING", "SUCCESS", "TIMEOUT", "OvertakeCore", "StepResult",
-    "observation_layout", "observation_size", "ScenarioDistribution", "Scenarios", "make_scenario",
+    "ABORT",
+    "FOLLOW",
+    "OVERTAKE",
+    "MODE_NAMES",
+    "ConfigError",
+    "EnvConfig",
+    "ModeParams",
+    "PlannerConfig",
+    "CRASH",
+    "OFFROAD",
+    "OUTCOME_NAMES",
+    "RUNNING",
+    "SUCCESS",
+    "TIMEOUT",
+    "OvertakeCore",
+    "StepResult",
+    "observation_layout",
+    "observation_size",
+    "ScenarioDistribution",
+    "Scenarios",
+    "make_scenario",
     "SIM_VERSION",
 ]
 
@@ -21,8 +48,19 @@ from overtakezoo.envs.faces.pettingzoo import OvertakeParallelEnv, env, parallel
 from overtakezoo.envs.faces.vector import OvertakeVectorEnv, make_vec  # noqa: E402
 
 register_envs()
-__all__ += ["OvertakeEnv", "OvertakeParallelEnv", "OvertakeVectorEnv", "env", "parallel_env", "sb3_vec_env", "make_vec",
-            "register_envs", "Renderer", "draw_frame", "frame_from_core"]
+__all__ += [
+    "OvertakeEnv",
+    "OvertakeParallelEnv",
+    "OvertakeVectorEnv",
+    "env",
+    "parallel_env",
+    "sb3_vec_env",
+    "make_vec",
+    "register_envs",
+    "Renderer",
+    "draw_frame",
+    "frame_from_core",
+]
 
 
 def __getattr__(name: str):

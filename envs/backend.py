@@ -66,7 +66,6 @@ class NumpyBackend:
     def copy(self, x: np.ndarray) -> np.ndarray:
         return x.copy()
 
-
     def nonzero(self, mask: np.ndarray) -> np.ndarray:
         return np.flatnonzero(mask)
 
@@ -144,7 +143,12 @@ class TorchBackend:
         return self.torch.zeros(shape, dtype=self._dtype(dtype or self.float), device=self.device)
 
     def full(self, shape: Any, value: Any, dtype: Any = None) -> Any:
-        return self.torch.full(shape if isinstance(shape, tuple) else (shape,), value, dtype=self._dtype(dtype or self.float), device=self.device)
+        return self.torch.full(
+            shape if isinstance(shape, tuple) else (shape,),
+            value,
+            dtype=self._dtype(dtype or self.float),
+            device=self.device,
+        )
 
     def arange(self, n: int) -> Any:
         return self.torch.arange(n, device=self.device)
@@ -153,8 +157,9 @@ class TorchBackend:
         dtype = self._dtype(dtype) if dtype is not None else None
         if isinstance(x, np.ndarray) and dtype is None and x.dtype.kind == "f":
             dtype = self.float
-        return self.torch.as_tensor(np.asarray(x) if not isinstance(x, self.torch.Tensor) else x,
-                                    dtype=dtype, device=self.device)
+        return self.torch.as_tensor(
+            np.asarray(x) if not isinstance(x, self.torch.Tensor) else x, dtype=dtype, device=self.device
+        )
 
     def batch_last(self, x: Any, dtype: Any = None) -> Any:
         return self.asarray(np.ascontiguousarray(np.asarray(x).T), dtype)
@@ -164,7 +169,6 @@ class TorchBackend:
 
     def copy(self, x: Any) -> Any:
         return x.clone()
-
 
     def nonzero(self, mask: Any) -> Any:
         return self.torch.nonzero(mask).flatten()
@@ -177,8 +181,16 @@ class TorchBackend:
 
     def _dtype(self, dtype: Any) -> Any:
         t = self.torch
-        mapping = {np.float64: t.float64, np.float32: t.float32, np.int64: t.int64, np.int8: t.int8,
-                   np.bool_: t.bool, float: self.float, int: t.int64, bool: t.bool}
+        mapping = {
+            np.float64: t.float64,
+            np.float32: t.float32,
+            np.int64: t.int64,
+            np.int8: t.int8,
+            np.bool_: t.bool,
+            float: self.float,
+            int: t.int64,
+            bool: t.bool,
+        }
         return mapping.get(dtype, dtype)
 
 

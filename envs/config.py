@@ -151,8 +151,7 @@ class PlannerConfig:
             raise ConfigError(f"planner.modes: expected a table of modes, got {self.modes!r}")
         unknown = set(self.modes) - set(MODE_NAMES)
         if unknown:
-            raise ConfigError(f"planner.modes: unknown mode {sorted(unknown)[0]!r} "
-                              f"(expected {', '.join(MODE_NAMES)})")
+            raise ConfigError(f"planner.modes: unknown mode {sorted(unknown)[0]!r} (expected {', '.join(MODE_NAMES)})")
         for name in MODE_NAMES:
             if name not in self.modes:
                 raise ConfigError(f"planner.modes.{name}: missing")
@@ -187,11 +186,15 @@ class RewardConfig:
     # Progress per step: progress / (1 + distance_to_goal / progress_scale), at most 0.01 per step
     # (~6 over a 60 s episode): small next to the terminal terms, it only breaks ties towards the goal.
     progress: float = bounded(0.01, -1e6, 1e6)
-    progress_scale: float = bounded(10.0, 1e-3, 1e6, "m")  # the progress term doubles over the last progress_scale metres
+    progress_scale: float = bounded(
+        10.0, 1e-3, 1e6, "m"
+    )  # the progress term doubles over the last progress_scale metres
     success: float = bounded(10.0, -1e6, 1e6)  # finishing past the goal in the ego lane, ahead of NPC1: the task
     crash: float = bounded(-10.0, -1e6, 1e6)  # a collision costs the success bonus it forgoes, and as much again
     switch: float = bounded(-0.1, -1e6, 1e6)  # per switch into or out of OVERTAKE: discourages dithering, not aborting
-    timeout: float = bounded(-5.0, -1e6, 1e6)  # the time limit is part of the task: not finishing is a failure, half a crash
+    timeout: float = bounded(
+        -5.0, -1e6, 1e6
+    )  # the time limit is part of the task: not finishing is a failure, half a crash
     offroad: float = bounded(-10.0, -1e6, 1e6)  # leaving the road is as bad as a crash
     # Per step of a running episode (-0.1 per s at dt = 0.1): waiting behind the lead is not free,
     # so a safe pass earns more than following and a pass that can be made is not put off.
@@ -247,7 +250,8 @@ class EnvConfig:
                 f"num_egos: {self.num_egos} is no longer supported (only 1): the agents of parallel_env are the "
                 "automated vehicles of one road (av_0, av_1, ...; set scenario.platoon_size / scenario.oncoming_av, "
                 "or use a multi-AV suite such as duel); for several roads at once use SuperSuit's vector of envs "
-                "or step OvertakeCore (see the PettingZoo section of the README)")
+                "or step OvertakeCore (see the PettingZoo section of the README)"
+            )
         _check_bool("npc_agents", self.npc_agents)
         if self.seed is not None:
             _check("seed", self.seed, 0, 2**63 - 1, integer=True)
@@ -256,8 +260,11 @@ class EnvConfig:
         for key, cls in _NESTED.items():  # a value that is no table (npc = [1, 2]) never reaches .validate
             value = getattr(self, key)
             if not isinstance(value, cls):
-                raise ConfigError(f"{key}: expected a table, got {value!r}" if not isinstance(value, dict) else
-                                  f"{key}: expected a {cls.__name__} (EnvConfig.from_dict builds one from a table)")
+                raise ConfigError(
+                    f"{key}: expected a table, got {value!r}"
+                    if not isinstance(value, dict)
+                    else f"{key}: expected a {cls.__name__} (EnvConfig.from_dict builds one from a table)"
+                )
         self.planner.validate()
         self.npc.validate()
         self.reward.validate()
@@ -267,11 +274,13 @@ class EnvConfig:
         dist = ScenarioDistribution.from_dict(self.scenario)  # raises ConfigError naming the key
         steps = dist.time_limit / self.dt
         if steps > MAX_EPISODE_STEPS:
-            raise ConfigError(f"scenario.time_limit: {dist.time_limit:g} s at dt = {self.dt:g} s is {steps:.0f} steps "
-                              f"per episode, more than {MAX_EPISODE_STEPS} (lower time_limit or raise dt)")
+            raise ConfigError(
+                f"scenario.time_limit: {dist.time_limit:g} s at dt = {self.dt:g} s is {steps:.0f} steps "
+                f"per episode, more than {MAX_EPISODE_STEPS} (lower time_limit or raise dt)"
+            )
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any] | None = None, **overrides: Any) -> "EnvConfig":
+    def from_dict(cls, data: dict[str, Any] | None = None, **overrides: Any) -> EnvConfig:
         merged = dict(data or {})
         merged.update(overrides)
         return _build(cls, merged, "")
@@ -295,8 +304,7 @@ def _check(key: str, value: Any, lo: float, hi: float, integer: bool = False, un
         raise ConfigError(f"{key}: {value!r} is out of range [{lo}, {hi}]" + (f" {unit}" if unit else ""))
 
 
-_NESTED = {"planner": PlannerConfig, "npc": NPCConfig, "reward": RewardConfig,
-           "observation": ObservationConfig}
+_NESTED = {"planner": PlannerConfig, "npc": NPCConfig, "reward": RewardConfig, "observation": ObservationConfig}
 
 
 def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:

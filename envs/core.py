@@ -29,18 +29,27 @@ cloned and advanced here, while the physics lives in ``envs/model/`` as function
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from overtakezoo.envs.backend import make_backend
-from overtakezoo.envs.model.collisions import av_contacts, lane_contacts
 from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
+from overtakezoo.envs.model.collisions import av_contacts, lane_contacts
 from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND, notices_avs, npc_accelerations, speeds_up
 from overtakezoo.envs.model.dynamics import AVMotion, advance_npcs, track
-from overtakezoo.envs.model.frames import av_constants, av_velocity, avs_world, multi_geometry, other_avs, view_constants, view_terms
-from overtakezoo.envs.model.observation import observe, observation_size
+from overtakezoo.envs.model.frames import (
+    av_constants,
+    av_velocity,
+    avs_world,
+    multi_geometry,
+    other_avs,
+    view_constants,
+    view_terms,
+)
+from overtakezoo.envs.model.observation import observation_size, observe
 from overtakezoo.envs.model.outcomes import CRASH, OFFROAD, OUTCOME_NAMES, RUNNING, SUCCESS, TIMEOUT, Ending, resolve
 from overtakezoo.envs.model.planner import ModeTable, Plan, plan
 from overtakezoo.envs.model.reward import step_reward
@@ -70,12 +79,36 @@ class OvertakeCore:
     """Steps a batch of roads. ``modes`` are ints, one per AV row: 0 follow, 1 overtake, 2 abort."""
 
     _NPC_STATE = ("npc_s", "npc_v", "npc_a", "npc_boosted", "npc_crashed")
-    _STATE = ("x", "y", "psi", "v", "a", "steer", "yaw_rate", "mode", "rollout", "t", "done", "outcome",
-              "crash_npc", "crash_lane", "crash_av", "episode_return", "episode_steps")
+    _STATE = (
+        "x",
+        "y",
+        "psi",
+        "v",
+        "a",
+        "steer",
+        "yaw_rate",
+        "mode",
+        "rollout",
+        "t",
+        "done",
+        "outcome",
+        "crash_npc",
+        "crash_lane",
+        "crash_av",
+        "episode_return",
+        "episode_steps",
+    )
 
-    def __init__(self, config: EnvConfig | None = None, auto_reset: bool = False,
-                 source: ScenarioSource | None = None, seed: int | None = None,
-                 backend: str = "numpy", device: Any = None, dtype: Any = None) -> None:
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        auto_reset: bool = False,
+        source: ScenarioSource | None = None,
+        seed: int | None = None,
+        backend: str = "numpy",
+        device: Any = None,
+        dtype: Any = None,
+    ) -> None:
         self.cfg = config or EnvConfig()
         self.auto_reset = auto_reset
         self.source = source
@@ -89,10 +122,12 @@ class OvertakeCore:
     npc_s = property(lambda self: self._npc_s.T, lambda self, v: setattr(self, "_npc_s", self.xp.batch_last(v)))
     npc_v = property(lambda self: self._npc_v.T, lambda self, v: setattr(self, "_npc_v", self.xp.batch_last(v)))
     npc_a = property(lambda self: self._npc_a.T, lambda self, v: setattr(self, "_npc_a", self.xp.batch_last(v)))
-    npc_boosted = property(lambda self: self._npc_boosted.T,
-                           lambda self, v: setattr(self, "_npc_boosted", self.xp.batch_last(v)))
-    npc_crashed = property(lambda self: self._npc_crashed.T,
-                           lambda self, v: setattr(self, "_npc_crashed", self.xp.batch_last(v)))
+    npc_boosted = property(
+        lambda self: self._npc_boosted.T, lambda self, v: setattr(self, "_npc_boosted", self.xp.batch_last(v))
+    )
+    npc_crashed = property(
+        lambda self: self._npc_crashed.T, lambda self, v: setattr(self, "_npc_crashed", self.xp.batch_last(v))
+    )
 
     @property
     def num(self) -> int:
@@ -110,7 +145,8 @@ class OvertakeCore:
         b = n * e
         self.num_roads, self.num_npcs, self.num_avs = n, m, e
         self.x, self.y, self.v, self.psi, self.a, self.steer, self.yaw_rate, self.t, self.episode_return = (
-            xp.zeros(b) for _ in range(9))
+            xp.zeros(b) for _ in range(9)
+        )
         self.mode, self.rollout, self.episode_steps = (xp.zeros(b, xp.int) for _ in range(3))
         self.done, self.outcome = xp.zeros(b, xp.bool), xp.zeros(b, xp.int8)
         self.crash_npc, self.crash_lane, self.crash_av = (xp.full(b, -1, xp.int) for _ in range(3))
@@ -189,8 +225,9 @@ class OvertakeCore:
         if self.num_avs > 1:  # the further AVs' starts, in their own frames
             flip = fresh.av_direction < 0
             start_x = np.concatenate([start_x, (fresh.av_s * fresh.av_direction).T.reshape(-1)])
-            start_y = np.concatenate([start_y, np.where(flip, fresh.lane_width[:, None] - fresh.av_d,
-                                                        fresh.av_d).T.reshape(-1)])
+            start_y = np.concatenate(
+                [start_y, np.where(flip, fresh.lane_width[:, None] - fresh.av_d, fresh.av_d).T.reshape(-1)]
+            )
             start_v = np.concatenate([start_v, fresh.av_v.T.reshape(-1)])
         self.x[cols], self.y[cols], self.v[cols] = (xp.asarray(a, xp.float) for a in (start_x, start_y, start_v))
         for name in ("psi", "a", "steer", "yaw_rate", "t", "episode_return"):
@@ -204,7 +241,8 @@ class OvertakeCore:
         if self.num_avs > 1:  # ... and so do NPCs that start behind any other AV in its lane
             lane = np.where(fresh.av_direction < 0, OPPOSITE_LANE, 0)[:, :, None]  # (N, K, 1)
             ahead = np.where(fresh.npc_lane == OPPOSITE_LANE, -1.0, 1.0)[:, None, :] * (
-                fresh.av_s[:, :, None] - fresh.npc_s[:, None, :])
+                fresh.av_s[:, :, None] - fresh.npc_s[:, None, :]
+            )
             aware += list(np.moveaxis((fresh.npc_lane[:, None, :] == lane) & (ahead > 0), 1, 0))
         for e, knows in enumerate(aware):
             per_av = self._npc_aware[e]  # a view
@@ -241,7 +279,7 @@ class OvertakeCore:
         self._replace_rows(rows, fresh)
         return self.observe(self._geometry(), rows if self.num_avs == 1 else self._av_rows(rows))
 
-    def clone(self, rows: Any = None) -> "OvertakeCore":
+    def clone(self, rows: Any = None) -> OvertakeCore:
         """An independent copy of roads ``rows`` (all when None), e.g. for look-ahead search."""
         xp = self.xp
         idx = xp.arange(self.scen.num) if rows is None else xp.asarray(rows)
@@ -287,21 +325,44 @@ class OvertakeCore:
             T = self._sc
             dx = self._npc_s - self.x
             return {
-                "s": self._npc_s, "dx": dx, "dy": T["d"] - self.y, "d": T["d"], "same_dir": T["same_dir"],
+                "s": self._npc_s,
+                "dx": dx,
+                "dy": T["d"] - self.y,
+                "d": T["d"],
+                "same_dir": T["same_dir"],
                 "direction": T["direction"],
                 "v_along": T["direction"] * self._npc_v,  # NPC velocity along +s
-                "half_len": T["half_len"], "half_wid": T["half_wid"],
+                "half_len": T["half_len"],
+                "half_wid": T["half_wid"],
                 "visible": T["present"] & (self.xp.abs(dx) <= T["reach"]),
             }
-        geo, self._sc = multi_geometry(self._avs_world(), self.x, self.y, self._npc_s, self._npc_v, self._npc,
-                                       self._npc_view, self._ego, self.num_avs, self.cfg.planner, self.xp)
+        geo, self._sc = multi_geometry(
+            self._avs_world(),
+            self.x,
+            self.y,
+            self._npc_s,
+            self._npc_v,
+            self._npc,
+            self._npc_view,
+            self._ego,
+            self.num_avs,
+            self.cfg.planner,
+            self.xp,
+        )
         return geo
 
     def _plan_inputs(self, geo: dict[str, Any]) -> dict[str, Any]:
         T = self._sc
-        return {**geo, "offsets": T["offsets"], "lat_margin": T["lat_margin"], "inside": T["inside"],
-                "lat_cost": T["lat_cost"], "priority": T["priority"], "lon_reach": T["lon_reach"],
-                "beside_reach": T["beside_reach"]}
+        return {
+            **geo,
+            "offsets": T["offsets"],
+            "lat_margin": T["lat_margin"],
+            "inside": T["inside"],
+            "lat_cost": T["lat_cost"],
+            "priority": T["priority"],
+            "lon_reach": T["lon_reach"],
+            "beside_reach": T["beside_reach"],
+        }
 
     def step_geometry(self) -> dict[str, Any] | None:
         """The batch-last geometry (M', B) the last :meth:`step` computed after the vehicles moved (the
@@ -354,21 +415,38 @@ class OvertakeCore:
         self.last_plan = p
         self.rollout = xp.where(active, p.rollout, self.rollout)
 
-        road_dt = dt if self.num_avs == 1 else cfg.dt * xp.astype(
-            xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
+        road_dt = (
+            dt if self.num_avs == 1 else cfg.dt * xp.astype(xp.any(active.reshape(self.num_avs, -1), axis=0), xp.float)
+        )
         avs = self._avs_for_npcs(geo)  # where the NPCs see the AVs: before they move, as the planner did
-        motion, jerk = track(self._motion(), p, dt,
-                             pc, cfg.dt, E, xp)
+        motion, jerk = track(self._motion(), p, dt, pc, cfg.dt, E, xp)
         self.x, self.y, self.psi, self.v, self.a, self.steer, self.yaw_rate = motion
         avs["v_along"] = self._av_velocity()  # ... and how fast they now go
         self._npc_a, self._npc_aware, self._npc_boosted, leader = npc_accelerations(
-            self._npc_s, self._npc_v, self._npc, self._npc_aware, self._npc_boosted, avs, road_dt, npc_accel,
-            cfg.npc, self._lane_mates, xp)
+            self._npc_s,
+            self._npc_v,
+            self._npc,
+            self._npc_aware,
+            self._npc_boosted,
+            avs,
+            road_dt,
+            npc_accel,
+            cfg.npc,
+            self._lane_mates,
+            xp,
+        )
         if leader is not None:
             self._npc_leader = leader
-        self._npc_s, self._npc_v = advance_npcs(self._npc_s, self._npc_v, self._npc_a, road_dt, self._npc["direction"],
-                                                self._npc["present"], self._npc_crashed if self._npc_crashed_any
-                                                else None, xp)
+        self._npc_s, self._npc_v = advance_npcs(
+            self._npc_s,
+            self._npc_v,
+            self._npc_a,
+            road_dt,
+            self._npc["direction"],
+            self._npc["present"],
+            self._npc_crashed if self._npc_crashed_any else None,
+            xp,
+        )
         self.t = self.t + dt
         self.episode_steps += active
 
@@ -376,12 +454,24 @@ class OvertakeCore:
         self._step_geo = {**geo, "present": self._sc["present"]}  # for step_geometry(): not recomputed
         hit = self._contacts(geo)
         self._npc_collisions(hit)
-        prev = Ending(self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"],
-                      self.done)
-        terminated, truncated, end = resolve(self.x, self.y, self.t, prev, E, self._sc, geo, hit, active,
-                                             self.num_npcs, self._other_av if self.num_avs > 1 else None, xp)
-        (self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"],
-         self.done) = end
+        prev = Ending(
+            self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"], self.done
+        )
+        terminated, truncated, end = resolve(
+            self.x,
+            self.y,
+            self.t,
+            prev,
+            E,
+            self._sc,
+            geo,
+            hit,
+            active,
+            self.num_npcs,
+            self._other_av if self.num_avs > 1 else None,
+            xp,
+        )
+        (self.outcome, self.crash_npc, self.crash_lane, self.crash_av, self.stats["completion_time"], self.done) = end
         self._update_stats(geo, active, jerk)
         reward = step_reward(cfg.reward, self.x, self.outcome, E, terminated, truncated, switched, active, xp)
         self.episode_return += reward
@@ -401,8 +491,18 @@ class OvertakeCore:
 
     def _contacts(self, geo: dict[str, Any]) -> Any:
         E, T = self._ego, self._sc
-        return av_contacts(self.xp, self.psi, E["half_ego_length"], E["half_ego_width"], geo["dx"], geo["dy"],
-                           T["half_length"], T["half_width"], T["present"], geo.get("psi"))
+        return av_contacts(
+            self.xp,
+            self.psi,
+            E["half_ego_length"],
+            E["half_ego_width"],
+            geo["dx"],
+            geo["dy"],
+            T["half_length"],
+            T["half_width"],
+            T["present"],
+            geo.get("psi"),
+        )
 
     def contacts(self) -> Any:
         """(B, M') bool: which vehicles in each AV row's view touch that AV now."""
@@ -417,13 +517,18 @@ class OvertakeCore:
         (``dx``, ``dy``) and the half-size sums (E, M, N)."""
         avs = self._avs_world()
         if self.num_avs == 1:  # the ego's frame is the world's: the planner's geometry is the NPCs' view
-            avs.update(dx=geo["dx"][None], dy=geo["dy"][None], half_len=geo["half_len"][None],
-                       half_wid=geo["half_wid"][None])
+            avs.update(
+                dx=geo["dx"][None], dy=geo["dy"][None], half_len=geo["half_len"][None], half_wid=geo["half_wid"][None]
+            )
             return avs
         E, T, e = self._ego, self._npc, self.num_avs
         length, width = E["ego_length"].reshape(e, 1, -1), E["ego_width"].reshape(e, 1, -1)
-        avs.update(dx=self._npc_s - avs["s"][:, None], dy=T["d"] - avs["d"][:, None],
-                   half_len=(length + T["length"][None]) / 2, half_wid=(width + T["width"][None]) / 2)
+        avs.update(
+            dx=self._npc_s - avs["s"][:, None],
+            dy=T["d"] - avs["d"][:, None],
+            half_len=(length + T["length"][None]) / 2,
+            half_wid=(width + T["width"][None]) / 2,
+        )
         return avs
 
     def _npc_collisions(self, hit: Any) -> None:
@@ -435,8 +540,14 @@ class OvertakeCore:
             if struck.any():
                 crashed = self._npc_crashed | struck
         if self._lane_mates:  # (at most one NPC per lane in every road: no NPC-NPC contact)
-            follower, lead = lane_contacts(xp, self._npc_s, self._npc["direction"], self._npc["half_length"],
-                                           self._npc_leader, self._npc["present"])
+            follower, lead = lane_contacts(
+                xp,
+                self._npc_s,
+                self._npc["direction"],
+                self._npc["half_length"],
+                self._npc_leader,
+                self._npc["present"],
+            )
             if follower.any():
                 crashed = (self._npc_crashed if crashed is None else crashed) | follower
                 rows_j, rows_n = xp.nonzero2(follower)
@@ -460,9 +571,14 @@ class OvertakeCore:
 
     def info(self) -> dict[str, Any]:
         xp = self.xp
-        out = {"outcome": xp.copy(self.outcome), "crash_npc": xp.copy(self.crash_npc),
-               "crash_lane": xp.copy(self.crash_lane), "t": xp.copy(self.t),
-               "episode_return": xp.copy(self.episode_return), "episode_steps": xp.copy(self.episode_steps)}
+        out = {
+            "outcome": xp.copy(self.outcome),
+            "crash_npc": xp.copy(self.crash_npc),
+            "crash_lane": xp.copy(self.crash_lane),
+            "t": xp.copy(self.t),
+            "episode_return": xp.copy(self.episode_return),
+            "episode_steps": xp.copy(self.episode_steps),
+        }
         if self.num_avs > 1:
             out["crash_av"] = xp.copy(self.crash_av)
         out.update({k: xp.copy(v) for k, v in self.stats.items()})
@@ -470,9 +586,21 @@ class OvertakeCore:
 
     def state_arrays(self) -> dict[str, Any]:
         """AV and NPC state of every row, batch-first (for recording, rendering, privileged deciders)."""
-        return {"x": self.x, "y": self.y, "psi": self.psi, "v": self.v, "a": self.a, "steer": self.steer,
-                "mode": self.mode, "rollout": self.rollout, "t": self.t, "npc_s": self.npc_s,
-                "npc_v": self.npc_v, "done": self.done, "outcome": self.outcome}
+        return {
+            "x": self.x,
+            "y": self.y,
+            "psi": self.psi,
+            "v": self.v,
+            "a": self.a,
+            "steer": self.steer,
+            "mode": self.mode,
+            "rollout": self.rollout,
+            "t": self.t,
+            "npc_s": self.npc_s,
+            "npc_v": self.npc_v,
+            "done": self.done,
+            "outcome": self.outcome,
+        }
 
     def vehicles(self) -> dict[str, np.ndarray]:
         """Every vehicle of every road in world coordinates, (N, V) host arrays with V = E + M: the
@@ -484,20 +612,50 @@ class OvertakeCore:
         kind_npc = np.where(sc.npc_behaviour == SCRIPTED, SCRIPTED_KIND, IDM)
         length = np.concatenate([np.repeat(sc.ego_length[:, None], e, 1), sc.npc_length], axis=1)
         width = np.concatenate([np.repeat(sc.ego_width[:, None], e, 1), sc.npc_width], axis=1)
-        direction = np.concatenate([np.ones((n, 1)), sc.av_direction.astype(float),
-                                    np.where(sc.npc_lane == OPPOSITE_LANE, -1.0, 1.0)], axis=1)
-        return {"s": np.concatenate([host(avs["s"]).T, host(self._npc_s).T], axis=1),
-                "d": np.concatenate([host(avs["d"]).T, sc.npc_lane * sc.lane_width[:, None]], axis=1),
-                "v": np.concatenate([host(self.v).reshape(e, n).T, host(self._npc_v).T], axis=1),
-                "direction": direction, "length": length, "width": width,
-                "kind": np.concatenate([np.full((n, e), PLANNER), kind_npc], axis=1).astype(np.int8),
-                "present": np.concatenate([host(avs["present"]).T > 0, sc.npc_present], axis=1)}
+        direction = np.concatenate(
+            [np.ones((n, 1)), sc.av_direction.astype(float), np.where(sc.npc_lane == OPPOSITE_LANE, -1.0, 1.0)], axis=1
+        )
+        return {
+            "s": np.concatenate([host(avs["s"]).T, host(self._npc_s).T], axis=1),
+            "d": np.concatenate([host(avs["d"]).T, sc.npc_lane * sc.lane_width[:, None]], axis=1),
+            "v": np.concatenate([host(self.v).reshape(e, n).T, host(self._npc_v).T], axis=1),
+            "direction": direction,
+            "length": length,
+            "width": width,
+            "kind": np.concatenate([np.full((n, e), PLANNER), kind_npc], axis=1).astype(np.int8),
+            "present": np.concatenate([host(avs["present"]).T > 0, sc.npc_present], axis=1),
+        }
 
 
 INF = float("inf")
-_EGO_FIELDS = ("lane_width", "speed_limit", "goal_s", "road_length", "sensor_range", "time_limit", "ego_length",
-               "ego_width")
-_NPC_FIELDS = ("npc_present", "npc_lane", "npc_v_des", "npc_behaviour", "npc_boost", "npc_length", "npc_width",
-               "npc_reaction", "npc_reveal", "npc_must_pass")
-_STAT_INIT = {"completion_time": np.nan, "aborts": 0, "switches": 0, "opposite_time": 0.0, "min_ttc": np.inf,
-              "peak_lat_accel": 0.0, "peak_jerk": 0.0}
+_EGO_FIELDS = (
+    "lane_width",
+    "speed_limit",
+    "goal_s",
+    "road_length",
+    "sensor_range",
+    "time_limit",
+    "ego_length",
+    "ego_width",
+)
+_NPC_FIELDS = (
+    "npc_present",
+    "npc_lane",
+    "npc_v_des",
+    "npc_behaviour",
+    "npc_boost",
+    "npc_length",
+    "npc_width",
+    "npc_reaction",
+    "npc_reveal",
+    "npc_must_pass",
+)
+_STAT_INIT = {
+    "completion_time": np.nan,
+    "aborts": 0,
+    "switches": 0,
+    "opposite_time": 0.0,
+    "min_ttc": np.inf,
+    "peak_lat_accel": 0.0,
+    "peak_jerk": 0.0,
+}

@@ -31,7 +31,6 @@ import numpy as np
 from overtakezoo.envs.config import ConfigError
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
-
 # Searchable parameters that are one value per suite in a distribution, set per scenario here.
 COUNTS = ("oncoming_count", "follower_count")
 PER_ROW = ("sensor_range",)
@@ -49,22 +48,32 @@ class Draw:
 def draw_plan(dist: ScenarioDistribution) -> list[Draw]:
     """The draws of ``dist.sample`` in its order (see the module docstring)."""
     K, F, P, O = dist.oncoming_count, dist.follower_count, dist.platoon_size, dist.oncoming_av
-    plan = [Draw("ego_speed", "ego_speed", None), Draw("lead_speed", "lead_speed", None),
-            Draw("lead_gap", "lead_gap", None), Draw("lead_boost", "lead_boost", None),
-            Draw("oncoming_speed", "oncoming_speed", K), Draw("oncoming_gap", "oncoming_gap", None),
-            Draw("oncoming_headway", "oncoming_headway", K)]
+    plan = [
+        Draw("ego_speed", "ego_speed", None),
+        Draw("lead_speed", "lead_speed", None),
+        Draw("lead_gap", "lead_gap", None),
+        Draw("lead_boost", "lead_boost", None),
+        Draw("oncoming_speed", "oncoming_speed", K),
+        Draw("oncoming_gap", "oncoming_gap", None),
+        Draw("oncoming_headway", "oncoming_headway", K),
+    ]
     if math.isfinite(dist.oncoming_reveal[1]):
         plan.append(Draw("oncoming_reveal", "oncoming_reveal", K))
-    plan += [Draw("follower_speed", "follower_speed", F), Draw("follower_gap", "follower_gap", F),
-             Draw("reaction_time", "reaction_time", 1 + K + F)]
+    plan += [
+        Draw("follower_speed", "follower_speed", F),
+        Draw("follower_gap", "follower_gap", F),
+        Draw("reaction_time", "reaction_time", 1 + K + F),
+    ]
     if P > 1:
         plan += [Draw("platoon_speed", "ego_speed", P - 1), Draw("platoon_gap", "platoon_gap", P - 1)]
     if O:
-        plan += [Draw("oncoming_av_speed", "ego_speed", None),
-                 Draw("oncoming_av_distance", "oncoming_av_distance", None),
-                 Draw("oncoming_av_lead_gap", "oncoming_av_lead_gap", None),
-                 Draw("oncoming_av_lead_speed", "oncoming_av_lead_speed", None),
-                 Draw("oncoming_av_lead_reaction", "reaction_time", None)]
+        plan += [
+            Draw("oncoming_av_speed", "ego_speed", None),
+            Draw("oncoming_av_distance", "oncoming_av_distance", None),
+            Draw("oncoming_av_lead_gap", "oncoming_av_lead_gap", None),
+            Draw("oncoming_av_lead_speed", "oncoming_av_lead_speed", None),
+            Draw("oncoming_av_lead_reaction", "reaction_time", None),
+        ]
     return plan
 
 
@@ -73,7 +82,7 @@ class _Given(np.random.Generator):
 
     def __init__(self, dist: ScenarioDistribution, plan: list[Draw], values: list[np.ndarray]) -> None:
         super().__init__(np.random.PCG64(0))
-        self._dist, self._todo = dist, list(zip(plan, values))
+        self._dist, self._todo = dist, list(zip(plan, values, strict=True))
 
     def uniform(self, low: Any = 0.0, high: Any = 1.0, size: Any = None) -> np.ndarray:
         if not self._todo:
@@ -82,9 +91,11 @@ class _Given(np.random.Generator):
         expected = tuple(getattr(self._dist, draw.field))
         shape = (size,) if isinstance(size, int) else tuple(size)
         if (float(low), float(high)) != expected or shape != value.shape:
-            raise RuntimeError(f"ScenarioDistribution.sample drew [{low}, {high}] of shape {shape} where "
-                               f"envs/draws.py's draw_plan expects {draw.key} {list(expected)} of shape "
-                               f"{value.shape}: update draw_plan")
+            raise RuntimeError(
+                f"ScenarioDistribution.sample drew [{low}, {high}] of shape {shape} where "
+                f"envs/draws.py's draw_plan expects {draw.key} {list(expected)} of shape "
+                f"{value.shape}: update draw_plan"
+            )
         return np.array(value, dtype=float)
 
     def _refuse(self, *args: Any, **kwargs: Any) -> Any:
@@ -119,7 +130,7 @@ def build(dist: ScenarioDistribution, values: dict[str, np.ndarray]) -> Scenario
     fs = np.asarray(values.get("follower_count", np.full(n, F0)), np.int64)
     if n and (ks.max() > K0 or fs.max() > F0 or min(ks.min(), fs.min()) < 0):
         raise ValueError("counts beyond the layout's widths")
-    groups = sorted(set(zip(ks.tolist(), fs.tolist())))
+    groups = sorted(set(zip(ks.tolist(), fs.tolist(), strict=True)))
     parts, order = [], []
     for k, f in groups:
         rows = np.flatnonzero((ks == k) & (fs == f))
@@ -128,9 +139,9 @@ def build(dist: ScenarioDistribution, values: dict[str, np.ndarray]) -> Scenario
         for d in draw_plan(sub):
             a = np.asarray(values[d.key], float)[rows]
             if d.key == "reaction_time":  # [lead, oncoming x k, followers x f] out of the K0 / F0 layout
-                a = np.concatenate([a[:, :1 + k], a[:, 1 + K0:1 + K0 + f]], axis=1)
+                a = np.concatenate([a[:, : 1 + k], a[:, 1 + K0 : 1 + K0 + f]], axis=1)
             elif d.width is not None:
-                a = a[:, :d.width]
+                a = a[:, : d.width]
             arrays.append(a)
         rng = _Given(sub, draw_plan(sub), arrays)
         parts.append(sub.sample(rows.size, rng))
@@ -302,8 +313,10 @@ def space_for(dist: ScenarioDistribution, params: list[str] | None = None, where
     overrides = {n: r for n, r in parsed if r is not None}
     for name in COUNTS + PER_ROW:
         if name in names and name not in overrides:
-            raise ConfigError(f"--param {name}: {where} has one {name} ({getattr(dist, name)!r}); give a range to "
-                            f"search, e.g. {name}={_example(name, dist)}")
+            raise ConfigError(
+                f"--param {name}: {where} has one {name} ({getattr(dist, name)!r}); give a range to "
+                f"search, e.g. {name}={_example(name, dist)}"
+            )
     table = dist.to_dict()
     for name, (lo, hi) in overrides.items():
         if name in COUNTS:
@@ -337,13 +350,18 @@ def space_for(dist: ScenarioDistribution, params: list[str] | None = None, where
     for name in names:
         if not any(d.field == name for d in dims):
             lo, hi = getattr(box, name)
-            why = (f"its range [{lo:g}, {hi:g}] is a single value; give one, e.g. {name}={_example(name, dist)}"
-                   if lo == hi else "it cannot change an episode here (scripted NPCs never react; a lead's boost "
-                   "needs lead_behaviour = \"speedup\")")
+            why = (
+                f"its range [{lo:g}, {hi:g}] is a single value; give one, e.g. {name}={_example(name, dist)}"
+                if lo == hi
+                else "it cannot change an episode here (scripted NPCs never react; a lead's boost "
+                'needs lead_behaviour = "speedup")'
+            )
             raise ConfigError(f"--param {name}: {where}: {why}")
     if not dims:
-        raise ConfigError(f"{where} has no searchable range (each range of its [scenario] table is a single value or "
-                        f"cannot change an episode); name a parameter with a range, e.g. --param lead_speed=1:3")
+        raise ConfigError(
+            f"{where} has no searchable range (each range of its [scenario] table is a single value or "
+            f"cannot change an episode); name a parameter with a range, e.g. --param lead_speed=1:3"
+        )
     return Space(box, base, tuple(dims))
 
 

@@ -25,10 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
-
 from overtakezoo.envs.config import SuiteError
 from overtakezoo.envs.draws import COUNTS, PER_ROW, Space, build, draw_plan
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
 MAX_COUNT = 64  # the physical range of oncoming_count / follower_count (envs/scenarios.py)
 
@@ -114,16 +113,21 @@ def read_entries(dist: ScenarioDistribution, entries: list[dict[str, Any]], wher
     ranges = {d.key: tuple(getattr(dist, d.field)) for d in plan}
     for key in per_row:
         out[key] = np.full(n, float(getattr(dist, key)))
-    phys = {f.name: (f.metadata["lo"], f.metadata["hi"]) for f in dataclasses.fields(ScenarioDistribution)
-            if "lo" in f.metadata}
+    phys = {
+        f.name: (f.metadata["lo"], f.metadata["hi"])
+        for f in dataclasses.fields(ScenarioDistribution)
+        if "lo" in f.metadata
+    }
     for i, entry in enumerate(entries):
         k, f = rows_k[i], rows_f[i]
         sub_plan = draw_plan(dataclasses.replace(dist, oncoming_count=k, follower_count=f))
         allowed = {d.key for d in sub_plan} | set(COUNTS) | set(PER_ROW) | {"found"}
         unknown = sorted(set(entry) - allowed)
         if unknown:
-            raise SuiteError(f"{where}: scenarios[{i}].{unknown[0]}: unknown key for this suite's scenarios "
-                            f"(known: {', '.join(sorted(allowed))})")
+            raise SuiteError(
+                f"{where}: scenarios[{i}].{unknown[0]}: unknown key for this suite's scenarios "
+                f"(known: {', '.join(sorted(allowed))})"
+            )
         if "found" in entry and not isinstance(entry["found"], dict):
             raise SuiteError(f"{where}: scenarios[{i}].found: expected a table")
         for d in sub_plan:
@@ -134,10 +138,10 @@ def read_entries(dist: ScenarioDistribution, entries: list[dict[str, Any]], wher
             if d.width is None:
                 out[d.key][i] = v[0]
             elif d.key == "reaction_time":
-                out[d.key][i, :1 + k] = v[:1 + k]
-                out[d.key][i, 1 + K0:1 + K0 + f] = v[1 + k:]
+                out[d.key][i, : 1 + k] = v[: 1 + k]
+                out[d.key][i, 1 + K0 : 1 + K0 + f] = v[1 + k :]
             else:
-                out[d.key][i, :d.width] = v
+                out[d.key][i, : d.width] = v
         for key in per_row:
             if key in entry:
                 lo, hi = phys[key]
@@ -195,9 +199,9 @@ def entries_of(space: Space, values: dict[str, np.ndarray]) -> list[dict[str, An
             if d.width is None:
                 entry[d.key] = float(a)
             elif d.key == "reaction_time":
-                entry[d.key] = [float(x) for x in np.concatenate([a[:1 + k], a[1 + K0:1 + K0 + f]])]
+                entry[d.key] = [float(x) for x in np.concatenate([a[: 1 + k], a[1 + K0 : 1 + K0 + f]])]
             else:
-                entry[d.key] = [float(x) for x in a[:d.width]]
+                entry[d.key] = [float(x) for x in a[: d.width]]
         for key in PER_ROW:
             if key in searched:
                 entry[key] = float(values[key][i])

@@ -25,8 +25,9 @@ trainer stores no transition for it. On a single-AV auto-reset core no row is ev
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -61,8 +62,13 @@ class HeldStep:
     waiting: np.ndarray | None = None  # (N,) bool: rows already done at the decision (no episode running)
 
 
-def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | None = None,
-         on_step: Callable[[np.ndarray, StepResult], None] | None = None) -> HeldStep:
+def hold(
+    core: OvertakeCore,
+    modes: Any,
+    steps: int,
+    npc_accel: np.ndarray | None = None,
+    on_step: Callable[[np.ndarray, StepResult], None] | None = None,
+) -> HeldStep:
     """Step ``core`` ``steps`` times under ``modes`` (and ``npc_accel``), stopping early once every
     row is done. ``on_step(modes, result)`` sees every core step (e.g. a recorder)."""
     modes = np.asarray(modes, dtype=np.int64).reshape(-1)
@@ -101,14 +107,21 @@ def hold(core: OvertakeCore, modes: Any, steps: int, npc_accel: np.ndarray | Non
         ended |= now
     if res is None:
         raise ValueError("hold: steps must be >= 1 (and the core reset)")
-    return HeldStep(res.obs, reward, terminated, truncated, ended, live_steps, final_obs, final_info, res.info,
-                    taken, waiting)
+    return HeldStep(
+        res.obs, reward, terminated, truncated, ended, live_steps, final_obs, final_info, res.info, taken, waiting
+    )
 
 
-def run_to_end(core: OvertakeCore, obs: Any, decide: Callable[[Any, int], Any], steps: int,
-               on_step: Callable[[np.ndarray, StepResult], None] | None = None,
-               on_hold: Callable[[HeldStep], None] | None = None, max_steps: int | None = None,
-               compact: Callable[[Any], tuple[OvertakeCore, Any] | None] | None = None) -> int:
+def run_to_end(
+    core: OvertakeCore,
+    obs: Any,
+    decide: Callable[[Any, int], Any],
+    steps: int,
+    on_step: Callable[[np.ndarray, StepResult], None] | None = None,
+    on_hold: Callable[[HeldStep], None] | None = None,
+    max_steps: int | None = None,
+    compact: Callable[[Any], tuple[OvertakeCore, Any] | None] | None = None,
+) -> int:
     """Drive every row of ``core`` (reset, without auto-reset) to the end of its episode:
     ``decide(obs, step)`` gives the modes at core step ``step``, each held ``steps`` core steps;
     ``on_hold`` sees each :class:`HeldStep`; ``compact(obs)``, after each hold, may return a smaller

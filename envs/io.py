@@ -32,17 +32,29 @@ import secrets
 import shutil
 import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any
 
 try:
     import fcntl
 except ImportError:  # Windows: temps are not locked, so none is ever swept
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["WriteError", "file_sha256", "atomic_output", "atomic_path", "atomic_directory", "atomic_write_bytes",
-           "atomic_write_text", "atomic_write_json", "check_writable", "check_writable_dir", "sweep_stale",
-           "temp_directory"]
+__all__ = [
+    "WriteError",
+    "file_sha256",
+    "atomic_output",
+    "atomic_path",
+    "atomic_directory",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "atomic_write_json",
+    "check_writable",
+    "check_writable_dir",
+    "sweep_stale",
+    "temp_directory",
+]
 
 
 class WriteError(OSError):
@@ -207,8 +219,9 @@ def _replacing(target: Path, st: os.stat_result | None) -> Iterator[tuple[int, P
 
 
 @contextlib.contextmanager
-def atomic_output(path: str | os.PathLike, mode: str = "wb", encoding: str | None = None,
-                  newline: str | None = None) -> Iterator[IO[Any]]:
+def atomic_output(
+    path: str | os.PathLike, mode: str = "wb", encoding: str | None = None, newline: str | None = None
+) -> Iterator[IO[Any]]:
     """Stream into ``path``: ``with atomic_output(p) as f: f.write(...)``.
 
     ``f`` is a temp file beside ``path``, renamed over it when the block ends without an exception

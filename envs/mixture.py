@@ -3,9 +3,10 @@
 Suites differ in their simulator settings (planner margins, prediction, the number of NPC slots),
 which one :class:`OvertakeCore` holds for all its rows, so a mixture keeps one core per suite and
 concatenates their rows (one per AV of each road): rows ``[0, n_0)`` belong to the first core, the
-next ``n_1`` to the second, and so on. Each core refills its own finished rows from its own source, so every row keeps drawing
-from its suite and the mixture's proportions stay fixed. The observation layouts must agree (the
-same planner rollouts and observation slots), which every built-in suite's does.
+next ``n_1`` to the second, and so on. Each core refills its own finished rows from its own source,
+so every row keeps drawing from its suite and the mixture's proportions stay fixed. The observation
+layouts must agree (the same planner rollouts and observation slots), which every built-in suite's
+does.
 
 It offers what :func:`overtakezoo.envs.hold.hold` and the trainers use (``step``, ``done``,
 ``auto_reset``, ``num``, ``observe``), so a trainer steps a mixture as it steps one core.
@@ -13,7 +14,8 @@ It offers what :func:`overtakezoo.envs.hold.hold` and the trainers use (``step``
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -38,19 +40,23 @@ class MixedCore:
 
     auto_reset = True
 
-    def __init__(self, configs: Sequence[EnvConfig], sources: Sequence[Source], sizes: Sequence[int],
-                 seed: int | None = None) -> None:
+    def __init__(
+        self, configs: Sequence[EnvConfig], sources: Sequence[Source], sizes: Sequence[int], seed: int | None = None
+    ) -> None:
         if not (len(configs) == len(sources) == len(sizes)) or not configs:
             raise ValueError("one config, source and size per mixture component")
         layouts = {tuple((k, s.start, s.stop) for k, s in observation_layout(c).items()) for c in configs}
         if len(layouts) != 1:
             raise ValueError("a mixture needs one observation layout (same planner rollouts and slots)")
         seeds = np.random.SeedSequence(seed).spawn(len(configs))
-        self.cores = [OvertakeCore(c, auto_reset=True, source=src, seed=np.random.default_rng(s))
-                      for c, src, s in zip(configs, sources, seeds)]
+        self.cores = [
+            OvertakeCore(c, auto_reset=True, source=src, seed=np.random.default_rng(s))
+            for c, src, s in zip(configs, sources, seeds, strict=True)
+        ]
         self.sizes = [int(n) for n in sizes]
-        self._obs = np.concatenate([core.reset(src(n, core.rng)) for core, src, n in zip(self.cores, sources,
-                                                                                          self.sizes)])
+        self._obs = np.concatenate(
+            [core.reset(src(n, core.rng)) for core, src, n in zip(self.cores, sources, self.sizes, strict=True)]
+        )
 
     @property
     def num(self) -> int:
@@ -74,7 +80,7 @@ class MixedCore:
         modes = np.asarray(modes)
         parts, start = [], 0
         for core in self.cores:
-            parts.append(core.step(modes[start:start + core.num]))
+            parts.append(core.step(modes[start : start + core.num]))
             start += core.num
         res = _concat(parts)
         self._obs = res.obs
@@ -84,7 +90,16 @@ class MixedCore:
 def _concat(parts: list[StepResult]) -> StepResult:
     cat = np.concatenate
     info = {k: cat([np.asarray(p.info[k]) for p in parts]) for k in parts[0].info}
-    final = None if all(p.final_obs is None for p in parts) else cat(
-        [p.obs if p.final_obs is None else p.final_obs for p in parts])
-    return StepResult(cat([p.obs for p in parts]), cat([p.reward for p in parts]),
-                      cat([p.terminated for p in parts]), cat([p.truncated for p in parts]), final, info)
+    final = (
+        None
+        if all(p.final_obs is None for p in parts)
+        else cat([p.obs if p.final_obs is None else p.final_obs for p in parts])
+    )
+    return StepResult(
+        cat([p.obs for p in parts]),
+        cat([p.reward for p in parts]),
+        cat([p.terminated for p in parts]),
+        cat([p.truncated for p in parts]),
+        final,
+        info,
+    )

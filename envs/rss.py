@@ -62,7 +62,7 @@ class RSSParams:
         check_ranges(self, "safety.")
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any] | None) -> "RSSParams":
+    def from_dict(cls, data: dict[str, Any] | None) -> RSSParams:
         names = {f for f in cls.__dataclass_fields__}
         for key in data or {}:
             if key not in names:
@@ -70,8 +70,9 @@ class RSSParams:
         return cls(**{k: float(v) for k, v in (data or {}).items()})
 
 
-def safe_distance_same_direction(v_rear: Any, v_front: Any, rho: float, accel_max: float, brake_min: float,
-                                 brake_max: float) -> np.ndarray:
+def safe_distance_same_direction(
+    v_rear: Any, v_front: Any, rho: float, accel_max: float, brake_min: float, brake_max: float
+) -> np.ndarray:
     """RSS Definition 1 (m): the rear car accelerates at ``accel_max`` for ``rho`` then brakes at
     ``brake_min`` (its parameters); the front car brakes at ``brake_max`` (its own)."""
     v_r, v_f = np.maximum(v_rear, 0.0), np.maximum(v_front, 0.0)
@@ -87,10 +88,17 @@ def _stopping(v: Any, rho: float, accel_max: float, brake: float) -> np.ndarray:
     return (v + v_rho) * 0.5 * rho + v_rho * v_rho / (2.0 * brake)
 
 
-def safe_distance_opposite_direction(v_wrong: Any, v_correct: Any, rho: float, wrong_accel_max: float,
-                                     wrong_brake_min: float, correct_accel_max: float,
-                                     correct_brake_min_correct: float) -> np.ndarray:
+def safe_distance_opposite_direction(
+    v_wrong: Any,
+    v_correct: Any,
+    rho: float,
+    wrong_accel_max: float,
+    wrong_brake_min: float,
+    correct_accel_max: float,
+    correct_brake_min_correct: float,
+) -> np.ndarray:
     """RSS Definition 2 (m): both cars respond after ``rho``; the one in its correct lane brakes at
     ``correct_brake_min_correct``, the one in the wrong lane at ``wrong_brake_min``."""
-    return (_stopping(v_wrong, rho, wrong_accel_max, wrong_brake_min)
-            + _stopping(v_correct, rho, correct_accel_max, correct_brake_min_correct))
+    return _stopping(v_wrong, rho, wrong_accel_max, wrong_brake_min) + _stopping(
+        v_correct, rho, correct_accel_max, correct_brake_min_correct
+    )

@@ -44,13 +44,13 @@ def depth(data: bytes) -> int:
     if data.count(b"[") + data.count(b"{") <= MAX_JSON_DEPTH:
         return data.count(b"[") + data.count(b"{")  # an upper bound, and small: nothing to scan
     text = np.frombuffer(_STRING.sub(b'""', data), np.uint8)
-    step = (np.isin(text, (ord("["), ord("{"))).astype(np.int64)
-            - np.isin(text, (ord("]"), ord("}"))).astype(np.int64))
+    step = np.isin(text, (ord("["), ord("{"))).astype(np.int64) - np.isin(text, (ord("]"), ord("}"))).astype(np.int64)
     return int(np.cumsum(step).max(initial=0))
 
 
-def loads(data: bytes | str, where: str, *, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH,
-          **kwargs: Any) -> Any:
+def loads(
+    data: bytes | str, where: str, *, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH, **kwargs: Any
+) -> Any:
     """``json.loads(data, **kwargs)`` once ``data`` is at most ``max_bytes`` long and nests at most
     ``max_depth`` deep; :class:`JSONInputError` naming ``where`` otherwise, or when it is not JSON.
     Errors raised by ``kwargs``' hooks pass through unchanged."""
@@ -77,10 +77,15 @@ def read_bounded(path: str | os.PathLike, max_bytes: int = MAX_JSON_BYTES) -> by
         return f.read(max_bytes + 1)
 
 
-def load_file(path: str | os.PathLike, where: str | None = None, *, max_bytes: int = MAX_JSON_BYTES,
-              max_depth: int = MAX_JSON_DEPTH, **kwargs: Any) -> Any:
+def load_file(
+    path: str | os.PathLike,
+    where: str | None = None,
+    *,
+    max_bytes: int = MAX_JSON_BYTES,
+    max_depth: int = MAX_JSON_DEPTH,
+    **kwargs: Any,
+) -> Any:
     """The JSON in the file ``path``, read and parsed within the caps (:func:`loads`); ``where``
     (default: the path) names it in errors. ``OSError`` passes through."""
     data = read_bounded(path, max_bytes)
-    return loads(data, str(Path(path)) if where is None else where, max_bytes=max_bytes, max_depth=max_depth,
-                 **kwargs)
+    return loads(data, str(Path(path)) if where is None else where, max_bytes=max_bytes, max_depth=max_depth, **kwargs)

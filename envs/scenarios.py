@@ -96,7 +96,7 @@ class Scenarios:
     def num_npcs(self) -> int:
         return int(self.npc_s.shape[1])
 
-    def take(self, index: Any) -> "Scenarios":
+    def take(self, index: Any) -> Scenarios:
         """Rows ``index`` (an int array, slice or mask) as a new batch."""
         return Scenarios(**{f.name: np.asarray(getattr(self, f.name))[index] for f in dataclasses.fields(self)})
 
@@ -104,22 +104,26 @@ class Scenarios:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, Any]) -> "Scenarios":
+    def from_arrays(cls, arrays: dict[str, Any]) -> Scenarios:
         """The inverse of :meth:`to_arrays`; files written before AVs existed have no ``av_*``."""
-        return cls(**{f.name: np.asarray(arrays[f.name]) for f in dataclasses.fields(cls)
-                      if f.name in arrays or f.name not in _AV_DTYPES})
+        return cls(
+            **{
+                f.name: np.asarray(arrays[f.name])
+                for f in dataclasses.fields(cls)
+                if f.name in arrays or f.name not in _AV_DTYPES
+            }
+        )
 
     @classmethod
-    def concat(cls, batches: list["Scenarios"]) -> "Scenarios":
+    def concat(cls, batches: list[Scenarios]) -> Scenarios:
         """Stack batches, padding NPC slots to the widest batch (their AV counts must agree)."""
         if len({b.num_avs for b in batches}) > 1:
             raise ValueError("cannot stack scenarios with different numbers of automated vehicles")
         width = max(b.num_npcs for b in batches)
         padded = [b.pad_npcs(width) for b in batches]
-        return cls(**{f.name: np.concatenate([getattr(b, f.name) for b in padded])
-                      for f in dataclasses.fields(cls)})
+        return cls(**{f.name: np.concatenate([getattr(b, f.name) for b in padded]) for f in dataclasses.fields(cls)})
 
-    def pad_npcs(self, width: int) -> "Scenarios":
+    def pad_npcs(self, width: int) -> Scenarios:
         extra = width - self.num_npcs
         if extra <= 0:
             return self
@@ -136,8 +140,14 @@ class Scenarios:
         return Scenarios(**out)
 
 
-_AV_DTYPES = {"av_s": np.float64, "av_d": np.float64, "av_v": np.float64, "av_direction": np.int8,
-              "av_goal_s": np.float64, "av_lead": np.int16}
+_AV_DTYPES = {
+    "av_s": np.float64,
+    "av_d": np.float64,
+    "av_v": np.float64,
+    "av_direction": np.int8,
+    "av_goal_s": np.float64,
+    "av_lead": np.int16,
+}
 
 Range = tuple[float, float]
 
@@ -157,7 +167,9 @@ class ScenarioDistribution:
     speed_limit: float = bounded(15.0 * KMH, 0.5, 40.0, "m/s")
     lane_width: float = bounded(3.5, 2.0, 6.0, "m")
     goal: float = bounded(100.0, 1.0, 5000.0, "m")  # from the ego's start to the goal line
-    road_extra: float = bounded(150.0, 0.0, 5000.0, "m")  # road beyond the goal (ends a follower's episode by truncation)
+    road_extra: float = bounded(
+        150.0, 0.0, 5000.0, "m"
+    )  # road beyond the goal (ends a follower's episode by truncation)
     sensor_range: float = bounded(60.0, 1.0, 1000.0, "m")
     time_limit: float = bounded(60.0, 0.1, 3600.0, "s")  # (tests end episodes within a few steps)
     ego_speed: Range = bounded((15.0 * KMH, 15.0 * KMH), 0.0, 40.0, "m/s")
@@ -172,8 +184,12 @@ class ScenarioDistribution:
     oncoming_behaviour: str = "idm"  # "idm" (reactive) or "scripted" (blind to the ego)
     oncoming_count: int = bounded(1, 0, 64)
     oncoming_speed: Range = bounded((1.0, 3.0), 0.0, 40.0, "m/s")
-    oncoming_gap: Range = bounded((20.0, 150.0), 0.0, 5000.0, "m")  # D2: from the ego's front to the first oncoming front
-    oncoming_headway: Range = bounded((15.0, 60.0), 0.0, 5000.0, "m")  # bumper gaps between successive oncoming vehicles
+    oncoming_gap: Range = bounded(
+        (20.0, 150.0), 0.0, 5000.0, "m"
+    )  # D2: from the ego's front to the first oncoming front
+    oncoming_headway: Range = bounded(
+        (15.0, 60.0), 0.0, 5000.0, "m"
+    )  # bumper gaps between successive oncoming vehicles
     # Perceived only this close (a late-appearing car); [inf, inf], the default, means never hidden.
     oncoming_reveal: Range = bounded((math.inf, math.inf), 1.0, 1000.0, "m")
     follower_count: int = bounded(0, 0, 64)
@@ -185,12 +201,14 @@ class ScenarioDistribution:
     platoon_size: int = bounded(1, 1, 16)  # AVs in lane 0 behind NPC1: the ego, then AV 1, 2, ... each behind the last
     platoon_gap: Range = bounded((5.0, 20.0), 0.0, 5000.0, "m")  # bumper gaps between successive platoon AVs (> 0)
     oncoming_av: int = bounded(0, 0, 1)  # 1: one AV driving towards -s in lane 1, behind its own slow lead
-    oncoming_av_distance: Range = bounded((60.0, 200.0), 0.0, 5000.0, "m")  # from the ego's front to that AV's front (> 0)
+    oncoming_av_distance: Range = bounded(
+        (60.0, 200.0), 0.0, 5000.0, "m"
+    )  # from the ego's front to that AV's front (> 0)
     oncoming_av_lead_gap: Range = bounded((8.0, 25.0), 0.0, 5000.0, "m")  # bumper gap from that AV to its lead (> 0)
     oncoming_av_lead_speed: Range = bounded((1.0, 3.0), 0.0, 40.0, "m/s")
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any] | None) -> "ScenarioDistribution":
+    def from_dict(cls, data: dict[str, Any] | None) -> ScenarioDistribution:
         if data is not None and not isinstance(data, dict):
             raise ConfigError(f"scenario: expected a table, got {data!r}")
         data = dict(data or {})
@@ -231,8 +249,10 @@ class ScenarioDistribution:
             if f.name == "oncoming_reveal" and all(v == math.inf for v in values):
                 continue
             if not all(math.isfinite(v) for v in values):
-                raise ConfigError(f"scenario.{f.name}: must be finite, got {value!r}"
-                                  + (" ([inf, inf] means never hidden)" if f.name == "oncoming_reveal" else ""))
+                raise ConfigError(
+                    f"scenario.{f.name}: must be finite, got {value!r}"
+                    + (" ([inf, inf] means never hidden)" if f.name == "oncoming_reveal" else "")
+                )
         self._validate_avs()  # first: its messages say why (vehicles may not start in contact, ...)
         never_hidden = ("oncoming_reveal",) if self.oncoming_reveal == (math.inf, math.inf) else ()
         check_ranges(self, "scenario.", skip=never_hidden)
@@ -245,8 +265,9 @@ class ScenarioDistribution:
             raise ConfigError(f"scenario.oncoming_av: expected 0 or 1, got {self.oncoming_av!r}")
         for key in ("platoon_gap", "oncoming_av_distance", "oncoming_av_lead_gap"):
             if not getattr(self, key)[0] > 0:
-                raise ConfigError(f"scenario.{key}: must be > 0 (vehicles may not start in contact), "
-                                  f"got {getattr(self, key)!r}")
+                raise ConfigError(
+                    f"scenario.{key}: must be > 0 (vehicles may not start in contact), got {getattr(self, key)!r}"
+                )
         if self.oncoming_av_lead_speed[0] < 0:
             raise ConfigError(f"scenario.oncoming_av_lead_speed: must be >= 0, got {self.oncoming_av_lead_speed!r}")
         if not self.oncoming_av:
@@ -254,15 +275,19 @@ class ScenarioDistribution:
         # The oncoming AV's lead starts between the two AVs: its front ahead of the ego's front.
         room = self.oncoming_av_lead_gap[1] + self.vehicle_length
         if not self.oncoming_av_distance[0] > room:
-            raise ConfigError(f"scenario.oncoming_av_distance: the low end must exceed oncoming_av_lead_gap's "
-                              f"high end + vehicle_length ({room:g} m) so the AV's lead starts ahead of the "
-                              f"ego, got {self.oncoming_av_distance!r}")
+            raise ConfigError(
+                f"scenario.oncoming_av_distance: the low end must exceed oncoming_av_lead_gap's "
+                f"high end + vehicle_length ({room:g} m) so the AV's lead starts ahead of the "
+                f"ego, got {self.oncoming_av_distance!r}"
+            )
         # Oncoming NPCs share lane 1 with the oncoming AV: they start behind it (they follow it).
         behind = self.oncoming_av_distance[1] + self.ego_length
         if self.oncoming_count and not self.oncoming_gap[0] > behind:
-            raise ConfigError(f"scenario.oncoming_gap: with an oncoming AV the oncoming vehicles start behind "
-                              f"it, so the low end must exceed oncoming_av_distance's high end + ego_length "
-                              f"({behind:g} m), got {self.oncoming_gap!r}")
+            raise ConfigError(
+                f"scenario.oncoming_gap: with an oncoming AV the oncoming vehicles start behind "
+                f"it, so the low end must exceed oncoming_av_distance's high end + ego_length "
+                f"({behind:g} m), got {self.oncoming_gap!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
@@ -286,8 +311,17 @@ class ScenarioDistribution:
         # The AVs' quantities last, and only when there are AVs, so single-ego draws are unchanged.
         P, O = self.platoon_size, self.oncoming_av
         plat_v, plat_gap = (u(self.ego_speed, P - 1), u(self.platoon_gap, P - 1)) if P > 1 else (None, None)
-        oav = ((u(self.ego_speed), u(self.oncoming_av_distance), u(self.oncoming_av_lead_gap),
-                u(self.oncoming_av_lead_speed), u(self.reaction_time)) if O else None)
+        oav = (
+            (
+                u(self.ego_speed),
+                u(self.oncoming_av_distance),
+                u(self.oncoming_av_lead_gap),
+                u(self.oncoming_av_lead_speed),
+                u(self.reaction_time),
+            )
+            if O
+            else None
+        )
 
         Le, L = self.ego_length, self.vehicle_length
         lane = np.zeros((n, M), np.int8)
@@ -305,38 +339,64 @@ class ScenarioDistribution:
         must_pass[:, 0] = True
         # Oncoming vehicles: the first D2 ahead of the ego's front, then random headways.
         if K:
-            fronts = Le / 2 + onc_gap[:, None] + np.concatenate(
-                [np.zeros((n, 1)), np.cumsum(onc_head[:, 1:] + L, axis=1)], axis=1)
-            lane[:, 1:1 + K] = OPPOSITE_LANE
-            s[:, 1:1 + K] = fronts + L / 2  # an oncoming car's front faces -s
-            v[:, 1:1 + K] = onc_v
-            behaviour[:, 1:1 + K] = BEHAVIOURS[self.oncoming_behaviour]
-            reveal[:, 1:1 + K] = onc_reveal
+            fronts = (
+                Le / 2
+                + onc_gap[:, None]
+                + np.concatenate([np.zeros((n, 1)), np.cumsum(onc_head[:, 1:] + L, axis=1)], axis=1)
+            )
+            lane[:, 1 : 1 + K] = OPPOSITE_LANE
+            s[:, 1 : 1 + K] = fronts + L / 2  # an oncoming car's front faces -s
+            v[:, 1 : 1 + K] = onc_v
+            behaviour[:, 1 : 1 + K] = BEHAVIOURS[self.oncoming_behaviour]
+            reveal[:, 1 : 1 + K] = onc_reveal
         # Followers behind the ego, in the ego lane.
         if F:
             offsets = np.cumsum(fol_gap + L, axis=1) - L / 2 + Le / 2
-            s[:, 1 + K:] = -offsets
-            v[:, 1 + K:] = fol_v
+            s[:, 1 + K :] = -offsets
+            v[:, 1 + K :] = fol_v
 
         full = lambda x: np.full(n, float(x))  # noqa: E731
         single = Scenarios(
-            lane_width=full(self.lane_width), speed_limit=full(self.speed_limit), goal_s=full(self.goal),
-            road_length=full(self.goal + self.road_extra), sensor_range=full(self.sensor_range),
-            time_limit=full(self.time_limit), ego_s=np.zeros(n), ego_d=np.zeros(n),
-            ego_v=np.minimum(ego_v, self.speed_limit), ego_length=full(Le), ego_width=full(self.ego_width),
-            npc_present=np.ones((n, M), bool), npc_lane=lane, npc_s=s, npc_v=v, npc_v_des=v.copy(),
-            npc_behaviour=behaviour, npc_boost=boost, npc_length=np.full((n, M), L),
-            npc_width=np.full((n, M), self.vehicle_width), npc_reaction=reaction, npc_reveal=reveal,
+            lane_width=full(self.lane_width),
+            speed_limit=full(self.speed_limit),
+            goal_s=full(self.goal),
+            road_length=full(self.goal + self.road_extra),
+            sensor_range=full(self.sensor_range),
+            time_limit=full(self.time_limit),
+            ego_s=np.zeros(n),
+            ego_d=np.zeros(n),
+            ego_v=np.minimum(ego_v, self.speed_limit),
+            ego_length=full(Le),
+            ego_width=full(self.ego_width),
+            npc_present=np.ones((n, M), bool),
+            npc_lane=lane,
+            npc_s=s,
+            npc_v=v,
+            npc_v_des=v.copy(),
+            npc_behaviour=behaviour,
+            npc_boost=boost,
+            npc_length=np.full((n, M), L),
+            npc_width=np.full((n, M), self.vehicle_width),
+            npc_reaction=reaction,
+            npc_reveal=reveal,
             npc_must_pass=must_pass,
         )
         if P == 1 and not O:
             return single
-        return _with_avs(single, slice(1 + K, M), plat_gap, plat_v, oav, (L, self.vehicle_width),
-                         BEHAVIOURS[self.oncoming_behaviour])
+        return _with_avs(
+            single, slice(1 + K, M), plat_gap, plat_v, oav, (L, self.vehicle_width), BEHAVIOURS[self.oncoming_behaviour]
+        )
 
 
-def _with_avs(sc: Scenarios, followers: slice, plat_gap: np.ndarray | None, plat_v: np.ndarray | None,
-              oav: tuple[np.ndarray, ...] | None, vehicle: tuple[float, float], oav_lead_behaviour: int) -> Scenarios:
+def _with_avs(
+    sc: Scenarios,
+    followers: slice,
+    plat_gap: np.ndarray | None,
+    plat_v: np.ndarray | None,
+    oav: tuple[np.ndarray, ...] | None,
+    vehicle: tuple[float, float],
+    oav_lead_behaviour: int,
+) -> Scenarios:
     """``sc`` (single-ego rows) with further AVs: a platoon behind the ego and/or an oncoming AV.
 
     ``plat_gap``/``plat_v`` (N, P-1): bumper gaps and speeds of the platoon AVs behind the ego, each
@@ -369,10 +429,20 @@ def _with_avs(sc: Scenarios, followers: slice, plat_gap: np.ndarray | None, plat
         front = sc.ego_s + Le / 2 + distance  # the oncoming AV's front faces -s
         slot = sc.num_npcs
         L, W = vehicle
-        lead = {"npc_present": True, "npc_lane": OPPOSITE_LANE, "npc_s": front - lead_gap - L / 2,
-                "npc_v": lead_speed, "npc_v_des": lead_speed, "npc_behaviour": oav_lead_behaviour,
-                "npc_boost": 0.0, "npc_length": L, "npc_width": W, "npc_reaction": reaction,
-                "npc_reveal": np.inf, "npc_must_pass": False}
+        lead = {
+            "npc_present": True,
+            "npc_lane": OPPOSITE_LANE,
+            "npc_s": front - lead_gap - L / 2,
+            "npc_v": lead_speed,
+            "npc_v_des": lead_speed,
+            "npc_behaviour": oav_lead_behaviour,
+            "npc_boost": 0.0,
+            "npc_length": L,
+            "npc_width": W,
+            "npc_reaction": reaction,
+            "npc_reveal": np.inf,
+            "npc_must_pass": False,
+        }
         for k, value in lead.items():
             npc[k] = np.concatenate([npc[k], np.broadcast_to(np.asarray(value, npc[k].dtype), (n,))[:, None]], axis=1)
         s = front + Le / 2
@@ -430,27 +500,40 @@ def make_scenario(
     for gap, speed in followers:
         rows.append((EGO_LANE, -(Le / 2 + gap + L / 2), speed, IDM, 0.0, False, math.inf))
     M = max(len(rows), 1)
-    cols = list(zip(*rows)) if rows else [[0]] * 7
+    cols = list(zip(*rows, strict=True)) if rows else [[0]] * 7
     present = np.zeros((1, M), bool)
-    present[0, :len(rows)] = True
+    present[0, : len(rows)] = True
 
     def col(i: int, dtype: Any, fill: Any) -> np.ndarray:
         a = np.full((1, M), fill, dtype=dtype)
         if rows:
-            a[0, :len(rows)] = cols[i]
+            a[0, : len(rows)] = cols[i]
         return a
 
     v = col(2, float, 0.0)
     single = Scenarios(
-        lane_width=np.array([dist.lane_width]), speed_limit=np.array([dist.speed_limit]),
-        goal_s=np.array([dist.goal]), road_length=np.array([dist.goal + dist.road_extra]),
-        sensor_range=np.array([dist.sensor_range]), time_limit=np.array([dist.time_limit]),
-        ego_s=np.zeros(1), ego_d=np.zeros(1), ego_v=np.array([min(ego_speed, dist.speed_limit)]),
-        ego_length=np.array([Le]), ego_width=np.array([dist.ego_width]),
-        npc_present=present, npc_lane=col(0, np.int8, 0), npc_s=col(1, float, 0.0), npc_v=v,
-        npc_v_des=v.copy(), npc_behaviour=col(3, np.int8, 0), npc_boost=col(4, float, 0.0),
-        npc_length=np.full((1, M), L), npc_width=np.full((1, M), dist.vehicle_width),
-        npc_reaction=np.full((1, M), reaction_time), npc_reveal=col(6, float, math.inf),
+        lane_width=np.array([dist.lane_width]),
+        speed_limit=np.array([dist.speed_limit]),
+        goal_s=np.array([dist.goal]),
+        road_length=np.array([dist.goal + dist.road_extra]),
+        sensor_range=np.array([dist.sensor_range]),
+        time_limit=np.array([dist.time_limit]),
+        ego_s=np.zeros(1),
+        ego_d=np.zeros(1),
+        ego_v=np.array([min(ego_speed, dist.speed_limit)]),
+        ego_length=np.array([Le]),
+        ego_width=np.array([dist.ego_width]),
+        npc_present=present,
+        npc_lane=col(0, np.int8, 0),
+        npc_s=col(1, float, 0.0),
+        npc_v=v,
+        npc_v_des=v.copy(),
+        npc_behaviour=col(3, np.int8, 0),
+        npc_boost=col(4, float, 0.0),
+        npc_length=np.full((1, M), L),
+        npc_width=np.full((1, M), dist.vehicle_width),
+        npc_reaction=np.full((1, M), reaction_time),
+        npc_reveal=col(6, float, math.inf),
         npc_must_pass=col(5, bool, False),
     )
     if not platoon and oncoming_av is None:
@@ -460,8 +543,15 @@ def make_scenario(
     if oncoming_av is not None:
         distance, speed, lead_gap, lead_speed = (np.array([float(x)]) for x in oncoming_av)
         oav = (speed, distance, lead_gap, lead_speed, np.array([reaction_time]))
-    return _with_avs(single, slice(len(rows) - len(followers), len(rows)), plat[..., 0], plat[..., 1], oav,
-                     (L, dist.vehicle_width), BEHAVIOURS[oncoming_behaviour])
+    return _with_avs(
+        single,
+        slice(len(rows) - len(followers), len(rows)),
+        plat[..., 0],
+        plat[..., 1],
+        oav,
+        (L, dist.vehicle_width),
+        BEHAVIOURS[oncoming_behaviour],
+    )
 
 
 def npc1_npc2_speeds(sc: Scenarios) -> tuple[np.ndarray, np.ndarray]:
@@ -473,8 +563,9 @@ def npc1_npc2_speeds(sc: Scenarios) -> tuple[np.ndarray, np.ndarray]:
     return npc1, np.where(is_npc2, sc.npc_v[:, NPC2_SLOT], np.nan)
 
 
-def crash_roles(crash_npc: np.ndarray, crash_lane: np.ndarray,
-                lead_npc: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def crash_roles(
+    crash_npc: np.ndarray, crash_lane: np.ndarray, lead_npc: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Whether each episode's crash partner was NPC1 and whether it was NPC2. On a multi-AV road
     (``lead_npc``: each AV's own lead slot) NPC1 is the AV's own lead and NPC2 any NPC in its
     opposite lane."""

@@ -23,19 +23,28 @@ from typing import Any
 from overtakezoo.envs.config import ConfigError, EnvConfig, SuiteError, unknown_key
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
-
-
 SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
 MAX_COUNT = 1_000_000
 CHUNK_SIZE = 4096  # roads the runner steps at once (runner.run_suite's chunk_size)
 # The public single-ego suites (the OvertakeZoo score's), and the training mixture of their splits.
-CORE = ("table1", "table1-reactive", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
-        "adversarial", "occluded")
+CORE = (
+    "table1",
+    "table1-reactive",
+    "oncoming-2",
+    "oncoming-4",
+    "oncoming-8",
+    "dense",
+    "urban-50",
+    "adversarial",
+    "occluded",
+)
 # The multi-agent suites: several automated vehicles on one road (not part of the single-ego score).
 MULTI = ("duel", "platoon", "mixed-traffic")
-MIXTURES = {"core-train": tuple(f"{name}-train" for name in CORE),
-            "multi-train": tuple(f"{name}-train" for name in MULTI)}
+MIXTURES = {
+    "core-train": tuple(f"{name}-train" for name in CORE),
+    "multi-train": tuple(f"{name}-train" for name in MULTI),
+}
 _KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base", "scenarios", "search"}
 
 
@@ -121,7 +130,8 @@ def check_memory(suite: Suite) -> None:
             f"{suite.path}: count: {suite.count} scenarios of {1 + one.oncoming_count + one.follower_count} NPCs "
             f"need about {(scenarios + core) / gib:.1f} GiB ({scenarios / gib:.1f} GiB of scenarios, "
             f"{core / gib:.1f} GiB per chunk of {CHUNK_SIZE}), only {available / gib:.1f} GiB is available: "
-            f"lower count, oncoming_count or follower_count")
+            f"lower count, oncoming_count or follower_count"
+        )
 
 
 def shard_bounds(count: int, shard: tuple[int, int] | None) -> tuple[int, int]:
@@ -270,9 +280,17 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         from overtakezoo.envs.explicit import explicit_distribution
 
         distribution = explicit_distribution(distribution, doc, where)
-    return Suite(name=name, version=version, count=count, seed=seed, description=description,
-                 hash=digest.hexdigest(), path=path.resolve(), config=config,
-                 distribution=distribution)
+    return Suite(
+        name=name,
+        version=version,
+        count=count,
+        seed=seed,
+        description=description,
+        hash=digest.hexdigest(),
+        path=path.resolve(),
+        config=config,
+        distribution=distribution,
+    )
 
 
 def _with_base(doc: dict[str, Any], where: str, digest: Any) -> tuple[dict[str, Any], Any]:

@@ -70,8 +70,12 @@ def parse_args() -> Args:
 
 def make_env(args: Args) -> gym.vector.VectorEnv:
     # SAME_STEP autoreset, as CleanRL's loop expects: a finished row restarts in the step that ends it.
-    return gym.make_vec(ENV_ID, num_envs=args.num_envs, vectorization_mode="vector_entry_point",
-                        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    return gym.make_vec(
+        ENV_ID,
+        num_envs=args.num_envs,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
 
 
 def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Linear:
@@ -89,12 +93,20 @@ class Agent(nn.Module):
         self.register_buffer("center", (high + low) / 2)
         self.register_buffer("scale", ((high - low) / 2).clamp(min=0.5))
         d = space.shape[0]
-        self.critic = nn.Sequential(layer_init(nn.Linear(d, hidden)), nn.Tanh(),
-                                    layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
-                                    layer_init(nn.Linear(hidden, 1), std=1.0))
-        self.actor = nn.Sequential(layer_init(nn.Linear(d, hidden)), nn.Tanh(),
-                                   layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
-                                   layer_init(nn.Linear(hidden, n_actions), std=0.01))
+        self.critic = nn.Sequential(
+            layer_init(nn.Linear(d, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, 1), std=1.0),
+        )
+        self.actor = nn.Sequential(
+            layer_init(nn.Linear(d, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, n_actions), std=0.01),
+        )
 
     def norm(self, x: torch.Tensor) -> torch.Tensor:
         return (x - self.center) / self.scale
@@ -173,16 +185,17 @@ def main() -> None:
         b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
 
         b_inds = np.arange(batch_size)
-        for epoch in range(args.update_epochs):
+        for _epoch in range(args.update_epochs):
             np.random.shuffle(b_inds)
             for begin in range(0, batch_size, minibatch_size):
-                mb = b_inds[begin:begin + minibatch_size]
+                mb = b_inds[begin : begin + minibatch_size]
                 _, newlogprob, entropy, newvalue = agent.get_action_and_value(b_obs[mb], b_actions[mb])
                 ratio = (newlogprob - b_logprobs[mb]).exp()
                 mb_adv = b_advantages[mb]
                 mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-                pg_loss = torch.max(-mb_adv * ratio,
-                                    -mb_adv * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)).mean()
+                pg_loss = torch.max(
+                    -mb_adv * ratio, -mb_adv * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+                ).mean()
                 newvalue = newvalue.view(-1)  # clipped value loss, as CleanRL's default
                 v_clipped = b_values[mb] + torch.clamp(newvalue - b_values[mb], -args.clip_coef, args.clip_coef)
                 v_loss = 0.5 * torch.max((newvalue - b_returns[mb]) ** 2, (v_clipped - b_returns[mb]) ** 2).mean()
@@ -194,8 +207,11 @@ def main() -> None:
 
         ends = np.bincount(np.asarray(outcomes, int), minlength=5)
         n = max(len(outcomes), 1)
-        print(f"iteration {iteration}/{num_iterations}  {time.perf_counter() - start:5.0f} s  episodes {len(outcomes)}"
-              f"  success {ends[1] / n:.3f}  crash {ends[2] / n:.3f}  timeout {ends[3] / n:.3f}", flush=True)
+        print(
+            f"iteration {iteration}/{num_iterations}  {time.perf_counter() - start:5.0f} s  episodes {len(outcomes)}"
+            f"  success {ends[1] / n:.3f}  crash {ends[2] / n:.3f}  timeout {ends[3] / n:.3f}",
+            flush=True,
+        )
     wall = time.perf_counter() - start
     envs.close()
 
@@ -204,15 +220,29 @@ def main() -> None:
     agent.eval()
     with warnings.catch_warnings():  # dynamo=False (the TorchScript exporter) warns that it is the legacy one
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(agent, (torch.zeros(2, envs.single_observation_space.shape[0]),), str(policy),
-                          input_names=["obs"], output_names=["logits"],
-                          dynamic_axes={"obs": {0: "n"}, "logits": {0: "n"}}, dynamo=False)
+        torch.onnx.export(
+            agent,
+            (torch.zeros(2, envs.single_observation_space.shape[0]),),
+            str(policy),
+            input_names=["obs"],
+            output_names=["logits"],
+            dynamic_axes={"obs": {0: "n"}, "logits": {0: "n"}},
+            dynamo=False,
+        )
     write_card(policy, action_repeat=HOLD, suite=SUITE)
-    stats = {"env_id": ENV_ID, "seed": args.seed, "decisions": num_iterations * batch_size, "threads": 1,
-             "train_wall_s": round(wall, 1), "args": dataclasses.asdict(args)}
+    stats = {
+        "env_id": ENV_ID,
+        "seed": args.seed,
+        "decisions": num_iterations * batch_size,
+        "threads": 1,
+        "train_wall_s": round(wall, 1),
+        "args": dataclasses.asdict(args),
+    }
     (out / "train.json").write_text(json.dumps(stats, indent=1) + "\n")
-    print(f"wrote {policy} (policy card inside: action_repeat {HOLD}, suite {SUITE}): "
-          f"{stats['decisions']} decisions in {wall / 60:.1f} min, torch 1 thread")
+    print(
+        f"wrote {policy} (policy card inside: action_repeat {HOLD}, suite {SUITE}): "
+        f"{stats['decisions']} decisions in {wall / 60:.1f} min, torch 1 thread"
+    )
 
 
 if __name__ == "__main__":

@@ -68,9 +68,14 @@ def to_mdp_dataset(dataset):
         term.append(end_t)
         tout.append(end_tr)
     return d3rlpy.dataset.MDPDataset(
-        observations=np.concatenate(obs), actions=np.concatenate(act), rewards=np.concatenate(rew),
-        terminals=np.concatenate(term), timeouts=np.concatenate(tout),
-        action_space=d3rlpy.constants.ActionSpace.DISCRETE, action_size=int(dataset.action_space.n))
+        observations=np.concatenate(obs),
+        actions=np.concatenate(act),
+        rewards=np.concatenate(rew),
+        terminals=np.concatenate(term),
+        timeouts=np.concatenate(tout),
+        action_space=d3rlpy.constants.ActionSpace.DISCRETE,
+        action_size=int(dataset.action_space.n),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -99,9 +104,16 @@ def main(argv: list[str] | None = None) -> int:
         observation_scaler=d3rlpy.preprocessing.StandardObservationScaler(),
     ).create(device="cpu:0")
     wall, cpu = time.perf_counter(), time.process_time()
-    cql.fit(data, n_steps=args.steps, n_steps_per_epoch=min(args.steps, 10_000), show_progress=False,
-            save_interval=10**9, experiment_name="cql", with_timestamp=False,
-            logger_adapter=d3rlpy.logging.FileAdapterFactory(root_dir=str(out / "d3rlpy_logs")))
+    cql.fit(
+        data,
+        n_steps=args.steps,
+        n_steps_per_epoch=min(args.steps, 10_000),
+        show_progress=False,
+        save_interval=10**9,
+        experiment_name="cql",
+        with_timestamp=False,
+        logger_adapter=d3rlpy.logging.FileAdapterFactory(root_dir=str(out / "d3rlpy_logs")),
+    )
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     policy = out / "policy.onnx"
     # d3rlpy's own export (greedy int64 actions). d3rlpy 2.8.1 hands torch.onnx.export a traced
@@ -110,13 +122,23 @@ def main(argv: list[str] | None = None) -> int:
     with mock.patch.object(torch.onnx, "export", functools.partial(torch.onnx.export, dynamo=False)):
         cql.save_policy(str(policy))
     write_card(policy, action_repeat=HOLD, suite=SUITE, name="d3rlpy-cql")  # into the ONNX metadata
-    stats = {"dataset": args.dataset, "transitions": int(data.transition_count), "steps": args.steps,
-             "seed": args.seed, "threads": args.threads, "d3rlpy": d3rlpy.__version__,
-             "hyperparams": {**HYPERPARAMS, "hidden": HIDDEN}, "train_wall_s": round(wall, 1),
-             "train_cpu_s": round(cpu, 1), "steps_per_s": round(args.steps / wall, 1)}
+    stats = {
+        "dataset": args.dataset,
+        "transitions": int(data.transition_count),
+        "steps": args.steps,
+        "seed": args.seed,
+        "threads": args.threads,
+        "d3rlpy": d3rlpy.__version__,
+        "hyperparams": {**HYPERPARAMS, "hidden": HIDDEN},
+        "train_wall_s": round(wall, 1),
+        "train_cpu_s": round(cpu, 1),
+        "steps_per_s": round(args.steps / wall, 1),
+    }
     (out / "train.json").write_text(json.dumps(stats, indent=1) + "\n")
-    print(f"wrote {policy} (card inside): {args.steps} gradient steps on {stats['transitions']} transitions in "
-          f"{wall / 60:.1f} min ({cpu / 60:.1f} CPU min, {stats['steps_per_s']} steps/s, torch {args.threads} thread(s))")
+    print(
+        f"wrote {policy} (card inside): {args.steps} gradient steps on {stats['transitions']} transitions in "
+        f"{wall / 60:.1f} min ({cpu / 60:.1f} CPU min, {stats['steps_per_s']} steps/s, torch {args.threads} thread(s))"
+    )
     return 0
 
 

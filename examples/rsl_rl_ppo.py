@@ -38,12 +38,30 @@ TRAIN_CFG = {
     "num_steps_per_env": 32,
     "save_interval": 50,
     "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
-    "algorithm": {"class_name": "PPO", "num_learning_epochs": 5, "num_mini_batches": 4, "clip_param": 0.2,
-                  "gamma": 0.99, "lam": 0.95, "value_loss_coef": 1.0, "entropy_coef": 0.03,
-                  "learning_rate": 1e-3, "max_grad_norm": 1.0, "schedule": "adaptive", "desired_kl": 0.01},
-    "actor": {"class_name": "MLPModel", "hidden_dims": [128, 128], "activation": "elu", "obs_normalization": True,
-              "distribution_cfg": {"class_name": "overtakezoo.zoo.train.categorical:CategoricalDistribution",
-                                   "num_categories": 3}},
+    "algorithm": {
+        "class_name": "PPO",
+        "num_learning_epochs": 5,
+        "num_mini_batches": 4,
+        "clip_param": 0.2,
+        "gamma": 0.99,
+        "lam": 0.95,
+        "value_loss_coef": 1.0,
+        "entropy_coef": 0.03,
+        "learning_rate": 1e-3,
+        "max_grad_norm": 1.0,
+        "schedule": "adaptive",
+        "desired_kl": 0.01,
+    },
+    "actor": {
+        "class_name": "MLPModel",
+        "hidden_dims": [128, 128],
+        "activation": "elu",
+        "obs_normalization": True,
+        "distribution_cfg": {
+            "class_name": "overtakezoo.zoo.train.categorical:CategoricalDistribution",
+            "num_categories": 3,
+        },
+    },
     "critic": {"class_name": "MLPModel", "hidden_dims": [128, 128], "activation": "elu", "obs_normalization": True},
 }
 
@@ -62,9 +80,14 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
 
     suite = load_suite(SUITE)
-    env = OvertakeRslRlEnv(args.num_envs, suite.config, source=suite.scenarios(), seed=args.seed,
-                           action_repeat=ACTION_REPEAT,
-                           bootstrap_timeouts=False)  # the 60 s limit is part of the task: a timeout is a failure
+    env = OvertakeRslRlEnv(
+        args.num_envs,
+        suite.config,
+        source=suite.scenarios(),
+        seed=args.seed,
+        action_repeat=ACTION_REPEAT,
+        bootstrap_timeouts=False,
+    )  # the 60 s limit is part of the task: a timeout is a failure
     runner = OnPolicyRunner(env, TRAIN_CFG, log_dir=None, device="cpu")
 
     t0 = time.perf_counter()
@@ -74,8 +97,11 @@ def main() -> None:
         runner.current_learning_iteration = it + 1  # learn(1) does not advance it itself
         done = {k: v - before.get(k, 0) for k, v in env.episode_counts.items()}
         eps = max(done.get("episodes", 0), 1)
-        print(f"iteration {it + 1}/{args.iterations}  {time.perf_counter() - t0:6.0f} s  episodes {eps}  "
-              f"success {done.get('success', 0) / eps:.2f}  crash {done.get('crash', 0) / eps:.2f}", flush=True)
+        print(
+            f"iteration {it + 1}/{args.iterations}  {time.perf_counter() - t0:6.0f} s  episodes {eps}  "
+            f"success {done.get('success', 0) / eps:.2f}  crash {done.get('crash', 0) / eps:.2f}",
+            flush=True,
+        )
     print(f"trained {args.iterations} iterations in {(time.perf_counter() - t0) / 60:.1f} min", flush=True)
 
     runner.export_policy_to_onnx(str(out))  # rsl-rl's own exporter: <out>/policy.onnx

@@ -61,14 +61,22 @@ def main(argv: list[str] | None = None) -> int:
     wall, cpu = time.perf_counter(), time.process_time()
     model.learn(total_timesteps=args.steps)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    model.save(out / "model")                       # writes model.zip
+    model.save(out / "model")  # writes model.zip
     card = write_card(out / "model", action_repeat=HOLD, suite=SUITE)
-    stats = {"env_id": ENV_ID, "steps": args.steps, "seed": args.seed, "threads": args.threads,
-             "train_wall_s": round(wall, 1), "train_cpu_s": round(cpu, 1),
-             "steps_per_s": round(args.steps / wall, 1)}
+    stats = {
+        "env_id": ENV_ID,
+        "steps": args.steps,
+        "seed": args.seed,
+        "threads": args.threads,
+        "train_wall_s": round(wall, 1),
+        "train_cpu_s": round(cpu, 1),
+        "steps_per_s": round(args.steps / wall, 1),
+    }
     (out / "train.json").write_text(json.dumps(stats, indent=1) + "\n")
-    print(f"wrote {out / 'model.zip'} and {card}: {args.steps} steps in {wall / 60:.1f} min "
-          f"({cpu / 60:.1f} CPU min, {stats['steps_per_s']} steps/s, torch {args.threads} thread(s))")
+    print(
+        f"wrote {out / 'model.zip'} and {card}: {args.steps} steps in {wall / 60:.1f} min "
+        f"({cpu / 60:.1f} CPU min, {stats['steps_per_s']} steps/s, torch {args.threads} thread(s))"
+    )
     return 0
 
 

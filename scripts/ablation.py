@@ -42,24 +42,46 @@ ROOT = Path(__file__).resolve().parents[1]
 SUITES = ROOT / "scripts" / "ablation-suites"
 WIDEN = 0.25  # of a range's width, added on each side
 # Scenario ranges widened (the ego's speed and the follower's stay: they are set by the speed limit).
-WIDE_KEYS = ("lead_speed", "oncoming_speed", "lead_gap", "oncoming_gap", "oncoming_headway", "follower_gap",
-             "reaction_time", "oncoming_reveal", "lead_boost")
+WIDE_KEYS = (
+    "lead_speed",
+    "oncoming_speed",
+    "lead_gap",
+    "oncoming_gap",
+    "oncoming_headway",
+    "follower_gap",
+    "reaction_time",
+    "oncoming_reveal",
+    "lead_boost",
+)
 SPEEDS = ("lead_speed", "oncoming_speed")
 
 VARIANTS = {
-    "dagger": {"train": "dagger", "what": "DAgger on core-train, OVERTAKE threshold chosen on the training splits "
-                                          "(the shipped recipe)"},
-    "oracle-states": {"train": "oracle-states", "set": ["beta_decay=1.0"],
-                      "what": "the oracle's own states only (beta = 1 every iteration: behaviour cloning of the "
-                              "privileged teacher, no DAgger)"},
-    "no-threshold": {"from": "dagger", "what": "the dagger runs with the OVERTAKE offset removed (argmax of the "
-                                              "oracle-label classifier)"},
-    "stack": {"train": "stack", "set": ["frame_stack=4"],
-              "what": "DAgger with memory: the student reads its last 4 decisions' observations (a frame stack, "
-                      "4 s), where sensors hide oncoming cars"},
-    "wide": {"train": "wide", "suite": "wide",
-             "what": "DAgger on core-wide-train: every core suite's scenario ranges widened by 25 % of their "
-                     "width on each side (domain randomisation)"},
+    "dagger": {
+        "train": "dagger",
+        "what": "DAgger on core-train, OVERTAKE threshold chosen on the training splits (the shipped recipe)",
+    },
+    "oracle-states": {
+        "train": "oracle-states",
+        "set": ["beta_decay=1.0"],
+        "what": "the oracle's own states only (beta = 1 every iteration: behaviour cloning of the "
+        "privileged teacher, no DAgger)",
+    },
+    "no-threshold": {
+        "from": "dagger",
+        "what": "the dagger runs with the OVERTAKE offset removed (argmax of the oracle-label classifier)",
+    },
+    "stack": {
+        "train": "stack",
+        "set": ["frame_stack=4"],
+        "what": "DAgger with memory: the student reads its last 4 decisions' observations (a frame stack, "
+        "4 s), where sensors hide oncoming cars",
+    },
+    "wide": {
+        "train": "wide",
+        "suite": "wide",
+        "what": "DAgger on core-wide-train: every core suite's scenario ranges widened by 25 % of their "
+        "width on each side (domain randomisation)",
+    },
 }
 
 
@@ -82,14 +104,21 @@ def write_suites() -> list[Path]:
                 if key in SPEEDS:
                     hi = min(hi, sc["speed_limit"])
                 sc[key] = [round(lo, 6), round(hi, 6)]
-        lines = [f"# {name}'s own distribution with every range in {', '.join(WIDE_KEYS)} widened by "
-                 f"{int(WIDEN * 100)} % of its width on each side",
-                 "# (speeds at most the speed limit, lower bounds at least half the original), drawn with "
-                 f"{name}-train's seed.", "# Written by `python scripts/ablation.py --write-suites`; a training "
-                 "split for the ablation only.", "",
-                 f'name = "{name}-wide-train"', "version = 1",
-                 f'description = "{name} with wider scenario ranges (domain randomisation, training only)"',
-                 f"count = {split['count']}", f"seed = {split['seed']}", "", "[scenario]"]
+        lines = [
+            f"# {name}'s own distribution with every range in {', '.join(WIDE_KEYS)} widened by "
+            f"{int(WIDEN * 100)} % of its width on each side",
+            "# (speeds at most the speed limit, lower bounds at least half the original), drawn with "
+            f"{name}-train's seed.",
+            "# Written by `python scripts/ablation.py --write-suites`; a training split for the ablation only.",
+            "",
+            f'name = "{name}-wide-train"',
+            "version = 1",
+            f'description = "{name} with wider scenario ranges (domain randomisation, training only)"',
+            f"count = {split['count']}",
+            f"seed = {split['seed']}",
+            "",
+            "[scenario]",
+        ]
         lines += [f"{k} = {_toml(v)}" for k, v in sc.items()]
         lines += _table("sim", base.get("sim", {}))
         path = SUITES / f"{name}-wide-train.toml"
@@ -128,11 +157,23 @@ def train(variant: str, runs: Path, seeds: list[int]) -> list[Path]:
     v = VARIANTS[variant]
     out = runs / v["train"]
     dirs = [out.with_name(f"{out.name}-s{s}") for s in seeds]
-    todo = [s for s, d in zip(seeds, dirs) if not (d / "dagger.json").is_file()]
+    todo = [s for s, d in zip(seeds, dirs, strict=True) if not (d / "dagger.json").is_file()]
     if todo:
         suite = wide_spec() if v.get("suite") == "wide" else "core-train"
-        cmd = [str(Path(sys.executable).with_name("overtakezoo")), "train", "dagger", "--suite", suite,
-               "--seeds", ",".join(map(str, todo)), "--out", str(out), "--eval-suite", "none", "--no-progress"]
+        cmd = [
+            str(Path(sys.executable).with_name("overtakezoo")),
+            "train",
+            "dagger",
+            "--suite",
+            suite,
+            "--seeds",
+            ",".join(map(str, todo)),
+            "--out",
+            str(out),
+            "--eval-suite",
+            "none",
+            "--no-progress",
+        ]
         for item in v.get("set", []):
             cmd += ["--set", item]
         print("+", " ".join(cmd), flush=True)
@@ -183,13 +224,25 @@ def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
             if got["suites"].get(name, {}).get("suite_sha256") == suite.hash:
                 continue
             s = run_suite(suite, decider(run, suite.config, variant == "no-threshold"), progress=False).summary
-            got["suites"][name] = {"suite_sha256": suite.hash, "n": s["success_rate"]["n"],
-                                   "success": s["success_rate"]["k"], "crash": s["crash_rate"]["k"]}
-            print(f"{variant} seed {card['seed']} {name}: success {s['success_rate']['value']:.3f} "
-                  f"crash {s['crash_rate']['value']:.3f}", flush=True)
+            got["suites"][name] = {
+                "suite_sha256": suite.hash,
+                "n": s["success_rate"]["n"],
+                "success": s["success_rate"]["k"],
+                "crash": s["crash_rate"]["k"],
+            }
+            print(
+                f"{variant} seed {card['seed']} {name}: success {s['success_rate']['value']:.3f} "
+                f"crash {s['crash_rate']['value']:.3f}",
+                flush=True,
+            )
         cache.write_text(json.dumps(got, indent=1))
-        out.append({**got, "train_cpu_s": card["training"].get("cpu_time_s"), "offset":
-                    card["training"].get("overtake_logit_offset")})
+        out.append(
+            {
+                **got,
+                "train_cpu_s": card["training"].get("cpu_time_s"),
+                "offset": card["training"].get("overtake_logit_offset"),
+            }
+        )
     return out
 
 
@@ -208,8 +261,10 @@ def kept_variants(rerun: set[str], seeds: list[int]) -> dict[str, list[dict]]:
         if name in rerun or name not in VARIANTS or [r["seed"] for r in runs] != seeds:
             continue
         if all(r["suites"].get(n, {}).get("suite_sha256") == h for r in runs for n, h in hashes.items()):
-            kept[name] = [{**r, "train_cpu_s": c, "offset": o, "command": d.get("command")}
-                          for r, c, o in zip(runs, d["train_cpu_s"], d["offsets"])]
+            kept[name] = [
+                {**r, "train_cpu_s": c, "offset": o, "command": d.get("command")}
+                for r, c, o in zip(runs, d["train_cpu_s"], d["offsets"], strict=False)
+            ]
     return kept
 
 
@@ -218,48 +273,93 @@ def report(results: dict[str, list[dict]], command: str) -> tuple[str, dict]:
     from overtakezoo.envs.suites import CORE
 
     doc = {"command": command, "variants": {}}
-    head = ["| variant | seeds | score [95 % CI] | per-seed score | " + " | ".join(CORE) + " |",
-            "|---|---|---|---|" + "---|" * len(CORE)]
+    head = [
+        "| variant | seeds | score [95 % CI] | per-seed score | " + " | ".join(CORE) + " |",
+        "|---|---|---|---|" + "---|" * len(CORE),
+    ]
     for variant, seeds in results.items():
-        runs = {n: [Counts(s["suites"][n]["success"], s["suites"][n]["crash"], s["suites"][n]["n"]) for s in seeds]
-                for n in CORE}
+        runs = {
+            n: [Counts(s["suites"][n]["success"], s["suites"][n]["crash"], s["suites"][n]["n"]) for s in seeds]
+            for n in CORE
+        }
         sc = score(runs)
         per_seed = [float(np.mean([runs[n][j].score for n in CORE])) for j in range(len(seeds))]
-        cells = {n: {"success": mean_over_seeds(runs[n], "success"), "crash": mean_over_seeds(runs[n], "crash")}
-                 for n in CORE}
-        doc["variants"][variant] = {"what": VARIANTS[variant]["what"], "score": sc, "per_seed_score": per_seed,
-                                    "seeds": [s["seed"] for s in seeds], "offsets": [s["offset"] for s in seeds],
-                                    "train_cpu_s": [s["train_cpu_s"] for s in seeds], "suites": cells,
-                                    "command": seeds[0].get("command", command),
-                                    "runs": [{k: s.get(k) for k in ("seed", "weights_sha256", "suites")} for s in seeds]}
-        head.append(f"| {variant} | {len(seeds)} | {100 * sc['value']:.1f} [{100 * sc['lo']:.1f}, "
-                    f"{100 * sc['hi']:.1f}] | {', '.join(f'{100 * x:.1f}' for x in per_seed)} | "
-                    + " | ".join(f"{100 * cells[n]['success']['value']:.1f} / {100 * cells[n]['crash']['value']:.1f}"
-                                 for n in CORE) + " |")
-    seeds_rows = ["| variant | suite | " + " | ".join(f"seed {s}" for s in doc["variants"][next(iter(results))]["seeds"])
-                  + " |", "|---|---|" + "---|" * len(next(iter(results.values())))]
+        cells = {
+            n: {"success": mean_over_seeds(runs[n], "success"), "crash": mean_over_seeds(runs[n], "crash")}
+            for n in CORE
+        }
+        doc["variants"][variant] = {
+            "what": VARIANTS[variant]["what"],
+            "score": sc,
+            "per_seed_score": per_seed,
+            "seeds": [s["seed"] for s in seeds],
+            "offsets": [s["offset"] for s in seeds],
+            "train_cpu_s": [s["train_cpu_s"] for s in seeds],
+            "suites": cells,
+            "command": seeds[0].get("command", command),
+            "runs": [{k: s.get(k) for k in ("seed", "weights_sha256", "suites")} for s in seeds],
+        }
+        head.append(
+            f"| {variant} | {len(seeds)} | {100 * sc['value']:.1f} [{100 * sc['lo']:.1f}, "
+            f"{100 * sc['hi']:.1f}] | {', '.join(f'{100 * x:.1f}' for x in per_seed)} | "
+            + " | ".join(
+                f"{100 * cells[n]['success']['value']:.1f} / {100 * cells[n]['crash']['value']:.1f}" for n in CORE
+            )
+            + " |"
+        )
+    seeds_rows = [
+        "| variant | suite | " + " | ".join(f"seed {s}" for s in doc["variants"][next(iter(results))]["seeds"]) + " |",
+        "|---|---|" + "---|" * len(next(iter(results.values()))),
+    ]
     for variant, d in doc["variants"].items():
         for n in CORE:
-            seeds_rows.append(f"| {variant} | {n} | " + " | ".join(
-                f"{100 * s:.1f} / {100 * c:.1f}" for s, c in zip(d["suites"][n]["success"]["per_seed"],
-                                                                 d["suites"][n]["crash"]["per_seed"])) + " |")
-    md = "\n".join([
-        "# DAgger ablation", "",
-        "<!-- generated by scripts/ablation.py; do not edit -->", "",
-        f"Made by `{command}` (2-core AMD EPYC, shared)"
-        + "".join(f"; `{k}` kept from `{d['command']}`" for k, d in doc["variants"].items() if d["command"] != command)
-        + ". Each variant: 3 training seeds, the same training "
-        "budget (`zoo/hyperparams/dagger.toml`), run on the whole of every core suite; the score is the "
-        "leaderboard's (mean over suites of success - 2 x crash, %, mean over seeds, 95 % bootstrap CI over seeds "
-        "and scenarios). Cells: success / crash (%), mean over seeds. Nothing was chosen from these numbers.", "",
-        *(f"- `{k}`: {v['what']}" for k, v in doc["variants"].items()), "",
-        *(["Not in this table (defined in the script, not run here): "
-           + "; ".join(f"`{k}` ({v['what']})" for k, v in VARIANTS.items() if k not in results), ""]
-          if set(VARIANTS) - set(results) else []),
-        *head, "",
-        "Chosen OVERTAKE offsets (on training splits) and training CPU seconds per seed: " + "; ".join(
-            f"{k}: offsets {d['offsets']}, {d['train_cpu_s']} s" for k, d in doc["variants"].items()), "",
-        "## Per seed (success / crash, %)", "", *seeds_rows, ""])
+            seeds_rows.append(
+                f"| {variant} | {n} | "
+                + " | ".join(
+                    f"{100 * s:.1f} / {100 * c:.1f}"
+                    for s, c in zip(
+                        d["suites"][n]["success"]["per_seed"], d["suites"][n]["crash"]["per_seed"], strict=False
+                    )
+                )
+                + " |"
+            )
+    md = "\n".join(
+        [
+            "# DAgger ablation",
+            "",
+            "<!-- generated by scripts/ablation.py; do not edit -->",
+            "",
+            f"Made by `{command}` (2-core AMD EPYC, shared)"
+            + "".join(
+                f"; `{k}` kept from `{d['command']}`" for k, d in doc["variants"].items() if d["command"] != command
+            )
+            + ". Each variant: 3 training seeds, the same training "
+            "budget (`zoo/hyperparams/dagger.toml`), run on the whole of every core suite; the score is the "
+            "leaderboard's (mean over suites of success - 2 x crash, %, mean over seeds, 95 % bootstrap CI over seeds "
+            "and scenarios). Cells: success / crash (%), mean over seeds. Nothing was chosen from these numbers.",
+            "",
+            *(f"- `{k}`: {v['what']}" for k, v in doc["variants"].items()),
+            "",
+            *(
+                [
+                    "Not in this table (defined in the script, not run here): "
+                    + "; ".join(f"`{k}` ({v['what']})" for k, v in VARIANTS.items() if k not in results),
+                    "",
+                ]
+                if set(VARIANTS) - set(results)
+                else []
+            ),
+            *head,
+            "",
+            "Chosen OVERTAKE offsets (on training splits) and training CPU seconds per seed: "
+            + "; ".join(f"{k}: offsets {d['offsets']}, {d['train_cpu_s']} s" for k, d in doc["variants"].items()),
+            "",
+            "## Per seed (success / crash, %)",
+            "",
+            *seeds_rows,
+            "",
+        ]
+    )
     return md, doc
 
 
@@ -284,8 +384,9 @@ def main() -> None:
         source = VARIANTS[variant].get("from", variant)
         dirs = train(source, args.runs, seeds)
         results[variant] = evaluate(variant, dirs)
-    command = "python scripts/ablation.py" + ("" if args.variants == ",".join(VARIANTS) else
-                                              f" --variants {args.variants}")
+    command = "python scripts/ablation.py" + (
+        "" if args.variants == ",".join(VARIANTS) else f" --variants {args.variants}"
+    )
     kept = kept_variants(set(variants), seeds)
     md, doc = report({v: results.get(v) or kept[v] for v in VARIANTS if v in results or v in kept}, command)
     (ROOT / "docs" / "ablation.md").write_text(md)

@@ -1,6 +1,7 @@
 """CPU time and peak memory of `eval --archive` against a plain eval (table1, rule-fsm by default).
 
-    python scripts/archive_overhead.py [--suite table1] [--decider rule-fsm] [--repeats 3] [--out docs/archive-overhead.md]
+    python scripts/archive_overhead.py [--suite table1] [--decider rule-fsm] [--repeats 3]
+                                       [--out docs/archive-overhead.md]
                                        [-- extra eval arguments, e.g. --scene-every 10]
     python scripts/archive_overhead.py --breakdown   # where the archive's CPU time goes, and zstd levels
 
@@ -29,8 +30,11 @@ from pathlib import Path
 
 def run_once(args: list[str]) -> tuple[float, float]:
     """(user + sys CPU seconds, peak RSS MB) of one eval process."""
-    proc = subprocess.Popen([sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     _, status, ru = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
     err = proc.stderr.read().decode() if proc.stderr else ""
@@ -74,14 +78,17 @@ def breakdown(suite_name: str, decider_name: str) -> str:
                 return inner(*a, **k)
             finally:
                 spent[key] += time.process_time() - t
+
         setattr(owner, name, timed)
 
-    stages = [(recorder.ArchiveRecorder, "_capture", "capture (per step)"),
-              (recorder.ArchiveRecorder, "_write_episodes", "writing episodes (all below)"),
-              (recorder, "scene_records", "  scene records (/tf, /scene/*)"),
-              (cdr.Layout, "fill", "  record templates filled (all kinds)"),
-              (recorder.ArchiveRecorder, "_write_chunk", "  chunks: JSON heads and summaries, chunk, metadata"),
-              (mcapfile.McapFile, "write_chunk", "    chunk: compress, CRC, message indexes")]
+    stages = [
+        (recorder.ArchiveRecorder, "_capture", "capture (per step)"),
+        (recorder.ArchiveRecorder, "_write_episodes", "writing episodes (all below)"),
+        (recorder, "scene_records", "  scene records (/tf, /scene/*)"),
+        (cdr.Layout, "fill", "  record templates filled (all kinds)"),
+        (recorder.ArchiveRecorder, "_write_chunk", "  chunks: JSON heads and summaries, chunk, metadata"),
+        (mcapfile.McapFile, "write_chunk", "    chunk: compress, CRC, message indexes"),
+    ]
     for owner, name, key in stages:
         count(owner, name, key)
     suite = load_suite(suite_name)
@@ -93,8 +100,12 @@ def breakdown(suite_name: str, decider_name: str) -> str:
         with recorder.ArchiveRecorder(path) as rec:
             run_suite(suite, decider, progress=False, recorder=rec)
         total = time.process_time() - t0
-        lines += [f"In-process `run_suite` of {suite_name} with {decider_name} and the archive: {total:.2f} CPU s.", "",
-                  "| stage | CPU s |", "|---|---|"]
+        lines += [
+            f"In-process `run_suite` of {suite_name} with {decider_name} and the archive: {total:.2f} CPU s.",
+            "",
+            "| stage | CPU s |",
+            "|---|---|",
+        ]
         lines += [f"| {key} | {spent[key]:.2f} |" for _, _, key in stages]
         with open(path, "rb") as f:
             summary = make_reader(f).get_summary()
@@ -104,8 +115,13 @@ def breakdown(suite_name: str, decider_name: str) -> str:
                 ch = Chunk.read(ReadDataStream(f))
                 chunks.append(zstandard.decompress(ch.data, max_output_size=ch.uncompressed_size))
     raw = sum(map(len, chunks))
-    lines += ["", f"zstd on every 8th chunk of that archive ({raw / 1e6:.0f} MB of records), median of 3:", "",
-              "| level | MB/s (CPU) | compressed / raw |", "|---|---|---|"]
+    lines += [
+        "",
+        f"zstd on every 8th chunk of that archive ({raw / 1e6:.0f} MB of records), median of 3:",
+        "",
+        "| level | MB/s (CPU) | compressed / raw |",
+        "|---|---|---|",
+    ]
     for level in (3, 1, -1, -3, -5):
         z = zstandard.ZstdCompressor(level=level)
         runs = []
@@ -123,8 +139,11 @@ def main() -> None:
     ap.add_argument("--decider", default="rule-fsm")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", help="also write the table (markdown) to this file")
-    ap.add_argument("--breakdown", action="store_true", help="CPU time per recorder stage (one in-process run) "
-                    "and zstd levels on its chunks, instead of the A/B")
+    ap.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="CPU time per recorder stage (one in-process run) and zstd levels on its chunks, instead of the A/B",
+    )
     ap.add_argument("extra", nargs="*", help="extra arguments for the archived eval (after --)")
     a = ap.parse_args()
     if a.breakdown:
@@ -147,7 +166,7 @@ def main() -> None:
             size = os.path.getsize(f"{tmp}/run.mcap")
     med = {k: statistics.median(v) for k, v in cpu.items()}
     mem = {k: statistics.median(v) for k, v in rss.items()}
-    ratios = [x / y for x, y in zip(cpu["archive"], cpu["plain"])]
+    ratios = [x / y for x, y in zip(cpu["archive"], cpu["plain"], strict=True)]
     args = " ".join(a.extra)
     lines = [
         f"`eval --suite {a.suite} --decider {a.decider}` with and without `--archive`{' ' + args if args else ''}; "
@@ -173,6 +192,7 @@ def main() -> None:
 
 def _episodes(suite: str) -> int:
     from overtakezoo.envs.suites import load_suite
+
     return load_suite(suite).count
 
 

@@ -1,4 +1,4 @@
-"""Choose a learned member's deployed decision rate (or OVERTAKE threshold) on its training splits, and write it into its cards.
+"""Pick a learned member's deployed decision rate (or OVERTAKE threshold) on its training splits; write it to its cards.
 
     python scripts/decision_rate.py MEMBER RUN_DIR... [--candidates 10,5,2,1] [--train-suite core-train]
     python scripts/decision_rate.py MEMBER RUN_DIR... --overtake-offsets=-1.5,-1,-0.5,0
@@ -26,11 +26,12 @@ import argparse
 import json
 from pathlib import Path
 
+from multi_rates import rates  # this script's folder is on sys.path
+
 from overtakezoo.envs.io import atomic_write_json
 from overtakezoo.envs.suites import load_training
 from overtakezoo.zoo.members.learned import MLPDecider, load_weights, read_card
 
-from multi_rates import rates  # this script's folder is on sys.path
 
 def split_score(suite, decider: MLPDecider) -> float:
     """success - 2 x crash per road on the whole split, in [-2, 1]."""
@@ -68,8 +69,11 @@ def main() -> None:
     ap.add_argument("member")
     ap.add_argument("runs", nargs="+", type=Path, help="the member's run directories (one per training seed)")
     ap.add_argument("--candidates", default="10,5,2,1", help="core steps between decisions to try")
-    ap.add_argument("--overtake-offsets", metavar="LIST",
-                    help="choose the OVERTAKE score offset among these instead (at the cards' decision rate)")
+    ap.add_argument(
+        "--overtake-offsets",
+        metavar="LIST",
+        help="choose the OVERTAKE score offset among these instead (at the cards' decision rate)",
+    )
     ap.add_argument("--train-suite", default="core-train", help="what the member trained on (its splits choose)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (one run at one candidate each; same table)")
     args = ap.parse_args()
@@ -93,12 +97,20 @@ def main() -> None:
         per_seed.setdefault(str(seed), {})[str(k)] = mean_score
     mean = {str(k): round(sum(r[str(k)] for r in per_seed.values()) / len(per_seed), 6) for k in candidates}
     best = max(candidates, key=lambda k: (mean[str(k)], tie(k)))
-    selection = {"candidates": candidates, "train_suite": args.train_suite, "per_seed": per_seed, "mean": mean,
-                 "chosen": best, "score": "success - 2 x crash per road, mean over every scenario of every "
-                 "training split (scripts/decision_rate.py)"}
-    print(f"{m}: mean over {len(per_seed)} seeds " + ", ".join(f"{label.format(k)}: {mean[str(k)]:.4f}"
-                                                               for k in candidates)
-          + f"; chosen: {label.format(best)}")
+    selection = {
+        "candidates": candidates,
+        "train_suite": args.train_suite,
+        "per_seed": per_seed,
+        "mean": mean,
+        "chosen": best,
+        "score": "success - 2 x crash per road, mean over every scenario of every "
+        "training split (scripts/decision_rate.py)",
+    }
+    print(
+        f"{m}: mean over {len(per_seed)} seeds "
+        + ", ".join(f"{label.format(k)}: {mean[str(k)]:.4f}" for k in candidates)
+        + f"; chosen: {label.format(best)}"
+    )
     for run in args.runs:
         path = run / f"{m}.json"
         card = json.loads(path.read_text())

@@ -17,8 +17,8 @@ import numpy as np
 
 from overtakezoo.benchmark.results.multi_metrics import by_av
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import Suite, load_suite
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
+from overtakezoo.envs.suites import Suite, load_suite
 from overtakezoo.zoo.base import Decider, load
 
 
@@ -41,13 +41,19 @@ def rates(suite: Suite, decider_name: str | Decider, limit: int | None) -> dict[
         "all_succeed": mean((outcome == SUCCESS).all(0)),
         "any_crash": mean((outcome == CRASH).any(0)),
         "av_av_crash": mean((crash_av >= 0).any(0)),
-        "per_av": [{"success": mean(o == SUCCESS), "crash": mean(o == CRASH), "timeout": mean(o == TIMEOUT)}
-                   for o in outcome],
-        "counts": {"roads": n, "av_rows": e * n, "success": int((outcome == SUCCESS).sum()),
-                   "crash": int((outcome == CRASH).sum()), "timeout": int((outcome == TIMEOUT).sum()),
-                   "all_succeed": int((outcome == SUCCESS).all(0).sum()),
-                   "any_crash": int((outcome == CRASH).any(0).sum()),
-                   "av_av_crash": int((crash_av >= 0).any(0).sum())},
+        "per_av": [
+            {"success": mean(o == SUCCESS), "crash": mean(o == CRASH), "timeout": mean(o == TIMEOUT)} for o in outcome
+        ],
+        "counts": {
+            "roads": n,
+            "av_rows": e * n,
+            "success": int((outcome == SUCCESS).sum()),
+            "crash": int((outcome == CRASH).sum()),
+            "timeout": int((outcome == TIMEOUT).sum()),
+            "all_succeed": int((outcome == SUCCESS).all(0).sum()),
+            "any_crash": int((outcome == CRASH).any(0).sum()),
+            "av_av_crash": int((crash_av >= 0).any(0).sum()),
+        },
     }
 
 
@@ -61,10 +67,14 @@ def main() -> None:
         suite = load_suite(name)
         for decider in args.deciders.split(","):
             r = rates(suite, decider, args.limit)
-            per_av = "  ".join(f"av{i} " + " ".join(f"{k} {v:.2f}" for k, v in av.items())
-                               for i, av in enumerate(r["per_av"]))
-            print(f"{suite.name} {decider} n={r['scenarios']}: all succeed {r['all_succeed']:.2f}, any crash "
-                  f"{r['any_crash']:.2f}, AV-AV crash {r['av_av_crash']:.2f} | {per_av}", flush=True)
+            per_av = "  ".join(
+                f"av{i} " + " ".join(f"{k} {v:.2f}" for k, v in av.items()) for i, av in enumerate(r["per_av"])
+            )
+            print(
+                f"{suite.name} {decider} n={r['scenarios']}: all succeed {r['all_succeed']:.2f}, any crash "
+                f"{r['any_crash']:.2f}, AV-AV crash {r['av_av_crash']:.2f} | {per_av}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

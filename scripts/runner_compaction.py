@@ -29,7 +29,9 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     suite, default = load_suite(args.suite), runner.MIN_COMPACT_ROWS
-    print("| decider | whole batch (CPU s) | finished rows dropped (CPU s) | ratio | same bits |\n|---|---|---|---|---|")
+    print(
+        "| decider | whole batch (CPU s) | finished rows dropped (CPU s) | ratio | same bits |\n|---|---|---|---|---|"
+    )
     for name in args.deciders:
         times: dict[int, list[float]] = {NEVER: [], default: []}
         per: dict[int, dict[str, np.ndarray]] = {}
@@ -41,8 +43,10 @@ def main() -> None:
                 per[floor] = runner.run_suite(suite, decider, progress=False).per
                 times[floor].append(time.process_time() - t0)
         runner.MIN_COMPACT_ROWS = default
-        same = all(np.array_equal(per[NEVER][k], per[default][k], equal_nan=per[NEVER][k].dtype.kind == "f")
-                   for k in per[NEVER])
+        same = all(
+            np.array_equal(per[NEVER][k], per[default][k], equal_nan=per[NEVER][k].dtype.kind == "f")
+            for k in per[NEVER]
+        )
         whole, dropped = statistics.median(times[NEVER]), statistics.median(times[default])
         print(f"| {name} | {whole:.2f} | {dropped:.2f} | {whole / dropped:.2f}x | {'yes' if same else 'NO'} |")
 

@@ -50,8 +50,14 @@ def rate(pythonpath: str | None, n: int, seconds: float, suite: str) -> float:
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
     env["OMP_NUM_THREADS"] = "1"  # one core per probe: the figure is the model's cost, not the machine's spare cores
-    out = subprocess.run([sys.executable, "-c", PROBE, str(n), str(seconds), suite], env=env, cwd=tempfile.gettempdir(),
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, str(n), str(seconds), suite],
+        env=env,
+        cwd=tempfile.gettempdir(),
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return float(out.stdout.strip().splitlines()[-1])
 
 
@@ -65,7 +71,9 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tree = Path(tmp) / "tree"
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "-q", "--detach", str(tree), args.before], check=True)
+        subprocess.run(
+            ["git", "-C", str(REPO), "worktree", "add", "-q", "--detach", str(tree), args.before], check=True
+        )
         try:
             (Path(tmp) / "pkg").mkdir()
             (Path(tmp) / "pkg" / "overtakezoo").symlink_to(tree)  # the flat layout, importable as overtakezoo
@@ -77,8 +85,10 @@ def main() -> None:
                         rates[name, n].append(rate(path, n, args.seconds, args.suite))
         finally:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)], check=False)
-    print(f"core env-steps per CPU second, median of {args.rounds} alternating rounds ({args.before} vs this checkout, "
-          f"{'the env defaults' if args.suite == '-' else 'suite ' + args.suite})")
+    print(
+        f"core env-steps per CPU second, median of {args.rounds} alternating rounds ({args.before} vs this checkout, "
+        f"{'the env defaults' if args.suite == '-' else 'suite ' + args.suite})"
+    )
     print("| N | before | after | after / before |\n|---|---|---|---|")
     for n in args.sizes:
         before, after = statistics.median(rates["before", n]), statistics.median(rates["after", n])

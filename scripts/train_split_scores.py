@@ -24,7 +24,7 @@ from overtakezoo.zoo.train.selection import decider_act, held_back_sets, outcome
 
 def scores(decider: MLPDecider, suites: list, start: int) -> list[tuple[str, float, float]]:
     rates = outcome_rates(decider_act(decider), held_back_sets(suites, start), decider.action_repeat)
-    return [(suite.name, s, c) for suite, (s, c) in zip(suites, rates)]
+    return [(suite.name, s, c) for suite, (s, c) in zip(suites, rates, strict=True)]
 
 
 def main() -> None:
@@ -43,8 +43,10 @@ def main() -> None:
     for name, decider in deciders:
         rows = scores(decider, suites, args.start)
         success, crash = np.mean([r[1] for r in rows]), np.mean([r[2] for r in rows])
-        print(f"{name}: mean success {success:.3f}, crash {crash:.3f}, success - 2 x crash {success - 2 * crash:.3f} "
-              f"over {len(rows)} suites; " + ", ".join(f"{n} {s:.3f}/{c:.3f}" for n, s, c in rows))
+        print(
+            f"{name}: mean success {success:.3f}, crash {crash:.3f}, success - 2 x crash {success - 2 * crash:.3f} "
+            f"over {len(rows)} suites; " + ", ".join(f"{n} {s:.3f}/{c:.3f}" for n, s, c in rows)
+        )
 
 
 if __name__ == "__main__":

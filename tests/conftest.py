@@ -46,12 +46,23 @@ def write_random_member(directory: Path, name: str, seed: int = 0, hidden: tuple
     rng = np.random.default_rng(seed)
     ppo = name == "ppo"
     widths = [observation_size(EnvConfig()), *hidden, 3 if ppo else 4]
-    layers = tuple((rng.normal(0, 1 / np.sqrt(i), (o, i)), rng.normal(0, 0.1, o)) for i, o in zip(widths, widths[1:]))
+    layers = tuple(
+        (rng.normal(0, 1 / np.sqrt(i), (o, i)), rng.normal(0, 0.1, o)) for i, o in zip(widths, widths[1:], strict=False)
+    )
     net = NumpyMLP(layers, "elu" if ppo else "relu", dueling=not ppo)
-    card = {"name": name, "version": "1", "features": FEATURES_VERSION, "action_repeat": 10,
-            "action_mask": not ppo, "action_mask_version": 3, "seed": seed, "steps": 0,
-            "architecture": {"obs_dim": widths[0], "hidden": list(hidden)},
-            "weights_file": f"{name}.pt", "weights_sha256": "0" * 64}  # as a trainer's card, before export
+    card = {
+        "name": name,
+        "version": "1",
+        "features": FEATURES_VERSION,
+        "action_repeat": 10,
+        "action_mask": not ppo,
+        "action_mask_version": 3,
+        "seed": seed,
+        "steps": 0,
+        "architecture": {"obs_dim": widths[0], "hidden": list(hidden)},
+        "weights_file": f"{name}.pt",
+        "weights_sha256": "0" * 64,
+    }  # as a trainer's card, before export
     npz = npz_bytes(net.arrays())
     directory.mkdir(parents=True, exist_ok=True)
     (directory / f"{name}.npz").write_bytes(npz)
@@ -80,7 +91,8 @@ def shipped_weights_current(name: str) -> bool:
 # Tests of the shipped weights' behaviour: skipped while the shipped weights predate observation v2.
 needs_shipped_weights = pytest.mark.skipif(
     not all(shipped_weights_current(n) for n in LEARNED),
-    reason="the shipped weights take 32 features, the observation has 33: retrained weights ship at integration")
+    reason="the shipped weights take 32 features, the observation has 33: retrained weights ship at integration",
+)
 
 
 @pytest.fixture(autouse=True)

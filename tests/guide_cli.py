@@ -11,9 +11,11 @@ RULE_FSM_TABLE1 = {"success_rate": 0.71, "crash_rate": 0.29}
 def overtakezoo(*args: str, cwd: Path) -> str:
     """Run the CLI in ``cwd`` (the installed script when there is one); its stdout, or a failed assert."""
     cli = Path(sys.executable).with_name("overtakezoo")
-    command = [str(cli)] if cli.is_file() else [sys.executable, "-c",
-                                                "import sys; from overtakezoo.benchmark.cli import main; "
-                                                "sys.exit(main())"]
+    command = (
+        [str(cli)]
+        if cli.is_file()
+        else [sys.executable, "-c", "import sys; from overtakezoo.benchmark.cli import main; sys.exit(main())"]
+    )
     done = subprocess.run(command + list(args), cwd=cwd, capture_output=True, text=True)
     assert done.returncode == 0, f"overtakezoo {' '.join(args)}:\n{done.stdout}\n{done.stderr}"
     return done.stdout

@@ -28,8 +28,11 @@ def ablation(monkeypatch, tmp_path):
 
 
 def _seed(seed: int, success: int) -> dict:
-    return {"seed": seed, "weights_sha256": f"{seed:064d}", "suites": {
-        n: {"suite_sha256": load_suite(n).hash, "n": 1000, "success": success, "crash": 10} for n in CORE}}
+    return {
+        "seed": seed,
+        "weights_sha256": f"{seed:064d}",
+        "suites": {n: {"suite_sha256": load_suite(n).hash, "n": 1000, "success": success, "crash": 10} for n in CORE},
+    }
 
 
 def test_kept_variants_round_trip_through_the_report_and_drop_on_a_changed_suite(ablation, tmp_path):

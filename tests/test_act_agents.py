@@ -48,8 +48,9 @@ def test_single_observation_act_mixes_the_agents_state():
     ref = run_indices(suite, zoo.load("rule-fsm", suite.config), np.arange(20), safety=False)["outcome"]
     env = parallel_env("duel", hold_steps=1)
     decider = zoo.load("rule-fsm", env.config)
-    mixed = _selfplay(env, decider, suite.scenarios().take(np.arange(20)),
-                      lambda obs: {a: decider.act(o) for a, o in obs.items()})
+    mixed = _selfplay(
+        env, decider, suite.scenarios().take(np.arange(20)), lambda obs: {a: decider.act(o) for a, o in obs.items()}
+    )
     assert (mixed != ref).any()
 
 

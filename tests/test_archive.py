@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from conftest import suite_file
 from overtakezoo.benchmark.archive.format import EPISODE_GAP_NS
-from overtakezoo.benchmark.archive.recorder import ArchiveRecorder
 from overtakezoo.benchmark.archive.reader import list_episodes, read_archive, read_episode, read_index
+from overtakezoo.benchmark.archive.recorder import ArchiveRecorder
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import MODE_NAMES, OUTCOME_NAMES
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.base import Decider
 from test_benchmark_cli import one_line_error
-from conftest import suite_file
 
 SHARD = (3, 150)  # table1 has 3000 scenarios: the 4th of 150 slices is scenarios 60..79
 
@@ -72,9 +72,14 @@ class Tee:
         log = {k: np.stack(v) for k, v in self.log.items()}  # (T+1, N, ...) or (T, N)
         for r, ep in enumerate(self.index.tolist()):
             steps = int(np.argmax(log["done"][:, r]))  # the first step at which the row is finished
-            self.episodes[ep] = {"steps": steps, "ego": log["ego"][: steps + 1, r],
-                                 "npc_s": log["npc_s"][: steps + 1, r], "npc_v": log["npc_v"][: steps + 1, r],
-                                 "mode": log["mode"][:steps, r], "rew": log["rew"][:steps, r]}
+            self.episodes[ep] = {
+                "steps": steps,
+                "ego": log["ego"][: steps + 1, r],
+                "npc_s": log["npc_s"][: steps + 1, r],
+                "npc_v": log["npc_v"][: steps + 1, r],
+                "mode": log["mode"][:steps, r],
+                "rew": log["rew"][:steps, r],
+            }
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +89,9 @@ def run(tmp_path_factory):
     # The default scene (every step); chunks of about 100 kB (a few episodes each) so cuts fall between them.
     with ArchiveRecorder(path, chunk_size=100_000) as rec:
         tee = Tee(rec)
-        results = run_suite(suite, MixedDecider(suite.config), shard=SHARD, chunk_size=8, progress=False,
-                            recorder=tee)  # 3 chunks: 8, 8, 4
+        results = run_suite(
+            suite, MixedDecider(suite.config), shard=SHARD, chunk_size=8, progress=False, recorder=tee
+        )  # 3 chunks: 8, 8, 4
     return path, results, tee
 
 
@@ -106,8 +112,13 @@ def test_archive_rebuilds_every_episode_exactly(run):
         assert ep.outcome == OUTCOME_NAMES[per["outcome"][r]]
         for key, src in (("crash_npc", "crash_npc"), ("aborts", "aborts"), ("switches", "switches")):
             assert ep.summary[src] == per[key][r]
-        for key, src in (("episode_time", "t"), ("completion_time", "completion_time"),
-                         ("opposite_time", "opposite_time"), ("min_ttc", "min_ttc"), ("peak_jerk", "peak_jerk")):
+        for key, src in (
+            ("episode_time", "t"),
+            ("completion_time", "completion_time"),
+            ("opposite_time", "opposite_time"),
+            ("min_ttc", "min_ttc"),
+            ("peak_jerk", "peak_jerk"),
+        ):
             np.testing.assert_equal(np.round(ep.summary[src], 4), per[key][r])
 
 
@@ -117,7 +128,7 @@ def test_index_and_single_episode(run):
     assert [e.index for e in entries] == list(range(60, 80))
     # A compact timeline: episodes back to back, EPISODE_GAP_NS apart, each as long as its steps.
     assert entries[0].start_ns == 0
-    assert all(b.start_ns == a.end_ns + EPISODE_GAP_NS for a, b in zip(entries, entries[1:]))
+    assert all(b.start_ns == a.end_ns + EPISODE_GAP_NS for a, b in zip(entries, entries[1:], strict=False))
     assert all(e.end_ns - e.start_ns == e.steps * 100_000_000 for e in entries)
     ep = read_episode(path, 71)
     full = {e.index: e for e in read_archive(path)}[71]
@@ -155,9 +166,13 @@ def test_messages_follow_their_schemas_and_times_are_monotonic(run):
             if schema.encoding == "jsonschema":
                 jsonschema.validate(json.loads(msg.data), json.loads(schema.data))
     assert {t: (s.name, s.encoding) for t, s in schemas.items() if s.encoding == "ros2msg"} == {
-        "/state": ("overtakezoo_msgs/msg/State", "ros2msg"), "/tf": ("foxglove_msgs/msg/FrameTransforms", "ros2msg"),
-        **{t: ("foxglove_msgs/msg/SceneUpdate", "ros2msg") for t in
-           ("/scene/road", "/scene/vehicles", "/scene/rollouts", "/scene/label", "/scene/outcome")}}
+        "/state": ("overtakezoo_msgs/msg/State", "ros2msg"),
+        "/tf": ("foxglove_msgs/msg/FrameTransforms", "ros2msg"),
+        **{
+            t: ("foxglove_msgs/msg/SceneUpdate", "ros2msg")
+            for t in ("/scene/road", "/scene/vehicles", "/scene/rollouts", "/scene/label", "/scene/outcome")
+        },
+    }
     ranges = {e.index: (e.start_ns, e.end_ns) for e in list_episodes(path)}
     by_topic: dict[str, list] = {}
     for topic, t, msg in _decoded(path):
@@ -168,8 +183,9 @@ def test_messages_follow_their_schemas_and_times_are_monotonic(run):
         rows = [m for t, m in states if m.episode == ep]
         lo, hi = ranges[ep]
         assert [m.step for m in rows] == list(range(run_ep["steps"] + 1))
-        assert [t for t, m in states if m.episode == ep] == [lo + k * 100_000_000 for k in range(len(rows))] and \
-            lo + run_ep["steps"] * 100_000_000 == hi
+        assert [t for t, m in states if m.episode == ep] == [
+            lo + k * 100_000_000 for k in range(len(rows))
+        ] and lo + run_ep["steps"] * 100_000_000 == hi
         got = np.array([[m.x, m.y, m.psi, m.v, m.a, m.steer] for m in rows])
         assert np.array_equal(got, run_ep["ego"])
         assert np.array_equal(np.array([m.npc_s for m in rows]), run_ep["npc_s"])
@@ -192,15 +208,31 @@ def test_cdr_templates_match_an_independent_encoder(run):
     seen = {}
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, channel, msg, dec in reader.iter_decoded_messages(topics=[
-                "/state", "/tf", "/scene/road", "/scene/vehicles", "/scene/rollouts", "/scene/label", "/scene/outcome"]):
+        for schema, channel, msg, dec in reader.iter_decoded_messages(
+            topics=[
+                "/state",
+                "/tf",
+                "/scene/road",
+                "/scene/vehicles",
+                "/scene/rollouts",
+                "/scene/label",
+                "/scene/outcome",
+            ]
+        ):
             if schema.encoding != "ros2msg" or seen.get(channel.topic, 0) >= 20:
                 continue
             seen[channel.topic] = seen.get(channel.topic, 0) + 1
             encode = serialize_dynamic(schema.name, schema.data.decode())[schema.name]
             assert bytes(encode(dec)) == msg.data, channel.topic
-    assert set(seen) == {"/state", "/tf", "/scene/road", "/scene/vehicles", "/scene/rollouts", "/scene/label",
-                         "/scene/outcome"}
+    assert set(seen) == {
+        "/state",
+        "/tf",
+        "/scene/road",
+        "/scene/vehicles",
+        "/scene/rollouts",
+        "/scene/label",
+        "/scene/outcome",
+    }
 
 
 def test_archive_bytes_are_deterministic(tmp_path):
@@ -263,8 +295,9 @@ def test_cut_archive_gives_its_whole_episodes(run, tmp_path, capsys):
         for ep in episodes:
             assert np.array_equal(ep.ego["x"], full[ep.index].ego["x"]) and ep.summary == full[ep.index].summary
         if len(episodes) < 20:  # else the cut fell in the summary section (the last case below)
-            assert index.note == (f"archive cut after episode {episodes[-1].index}: {len(episodes)} whole episodes, "
-                                  "the rest lost")
+            assert index.note == (
+                f"archive cut after episode {episodes[-1].index}: {len(episodes)} whole episodes, the rest lost"
+            )
         counts.append(len(episodes))
         assert read_episode(bad, episodes[-1].index).steps == full[episodes[-1].index].steps
     assert counts == sorted(counts) and counts[0] < counts[-1]
@@ -353,8 +386,14 @@ def test_interrupt_mid_chunk_keeps_finished_episodes(tmp_path):
         run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=5, progress=False, recorder=rec)
     with pytest.raises(KeyboardInterrupt):
         with ArchiveRecorder(cut_path) as rec:
-            run_suite(suite, MixedDecider(suite.config), shard=(0, 300), chunk_size=5, progress=False,
-                      recorder=_Stop(rec, "raise", 1, step=200))
+            run_suite(
+                suite,
+                MixedDecider(suite.config),
+                shard=(0, 300),
+                chunk_size=5,
+                progress=False,
+                recorder=_Stop(rec, "raise", 1, step=200),
+            )
     full = {e.index: e for e in read_archive(full_path)}
     cut = read_archive(cut_path)
     late = [e.index for e in cut if e.index >= 5]
@@ -443,7 +482,9 @@ def test_scene_at_every_step_ends_with_the_outcome(run):
             times = [t for t, _ in sc[topic]]
             assert times[0] == e.start_ns and times[-1] == e.end_ns and times == sorted(set(times))
         roll = sc["/scene/rollouts"]
-        assert all(b - a <= 10 * 100_000_000 for a, b in zip([t for t, _ in roll], [t for t, _ in roll][1:]))
+        assert all(
+            b - a <= 10 * 100_000_000 for a, b in zip([t for t, _ in roll], [t for t, _ in roll][1:], strict=False)
+        )
         lines = roll[-1][1].entities[0].lines
         chosen = [j for j, line in enumerate(lines) if line.thickness == 0.25]
         assert chosen == [int(ep.rollout[-1])]
@@ -476,7 +517,8 @@ def test_scene_every_k_keeps_the_final_step(tmp_path):
         steps = sorted({*range(0, e.steps + 1, 7), e.steps})
         assert [t for t, _ in scenes[e.index]["/tf"]] == [e.start_ns + k * 100_000_000 for k in steps]
         assert {t for topic in scenes[e.index] for t, _ in scenes[e.index][topic]} <= {
-            e.start_ns + k * 100_000_000 for k in steps}
+            e.start_ns + k * 100_000_000 for k in steps
+        }
 
 
 def test_replay_cli(run, tmp_path, capsys):
@@ -507,24 +549,55 @@ def test_eval_archive_end_to_end(tmp_path, capsys):
 
     suite = suite_file(tmp_path / "tiny.toml", 8)
     out, mcap = tmp_path / "res.json", tmp_path / "run.mcap"
-    assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(out),
-                 "--archive", str(mcap), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--suite",
+                str(suite),
+                "--decider",
+                "always-overtake",
+                "--out",
+                str(out),
+                "--archive",
+                str(mcap),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     results = json.loads(out.read_text())
     plain = tmp_path / "plain.json"
-    assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(plain),
-                 "--no-progress"]) == 0
+    assert (
+        main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(plain), "--no-progress"]) == 0
+    )
 
     def untimed(tree):  # the results without when the run started and how long it took
         if isinstance(tree, dict):
             return {k: untimed(v) for k, v in tree.items() if k not in ("started", "wall_time_s")}
         return [untimed(v) for v in tree] if isinstance(tree, list) else tree
+
     assert untimed(json.loads(plain.read_text())) == untimed(results)  # the archive changes no result
     outcomes = [OUTCOME_NAMES[o] for o in results["scenarios"]["outcome"]]
     assert [e.outcome for e in list_episodes(mcap)] == outcomes
     meta = read_archive_meta(mcap)
     assert meta["suite"] == "tiny" and meta["decider"] == "always-overtake"
-    assert main(["eval", "--suite", str(suite), "--decider", "always-overtake", "--out", str(out),
-                 "--archive", str(tmp_path)]) == 2  # a directory: refused before the run
+    assert (
+        main(
+            [
+                "eval",
+                "--suite",
+                str(suite),
+                "--decider",
+                "always-overtake",
+                "--out",
+                str(out),
+                "--archive",
+                str(tmp_path),
+            ]
+        )
+        == 2
+    )  # a directory: refused before the run
     assert "is a directory" in capsys.readouterr().err
 
 
@@ -546,14 +619,19 @@ def test_non_finite_values_round_trip(run):
 def _node_packages() -> bool:
     if shutil.which("node") is None:
         return False
-    probe = ("for (const p of ['@mcap/core', 'fzstd', 'ajv', '@foxglove/schemas/jsonschema', '@foxglove/rosmsg', "
-             "'@foxglove/rosmsg2-serialization']) require(p)")
+    probe = (
+        "for (const p of ['@mcap/core', 'fzstd', 'ajv', '@foxglove/schemas/jsonschema', '@foxglove/rosmsg', "
+        "'@foxglove/rosmsg2-serialization']) require(p)"
+    )
     return subprocess.run(["node", "-e", probe], capture_output=True).returncode == 0
 
 
-@pytest.mark.skipif(not _node_packages(), reason="needs node with @mcap/core, fzstd, ajv, @foxglove/schemas, "
-                                                 "@foxglove/rosmsg, @foxglove/rosmsg2-serialization (e.g. npm i "
-                                                 "them in a folder and set NODE_PATH to its node_modules)")
+@pytest.mark.skipif(
+    not _node_packages(),
+    reason="needs node with @mcap/core, fzstd, ajv, @foxglove/schemas, "
+    "@foxglove/rosmsg, @foxglove/rosmsg2-serialization (e.g. npm i "
+    "them in a folder and set NODE_PATH to its node_modules)",
+)
 def test_typescript_reader_and_official_foxglove_schemas(run):
     path, _, _ = run
     script = os.path.join(os.path.dirname(__file__), "mcap_ts_reader.js")
@@ -580,8 +658,7 @@ def test_gif_of_the_246_frame_episode(tmp_path):
     suite = load_suite("table1")
     path, gif = tmp_path / "rule.mcap", tmp_path / "ep29.gif"
     with ArchiveRecorder(path) as rec:
-        run_suite(suite, zoo.load("rule-fsm", config=suite.config), shard=(29, 3000), progress=False,
-                  recorder=rec)
+        run_suite(suite, zoo.load("rule-fsm", config=suite.config), shard=(29, 3000), progress=False, recorder=rec)
     (entry,) = list_episodes(path)
     assert (entry.index, entry.steps) == (29, 245)
     replay(path, 29, gif)
@@ -721,9 +798,25 @@ def test_full_disk_while_archiving_is_one_error_line_and_keeps_the_old_file(tmp_
         return write(self, data)
 
     monkeypatch.setattr(archive._Offsets, "write", full)
-    err = one_line_error(capsys, ["eval", "--suite", "table1", "--decider", "always-overtake", "--shard", "0/300",
-                                  "--chunk-size", "4", "--out", str(tmp_path / "res.json"), "--archive", str(target),
-                                  "--no-progress"])
+    err = one_line_error(
+        capsys,
+        [
+            "eval",
+            "--suite",
+            "table1",
+            "--decider",
+            "always-overtake",
+            "--shard",
+            "0/300",
+            "--chunk-size",
+            "4",
+            "--out",
+            str(tmp_path / "res.json"),
+            "--archive",
+            str(target),
+            "--no-progress",
+        ],
+    )
     assert err == f"error: cannot write {target}: No space left on device"
     assert target.read_bytes() == b"the previous archive" and sorted(os.listdir(tmp_path)) == ["run.mcap"]
 
@@ -771,7 +864,7 @@ def _drive(rec, suite, index, compact=()):
 
 def _same_episodes(a, b):
     assert [e.index for e in a] == [e.index for e in b]
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         for name, u in vars(x).items():
             v = getattr(y, name)
             if isinstance(u, dict):
@@ -809,7 +902,7 @@ def test_keep_rows_compaction_mid_chunk_reads_back_the_same_episodes(tmp_path, m
     suite = load_suite("table1")
     index = np.arange(100, 300)
     paths = [tmp_path / "whole.mcap", tmp_path / "compacted.mcap"]
-    for path, compact in zip(paths, [(), (120, 260)]):
+    for path, compact in zip(paths, [(), (120, 260)], strict=True):
         with ArchiveRecorder(path, scene_every=3) as rec:
             _drive(rec, suite, index, compact)
     _same_episodes(read_archive(paths[0]), read_archive(paths[1]))
@@ -817,6 +910,7 @@ def test_keep_rows_compaction_mid_chunk_reads_back_the_same_episodes(tmp_path, m
     assert _scenes_by_episode(paths[0]) == _scenes_by_episode(paths[1])
     with ArchiveRecorder(tmp_path / "bad.mcap") as rec:  # dropping a running row is refused
         from overtakezoo.envs import OvertakeCore
+
         core = OvertakeCore(suite.config)
         core.reset(suite.scenarios().take(index[:4]))
         rec.begin_chunk(core, index[:4])

@@ -34,7 +34,9 @@ def test_torch_backend_matches_numpy_step_for_step(n, lead):
 
 def test_torch_backend_auto_resets_rows():
     dist = ScenarioDistribution(time_limit=2.0)
-    core = OvertakeCore(auto_reset=True, source=lambda n, rng: dist.sample(n, rng), seed=0, backend="torch", device="cpu")
+    core = OvertakeCore(
+        auto_reset=True, source=lambda n, rng: dist.sample(n, rng), seed=0, backend="torch", device="cpu"
+    )
     core.reset(dist.sample(16, 1))
     ended = 0
     for _ in range(45):

@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+import shlex
 import shutil
 from pathlib import Path
 
@@ -14,7 +15,6 @@ from overtakezoo.benchmark.leaderboard.generate import generate, stale_files
 from overtakezoo.benchmark.leaderboard.submission import submit
 from overtakezoo.benchmark.results.metrics import summarize
 from overtakezoo.benchmark.results.results import Results
-
 from test_benchmark_results import fake_results
 
 REPO_LEADERBOARDS = Path(__file__).resolve().parents[1] / "leaderboards"
@@ -45,18 +45,29 @@ def file_row(results, root, name, artifact):
     (store / f"{sha}.onnx").write_bytes(artifact)
     # a fresh draw whose rates match the public ones (its first scenarios' outcomes): not flagged
     outcome = results.per["outcome"][:500]
-    block = {"name": name, "policy": {"artifact": f"artifacts/{sha}.onnx", "sha256": sha},
-             "fresh": {"seed": 7, "count": outcome.size, "outcomes": "".join(map(str, outcome.tolist()))}}
+    block = {
+        "name": name,
+        "policy": {"artifact": f"artifacts/{sha}.onnx", "sha256": sha},
+        "fresh": {"seed": 7, "count": outcome.size, "outcomes": "".join(map(str, outcome.tolist()))},
+    }
     Results({**results.meta, "submission": block}, results.per, results.summary, results.timing).save(
-        root / "submissions" / results.suite["name"] / f"{name}.json")
+        root / "submissions" / results.suite["name"] / f"{name}.json"
+    )
 
 
 def test_repo_leaderboard_is_current_checked_from_another_folder(tmp_path, monkeypatch, capsys):
     # The CI check: the committed generated files match the committed inputs (one full generation,
     # about 100 s; the only test that runs it on the repository's board). Run from outside the
     # repository root, the default is the checkout's leaderboards/, not an empty ./leaderboards.
+    # The README's block (the lines of README.md this test runs) says the same: --check, then a
+    # regeneration that, the board being current, writes the same bytes.
+    from doc_blocks import run_by
+
+    (block,) = run_by("tests/test_benchmark_leaderboard.py")
+    commands = [shlex.split(line, comments=True) for line in block.body.splitlines()]
+    assert commands == [["overtakezoo", "leaderboard", "--check"], ["overtakezoo", "leaderboard"]], commands
     monkeypatch.chdir(tmp_path)
-    assert main(["leaderboard", "--check"]) == 0, capsys.readouterr().err
+    assert main(commands[0][1:]) == 0, capsys.readouterr().err
     assert "up to date" in capsys.readouterr().out
     assert not (tmp_path / "leaderboards").exists()
 
@@ -71,11 +82,16 @@ def test_one_root_rule_for_submit_and_every_leaderboard_mode(tmp_path, monkeypat
     # A given --root that does not exist is an error in every leaderboard mode, never "out of date".
     missing = tmp_path / "nothing-here"
     for mode in ([], ["--check"], ["--verify"], ["--verify", "--sample", "1"]):
-        assert one_line_error(capsys, ["leaderboard", "--root", str(missing), *mode]) == \
-            f"error: no such folder: {missing}", mode
-    assert one_line_error(capsys, ["leaderboard", "--root", str(results)]).startswith(f"error: no such folder: {results}")
+        assert (
+            one_line_error(capsys, ["leaderboard", "--root", str(missing), *mode])
+            == f"error: no such folder: {missing}"
+        ), mode
+    assert one_line_error(capsys, ["leaderboard", "--root", str(results)]).startswith(
+        f"error: no such folder: {results}"
+    )
     assert one_line_error(capsys, ["submit", str(results), "--root", str(results)]).startswith(
-        f"error: no such folder: {results}")
+        f"error: no such folder: {results}"
+    )
     assert not missing.exists()
 
     # Outside any checkout (none holds a board) and without ./leaderboards: nothing is filed, no folder made.
@@ -117,9 +133,11 @@ def test_one_root_rule_for_submit_and_every_leaderboard_mode(tmp_path, monkeypat
         with pytest.raises(SystemExit):
             main([command, "--help"])
         text = " ".join(capsys.readouterr().out.split())
-        assert ("found by one rule for submit and leaderboard") in text and ("without --root: ./leaderboards where "
-                "it has a submissions/ folder, else the leaderboards/ of the checkout this package runs from, else an "
-                "error (the default never creates a folder)") in text, command
+        assert ("found by one rule for submit and leaderboard") in text and (
+            "without --root: ./leaderboards where "
+            "it has a submissions/ folder, else the leaderboards/ of the checkout this package runs from, else an "
+            "error (the default never creates a folder)"
+        ) in text, command
         assert ("created when nothing is there yet" if command == "submit" else "PATH, which must exist") in text
 
 
@@ -140,7 +158,9 @@ def test_regeneration_is_byte_identical_and_check_detects_mutation(root, capsys)
     sub = root / "submissions" / "table1" / "alpha.json"
     r = Results.load(sub)
     r.per["outcome"] = np.where(r.per["outcome"] == 3, 1, r.per["outcome"]).astype(np.int8)
-    r.per["completion_time"] = np.where(r.per["outcome"] == 1, np.nan_to_num(r.per["completion_time"], nan=30.0), np.nan)
+    r.per["completion_time"] = np.where(
+        r.per["outcome"] == 1, np.nan_to_num(r.per["completion_time"], nan=30.0), np.nan
+    )
     r.summary = summarize(r.per, r.meta["seed"])
     r.save(sub)
     assert main(["leaderboard", "--root", str(root), "--check"]) == 1

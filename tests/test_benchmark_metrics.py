@@ -24,11 +24,21 @@ def test_bootstrap_is_seeded_and_brackets_the_mean():
 def _per(outcome, crash_npc):
     n = len(outcome)
     z = np.zeros(n)
-    return {"outcome": np.array(outcome), "crash_npc": np.array(crash_npc), "crash_lane": np.where(
-        np.array(crash_npc) == 1, 1, np.where(np.array(crash_npc) == 0, 0, -1)),
-            "completion_time": np.where(np.array(outcome) == 1, 25.0, np.nan), "episode_time": z + 30,
-            "aborts": np.zeros(n, int), "switches": np.zeros(n, int), "opposite_time": z, "min_ttc": z + np.inf,
-            "peak_lat_accel": z, "peak_jerk": z, "npc1_speed": np.linspace(1, 3, n), "npc2_speed": z + 2}
+    return {
+        "outcome": np.array(outcome),
+        "crash_npc": np.array(crash_npc),
+        "crash_lane": np.where(np.array(crash_npc) == 1, 1, np.where(np.array(crash_npc) == 0, 0, -1)),
+        "completion_time": np.where(np.array(outcome) == 1, 25.0, np.nan),
+        "episode_time": z + 30,
+        "aborts": np.zeros(n, int),
+        "switches": np.zeros(n, int),
+        "opposite_time": z,
+        "min_ttc": z + np.inf,
+        "peak_lat_accel": z,
+        "peak_jerk": z,
+        "npc1_speed": np.linspace(1, 3, n),
+        "npc2_speed": z + 2,
+    }
 
 
 def test_table1_rows():

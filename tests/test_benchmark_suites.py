@@ -8,12 +8,28 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from overtakezoo.envs.suites import SuiteError
-from overtakezoo.envs.suites import SUITES_DIR, load_suite, parse_shard, parse_suite, shard_bounds, suite_names
 from conftest import suite_file
+from overtakezoo.envs.suites import (
+    SUITES_DIR,
+    SuiteError,
+    load_suite,
+    parse_shard,
+    parse_suite,
+    shard_bounds,
+    suite_names,
+)
 
-EXPECTED = {"table1", "table1-train", "oncoming-2", "oncoming-4", "oncoming-8", "dense", "urban-50",
-            "adversarial", "occluded"}
+EXPECTED = {
+    "table1",
+    "table1-train",
+    "oncoming-2",
+    "oncoming-4",
+    "oncoming-8",
+    "dense",
+    "urban-50",
+    "adversarial",
+    "occluded",
+}
 
 
 def test_builtin_suites_load_with_file_hash():
@@ -49,17 +65,20 @@ def test_load_by_path_and_shards(tmp_path):
         shard_bounds(10, (0, 11))
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("name = ", "malformed TOML"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\nbogus = 2\n[scenario]\n', "bogus"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n', "scenario: missing"),
-    ('name = "x"\nversion = 1\ncount = 0\nseed = 1\n[scenario]\n', "count"),
-    ('name = "X Y"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n', "name"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\nlead_gapp = [1, 2]\n', "scenario.lead_gapp"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\nlead_gap = [3, 2]\n', "scenario.lead_gap"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n[sim]\ndt = 5\n', "sim.dt"),
-    ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n[sim]\nfoo = 5\n', "sim.foo"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("name = ", "malformed TOML"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\nbogus = 2\n[scenario]\n', "bogus"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n', "scenario: missing"),
+        ('name = "x"\nversion = 1\ncount = 0\nseed = 1\n[scenario]\n', "count"),
+        ('name = "X Y"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n', "name"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\nlead_gapp = [1, 2]\n', "scenario.lead_gapp"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\nlead_gap = [3, 2]\n', "scenario.lead_gap"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n[sim]\ndt = 5\n', "sim.dt"),
+        ('name = "x"\nversion = 1\ncount = 5\nseed = 1\n[scenario]\n[sim]\nfoo = 5\n', "sim.foo"),
+    ],
+)
 def test_bad_suite_files_name_the_problem(tmp_path, text, needle):
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -77,17 +96,35 @@ _lines = _GOOD.splitlines()
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.one_of(
-    st.binary(max_size=200),
-    st.text(alphabet=string.printable, max_size=200),
-    # A real suite with one line replaced by junk or removed: mostly valid TOML with bad values.
-    st.tuples(st.integers(0, len(_lines) - 1),
-              st.sampled_from(["", "count = -3", "seed = 1.5", "lead_gap = [1]", "x = 1", "goal = \"far\"",
-                               "[sim]", "[sim.planner]", "decision_interval = 0", "version = true",
-                               "lead_behaviour = \"wild\"", "oncoming_count = 99", "sensor_range = -1",
-                               "[scenario]", "name = 3"])).map(
-        lambda t: "\n".join(_lines[:t[0]] + [t[1]] + _lines[t[0] + 1:])),
-))
+@given(
+    st.one_of(
+        st.binary(max_size=200),
+        st.text(alphabet=string.printable, max_size=200),
+        # A real suite with one line replaced by junk or removed: mostly valid TOML with bad values.
+        st.tuples(
+            st.integers(0, len(_lines) - 1),
+            st.sampled_from(
+                [
+                    "",
+                    "count = -3",
+                    "seed = 1.5",
+                    "lead_gap = [1]",
+                    "x = 1",
+                    'goal = "far"',
+                    "[sim]",
+                    "[sim.planner]",
+                    "decision_interval = 0",
+                    "version = true",
+                    'lead_behaviour = "wild"',
+                    "oncoming_count = 99",
+                    "sensor_range = -1",
+                    "[scenario]",
+                    "name = 3",
+                ]
+            ),
+        ).map(lambda t: "\n".join(_lines[: t[0]] + [t[1]] + _lines[t[0] + 1 :])),
+    )
+)
 def test_fuzz_suite_loader_raises_only_user_errors(data):
     raw = data if isinstance(data, bytes) else data.encode()
     try:
@@ -102,8 +139,14 @@ def _ranged_classes():
     from overtakezoo.envs.config import EnvConfig, NPCConfig, ObservationConfig, PlannerConfig, RewardConfig
     from overtakezoo.envs.scenarios import ScenarioDistribution
 
-    return {"scenario": ScenarioDistribution, "sim": EnvConfig, "sim.planner": PlannerConfig, "sim.npc": NPCConfig,
-            "sim.reward": RewardConfig, "sim.observation": ObservationConfig}
+    return {
+        "scenario": ScenarioDistribution,
+        "sim": EnvConfig,
+        "sim.planner": PlannerConfig,
+        "sim.npc": NPCConfig,
+        "sim.reward": RewardConfig,
+        "sim.observation": ObservationConfig,
+    }
 
 
 def settings_rows():

@@ -26,7 +26,6 @@ import pytest
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import EnvConfig, observation_size
-
 from test_submissions import one_line_error
 
 D = observation_size(EnvConfig())
@@ -46,14 +45,19 @@ def _onnx_model(extra: bool):
     from onnx import TensorProto, helper, numpy_helper
 
     rng = np.random.default_rng(0)
-    inits = [numpy_helper.from_array(rng.normal(size=(3, D)).astype(np.float32), "W"),
-             numpy_helper.from_array(np.zeros(3, np.float32), "B")]
+    inits = [
+        numpy_helper.from_array(rng.normal(size=(3, D)).astype(np.float32), "W"),
+        numpy_helper.from_array(np.zeros(3, np.float32), "B"),
+    ]
     if extra:
         inits.append(numpy_helper.from_array(np.zeros(4, np.uint8), "extra"))
     graph = helper.make_graph(
-        [helper.make_node("Gemm", ["obs", "W", "B"], ["q"], transB=1)], "policy",
+        [helper.make_node("Gemm", ["obs", "W", "B"], ["q"], transB=1)],
+        "policy",
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["n", D])],
-        [helper.make_tensor_value_info("q", TensorProto.FLOAT, ["n", 3])], inits)
+        [helper.make_tensor_value_info("q", TensorProto.FLOAT, ["n", 3])],
+        inits,
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
     return onnx, model
@@ -135,22 +139,43 @@ def _mcap_bomb(path: Path, inflated: int, declared: int) -> Path:
         head = struct.pack("<QQQI", 0, 10, declared, 0) + _string("zstd") + struct.pack("<Q", len(packed))
         start = m._pos
         m._write(struct.pack("<BQ", Opcode.CHUNK, len(head) + len(packed)) + head + packed)
-        m._chunk_indexes.append(ChunkIndex(
-            message_start_time=0, message_end_time=10, chunk_start_offset=start, chunk_length=m._pos - start,
-            message_index_offsets={c: start for c in cids}, message_index_length=0, compression="zstd",
-            compressed_size=len(packed), uncompressed_size=declared))
+        m._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=0,
+                message_end_time=10,
+                chunk_start_offset=start,
+                chunk_length=m._pos - start,
+                message_index_offsets={c: start for c in cids},
+                message_index_length=0,
+                compression="zstd",
+                compressed_size=len(packed),
+                uncompressed_size=declared,
+            )
+        )
         m.add_metadata("overtakezoo", {"format_version": FORMAT_VERSION})
-        m.add_metadata("episode", {"episode": "0", "start_ns": "0", "end_ns": "10", "steps": "1",
-                                   "outcome": "success", "episode_return": "0"})
+        m.add_metadata(
+            "episode",
+            {
+                "episode": "0",
+                "start_ns": "0",
+                "end_ns": "10",
+                "steps": "1",
+                "outcome": "success",
+                "episode_return": "0",
+            },
+        )
         m.finish()
     assert path.stat().st_size < 64 << 10
     return path
 
 
-@pytest.mark.parametrize("inflated, declared, says", [
-    (1 << 20, 8 << 30, "declares 8589934592 bytes uncompressed"),  # refused before anything is inflated
-    (4 << 20, 1000, "inflates past its declared 1000 bytes"),  # stopped one byte past what it declares
-])
+@pytest.mark.parametrize(
+    "inflated, declared, says",
+    [
+        (1 << 20, 8 << 30, "declares 8589934592 bytes uncompressed"),  # refused before anything is inflated
+        (4 << 20, 1000, "inflates past its declared 1000 bytes"),  # stopped one byte past what it declares
+    ],
+)
 def test_an_mcap_chunk_bomb_is_refused(tmp_path, capsys, inflated, declared, says):
     bomb = _mcap_bomb(tmp_path / "bomb.mcap", inflated, declared)
     assert main(["replay", str(bomb), "--list"]) == 0  # the index is the summary's: no chunk is read
@@ -162,15 +187,25 @@ def test_an_mcap_chunk_bomb_is_refused(tmp_path, capsys, inflated, declared, say
 
 def test_mcap_chunk_inflation_is_bounded_in_memory(tmp_path):
     """The bounded reader never holds more than the declared size + 1 byte of a lying chunk."""
-    from mcap.records import Chunk
     import zstandard
+    from mcap.records import Chunk
 
     from overtakezoo.benchmark.archive.reader import _inflate
 
     data = zstandard.ZstdCompressor().compress(b"\0" * (32 << 20))
     with pytest.raises(UserError, match="inflates past"):
-        _inflate(tmp_path / "x.mcap", 0, Chunk(compression="zstd", data=data, message_start_time=0,
-                                                message_end_time=0, uncompressed_crc=0, uncompressed_size=10))
+        _inflate(
+            tmp_path / "x.mcap",
+            0,
+            Chunk(
+                compression="zstd",
+                data=data,
+                message_start_time=0,
+                message_end_time=0,
+                uncompressed_crc=0,
+                uncompressed_size=10,
+            ),
+        )
 
 
 # ----------------------------------------------------------------------------- 2b. SB3 zip bomb
@@ -264,8 +299,9 @@ def test_a_mirror_sending_more_than_the_registry_size_is_cut_off(tmp_path, monke
     try:
         name = "overtakezoo/big/x-v0"
         url = f"http://127.0.0.1:{httpd.server_address[1]}/x.tar.gz"
-        (tmp_path / "registry.json").write_text(json.dumps(
-            {"datasets": {name: {"url": url, "size": 1000, "sha256": "0" * 64}}}))
+        (tmp_path / "registry.json").write_text(
+            json.dumps({"datasets": {name: {"url": url, "size": 1000, "sha256": "0" * 64}}})
+        )
         err = one_line_error(capsys, ["dataset", "download", name, "--no-progress", "--no-build"])
         assert Overflowing.done.wait(10)
     finally:
@@ -284,8 +320,19 @@ def test_a_zoo_members_weights_under_a_new_name_are_refused(tmp_path, tiny, caps
     for ext in (".npz", ".json"):
         shutil.copy(PRETRAINED / f"dqn{ext}", tmp_path / f"mine{ext}")
     assert evaluate(capsys, tiny, tmp_path / "mine.npz", tmp_path / "r.json")[0] == 0
-    err = one_line_error(capsys, ["submit", str(tmp_path / "r.json"), "--name", "mine", "--policy",
-                                  str(tmp_path / "mine.npz"), "--root", str(tmp_path / "lb")])
+    err = one_line_error(
+        capsys,
+        [
+            "submit",
+            str(tmp_path / "r.json"),
+            "--name",
+            "mine",
+            "--policy",
+            str(tmp_path / "mine.npz"),
+            "--root",
+            str(tmp_path / "lb"),
+        ],
+    )
     assert "built-in zoo member 'dqn'" in err, err  # before: filed as the row "mine"
     assert not list((tmp_path / "lb").rglob("mine.json"))
 
@@ -304,12 +351,22 @@ def test_zoo_weights_are_recognised_in_onnx_and_float32(tmp_path):
     n = sum(k.endswith(".weight") for k in arrays)
     nodes, inits, x = [], [], "obs"
     for i in range(n):
-        inits += [numpy_helper.from_array(arrays[f"layer{i}.weight"].T.astype(np.float32), f"w{i}"),
-                  numpy_helper.from_array(arrays[f"layer{i}.bias"].astype(np.float32), f"b{i}")]
-        nodes += [helper.make_node("MatMul", [x, f"w{i}"], [f"m{i}"]), helper.make_node("Add", [f"m{i}", f"b{i}"], [f"h{i}"])]
+        inits += [
+            numpy_helper.from_array(arrays[f"layer{i}.weight"].T.astype(np.float32), f"w{i}"),
+            numpy_helper.from_array(arrays[f"layer{i}.bias"].astype(np.float32), f"b{i}"),
+        ]
+        nodes += [
+            helper.make_node("MatMul", [x, f"w{i}"], [f"m{i}"]),
+            helper.make_node("Add", [f"m{i}", f"b{i}"], [f"h{i}"]),
+        ]
         x = f"h{i}"
-    graph = helper.make_graph(nodes, "g", [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["n", None])],
-                              [helper.make_tensor_value_info(x, TensorProto.FLOAT, ["n", None])], inits)
+    graph = helper.make_graph(
+        nodes,
+        "g",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["n", None])],
+        [helper.make_tensor_value_info(x, TensorProto.FLOAT, ["n", None])],
+        inits,
+    )
     data = helper.make_model(graph).SerializeToString()
     assert zoo_weights_of(Artifact("onnx", data)) == "ppo"
     other = {k: v + 1e-3 for k, v in arrays.items()}  # other weights: not a member
@@ -337,11 +394,19 @@ def test_deep_json_in_leaderboard_files_is_one_error(tmp_path):
     (root / "reference").mkdir(parents=True)
     (root / "seeds").mkdir()
     (root / "crossplay").mkdir()
-    for rel in ("reference/paper.json", "reference/table1-shape.json", "seeds/dqn.json", "crossplay/duel.json",
-                "index.json"):
+    for rel in (
+        "reference/paper.json",
+        "reference/table1-shape.json",
+        "seeds/dqn.json",
+        "crossplay/duel.json",
+        "index.json",
+    ):
         (root / rel).write_bytes(DEEP)
-    checks = [(lambda: generate.load_reference(root), "paper.json"), (lambda: headline.load_seeds(root), "dqn.json"),
-              (lambda: crossplay.load(root / "crossplay" / "duel.json"), "duel.json")]
+    checks = [
+        (lambda: generate.load_reference(root), "paper.json"),
+        (lambda: headline.load_seeds(root), "dqn.json"),
+        (lambda: crossplay.load(root / "crossplay" / "duel.json"), "duel.json"),
+    ]
     for call, name in checks:
         with pytest.raises(UserError) as exc:  # before: RecursionError
             call()
@@ -384,9 +449,11 @@ def test_deep_json_in_cards_registry_results_and_rows_is_one_error(tmp_path, tin
 
 
 def test_the_depth_scan_skips_strings_and_allows_ordinary_files():
-    from overtakezoo.envs.safe_json import JSONInputError, MAX_JSON_DEPTH, depth, loads
+    from overtakezoo.envs.safe_json import MAX_JSON_DEPTH, JSONInputError, depth, loads
 
-    assert depth(b'{"a": "' + b"[" * 100 + b'\\"' + b"{" * 100 + b'", "b": [[1], {"c": []}]}') == 4  # object, array, object, array
+    assert (
+        depth(b'{"a": "' + b"[" * 100 + b'\\"' + b"{" * 100 + b'", "b": [[1], {"c": []}]}') == 4
+    )  # object, array, object, array
     assert loads(b'["' + b"[" * 10_000 + b'"]', "x") == ["[" * 10_000]
     ok = b"[" * MAX_JSON_DEPTH + b"]" * MAX_JSON_DEPTH
     assert loads(ok, "x") is not None

@@ -16,9 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.envs.suites import SUITES_DIR
 from overtakezoo.envs import ConfigError, EnvConfig
-
+from overtakezoo.envs.suites import SUITES_DIR
 from test_benchmark_cli import one_line_error, small_suite_file
 from test_safe_io import leftovers, read_fifo
 
@@ -31,39 +30,47 @@ def suite_with(tmp_path, scenario="", sim=""):
     return path
 
 
-@pytest.mark.parametrize("scenario, sim, needle", [
-    ("lead_gap = [8.0, inf]", "", "scenario.lead_gap: must be finite"),
-    ("lead_gap = [nan, 9.0]", "", "scenario.lead_gap: must be finite"),
-    ("time_limit = inf", "", "scenario.time_limit: must be finite"),
-    ("goal = -inf", "", "scenario.goal: must be finite"),
-    ("oncoming_reveal = [5.0, inf]", "", "scenario.oncoming_reveal: must be finite"),
-    ("", "[sim.observation]\nvehicles_per_lane = 2.0", "sim.observation.vehicles_per_lane: expected an integer, got 2.0"),
-    ("", "[sim.planner]\nnum_rollouts = 4.0", "sim.planner.num_rollouts: expected an integer"),
-    ("", "[sim.planner.modes.overtake]\nrollout_id = -1.0", "rollout_id: expected an integer"),
-    ("", "decision_interval = 2.0", "sim.decision_interval: expected an integer"),
-    # Issue 18: huge finite values, non-table [sim] sections and wrongly typed settings were accepted
-    # (an endless run) or crashed with AttributeError; each is one line naming file, key and range.
-    ("speed_limit = 1e300", "", "scenario.speed_limit: 1e+300 is out of range [0.5, 40.0] m/s"),
-    ("lane_width = 1e-300", "", "scenario.lane_width: 1e-300 is out of range [2.0, 6.0] m"),
-    ("goal = 1e12", "", "scenario.goal: 1000000000000.0 is out of range [1.0, 5000.0] m"),
-    ("time_limit = 1e12", "", "scenario.time_limit: 1000000000000.0 is out of range [0.1, 3600.0] s"),
-    ("lead_gap = [8.0, 1e9]", "", "scenario.lead_gap: 1000000000.0 is out of range [0.0, 5000.0] m"),
-    ("oncoming_count = 65", "", "scenario.oncoming_count: 65 is out of range [0, 64]"),
-    ("time_limit = 3600", "dt = 0.001", "scenario.time_limit: 3600 s at dt = 0.001 s is 3600000 steps"),
-    ("", "npc = [1, 2]", "sim.npc: expected a table, got [1, 2]"),
-    ("", "observation = 3", "sim.observation: expected a table, got 3"),
-    ("", 'reward = "big"', "sim.reward: expected a table, got 'big'"),
-    ("", 'seed = "abc"', "sim.seed: expected an integer, got 'abc'"),
-    ("", "seed = -1", "sim.seed: -1 is out of range"),
-    ("", 'npc_agents = "no"', "sim.npc_agents: expected true or false, got 'no'"),
-    ("", "[sim.planner]\nmax_steer = 3.0", "sim.planner.max_steer: 3.0 is out of range [0.01, 1.2] rad"),
-    ("lead_gapp = [1.0, 2.0]", "", "scenario.lead_gapp: unknown key (did you mean 'lead_gap'?)"),
-])
+@pytest.mark.parametrize(
+    "scenario, sim, needle",
+    [
+        ("lead_gap = [8.0, inf]", "", "scenario.lead_gap: must be finite"),
+        ("lead_gap = [nan, 9.0]", "", "scenario.lead_gap: must be finite"),
+        ("time_limit = inf", "", "scenario.time_limit: must be finite"),
+        ("goal = -inf", "", "scenario.goal: must be finite"),
+        ("oncoming_reveal = [5.0, inf]", "", "scenario.oncoming_reveal: must be finite"),
+        (
+            "",
+            "[sim.observation]\nvehicles_per_lane = 2.0",
+            "sim.observation.vehicles_per_lane: expected an integer, got 2.0",
+        ),
+        ("", "[sim.planner]\nnum_rollouts = 4.0", "sim.planner.num_rollouts: expected an integer"),
+        ("", "[sim.planner.modes.overtake]\nrollout_id = -1.0", "rollout_id: expected an integer"),
+        ("", "decision_interval = 2.0", "sim.decision_interval: expected an integer"),
+        # Issue 18: huge finite values, non-table [sim] sections and wrongly typed settings were accepted
+        # (an endless run) or crashed with AttributeError; each is one line naming file, key and range.
+        ("speed_limit = 1e300", "", "scenario.speed_limit: 1e+300 is out of range [0.5, 40.0] m/s"),
+        ("lane_width = 1e-300", "", "scenario.lane_width: 1e-300 is out of range [2.0, 6.0] m"),
+        ("goal = 1e12", "", "scenario.goal: 1000000000000.0 is out of range [1.0, 5000.0] m"),
+        ("time_limit = 1e12", "", "scenario.time_limit: 1000000000000.0 is out of range [0.1, 3600.0] s"),
+        ("lead_gap = [8.0, 1e9]", "", "scenario.lead_gap: 1000000000.0 is out of range [0.0, 5000.0] m"),
+        ("oncoming_count = 65", "", "scenario.oncoming_count: 65 is out of range [0, 64]"),
+        ("time_limit = 3600", "dt = 0.001", "scenario.time_limit: 3600 s at dt = 0.001 s is 3600000 steps"),
+        ("", "npc = [1, 2]", "sim.npc: expected a table, got [1, 2]"),
+        ("", "observation = 3", "sim.observation: expected a table, got 3"),
+        ("", 'reward = "big"', "sim.reward: expected a table, got 'big'"),
+        ("", 'seed = "abc"', "sim.seed: expected an integer, got 'abc'"),
+        ("", "seed = -1", "sim.seed: -1 is out of range"),
+        ("", 'npc_agents = "no"', "sim.npc_agents: expected true or false, got 'no'"),
+        ("", "[sim.planner]\nmax_steer = 3.0", "sim.planner.max_steer: 3.0 is out of range [0.01, 1.2] rad"),
+        ("lead_gapp = [1.0, 2.0]", "", "scenario.lead_gapp: unknown key (did you mean 'lead_gap'?)"),
+    ],
+)
 def test_bad_suite_values_are_one_line(tmp_path, capsys, scenario, sim, needle):
     out = tmp_path / "r.json"
     path = suite_with(tmp_path, scenario, sim)
-    err = one_line_error(capsys, ["eval", "--suite", str(path), "--decider", "always-follow", "--out", str(out),
-                                  "--no-progress"])
+    err = one_line_error(
+        capsys, ["eval", "--suite", str(path), "--decider", "always-follow", "--out", str(out), "--no-progress"]
+    )
     assert err.startswith(f"error: {path}: ") and needle in err, err
     assert not out.exists()
 
@@ -101,8 +108,23 @@ def test_unwritable_train_out_fails_before_training(tmp_path, capsys, monkeypatc
 def archive(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli-archive")
     path = tmp / "run.mcap"
-    assert main(["eval", "--suite", str(small_suite_file(tmp, count=3)), "--decider", "always-follow",
-                 "--out", str(tmp / "r.json"), "--archive", str(path), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--suite",
+                str(small_suite_file(tmp, count=3)),
+                "--decider",
+                "always-follow",
+                "--out",
+                str(tmp / "r.json"),
+                "--archive",
+                str(path),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     return path
 
 
@@ -112,15 +134,25 @@ def test_unwritable_out_on_every_command(tmp_path, tmp_path_factory, capsys, arc
     bad = blocker / "sub"
     suite = str(small_suite_file(tmp_path, count=3))
     registry = tmp_path_factory.mktemp("registry") / "datasets.json"
-    registry.write_text(json.dumps({"datasets": {"o/t/x-v0": {"url": "http://127.0.0.1:9/x.tar.gz", "size": 10,
-                                                               "sha256": "0" * 64}}}))
+    registry.write_text(
+        json.dumps({"datasets": {"o/t/x-v0": {"url": "http://127.0.0.1:9/x.tar.gz", "size": 10, "sha256": "0" * 64}}})
+    )
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(bad))
     monkeypatch.setenv("OVERTAKEZOO_HOME", str(bad / "home"))
     monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(registry))
     runs = [
         ["eval", "--suite", suite, "--decider", "always-follow", "--out", f"{bad}/r.json"],
-        ["eval", "--suite", suite, "--decider", "always-follow", "--out", str(tmp_path / "r.json"),
-         "--archive", f"{bad}/a.mcap"],
+        [
+            "eval",
+            "--suite",
+            suite,
+            "--decider",
+            "always-follow",
+            "--out",
+            str(tmp_path / "r.json"),
+            "--archive",
+            f"{bad}/a.mcap",
+        ],
         ["decision-map", "--decider", "always-follow", "--resolution", "2", "--out", f"{bad}/m.png"],
         ["replay", str(archive), "--episode", "0", "--out", f"{bad}/e.gif"],
         ["replay", str(archive), "--episode", "0", "--out", f"{bad}/e.png"],
@@ -135,8 +167,9 @@ def test_unwritable_out_on_every_command(tmp_path, tmp_path_factory, capsys, arc
     # The leaderboard command reads its root, never creates it (submit --root may: a new leaderboard).
     assert one_line_error(capsys, ["leaderboard", "--root", f"{bad}/lb"]) == f"error: no such folder: {bad}/lb"
     t0 = time.perf_counter()  # perf fails before its (here 60 s of) measuring
-    assert "cannot write" in one_line_error(capsys, ["perf", "--sizes", "1", "--seconds", "60", "--no-suites",
-                                                     "--out", f"{bad}/perf"])
+    assert "cannot write" in one_line_error(
+        capsys, ["perf", "--sizes", "1", "--seconds", "60", "--no-suites", "--out", f"{bad}/perf"]
+    )
     assert time.perf_counter() - t0 < 30
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "small.toml"]
 
@@ -146,8 +179,21 @@ def test_eval_into_a_fifo_streams_and_keeps_the_fifo(tmp_path, capsys):
     os.mkfifo(fifo)
     got = []
     t = read_fifo(fifo, got)
-    assert main(["eval", "--suite", str(small_suite_file(tmp_path, count=3)), "--decider", "always-follow",
-                 "--out", str(fifo), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--suite",
+                str(small_suite_file(tmp_path, count=3)),
+                "--decider",
+                "always-follow",
+                "--out",
+                str(fifo),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     t.join(30)
     assert json.loads(got[0])["decider"]["name"] == "always-follow"
     assert stat.S_ISFIFO(os.stat(fifo).st_mode) and leftovers(tmp_path) == []
@@ -164,9 +210,23 @@ def test_closed_stdout_pipe_ends_quietly(archive):
 def test_sigterm_during_eval_leaves_no_file(tmp_path):
     suite = small_suite_file(tmp_path, count=20000)  # long enough to be stopped mid-run
     out = tmp_path / "out" / "r.json"
-    p = subprocess.Popen(CLI + ["eval", "--suite", str(suite), "--decider", "always-follow", "--out", str(out),
-                                "--no-progress", "--chunk-size", "500"], stderr=subprocess.PIPE,
-                         stdout=subprocess.DEVNULL)
+    p = subprocess.Popen(
+        CLI
+        + [
+            "eval",
+            "--suite",
+            str(suite),
+            "--decider",
+            "always-follow",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--chunk-size",
+            "500",
+        ],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 60
     while not out.parent.exists() and time.monotonic() < deadline:  # made by the --out check, before the run
         time.sleep(0.05)
@@ -193,8 +253,9 @@ with atomic_output(sys.argv[1]) as f:
 def test_sigterm_while_a_file_is_half_written(tmp_path):
     target = tmp_path / "big.bin"
     target.write_bytes(b"old")
-    p = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(target)], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE)
+    p = subprocess.Popen(
+        [sys.executable, "-c", _SLOW_WRITER, str(target)], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
     assert p.stdout.readline() == b"writing\n"
     assert len(leftovers(tmp_path)) == 1  # the temp file being written
     p.send_signal(signal.SIGTERM)
@@ -203,18 +264,55 @@ def test_sigterm_while_a_file_is_half_written(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------- fuzzing
-_SCENARIO_KEYS = ["speed_limit", "lane_width", "goal", "road_extra", "sensor_range", "time_limit", "ego_speed",
-                  "lead_speed", "lead_gap", "lead_behaviour", "lead_boost", "oncoming_count", "oncoming_speed",
-                  "oncoming_gap", "oncoming_headway", "oncoming_reveal", "follower_count", "follower_gap",
-                  "reaction_time", "ego_length", "vehicle_width"]
-_SIM_KEYS = ["dt", "decision_interval", "num_egos", "npc_agents", "seed", "planner.num_rollouts",
-             "planner.horizon_time", "planner.enable_prediction", "planner.modes.follow.rollout_number",
-             "planner.modes.overtake.rollout_id", "planner.modes.abort.velocity", "npc.min_gap",
-             "reward.crash", "observation.vehicles_per_lane", "observation.speed_scale", "render_mode"]
+_SCENARIO_KEYS = [
+    "speed_limit",
+    "lane_width",
+    "goal",
+    "road_extra",
+    "sensor_range",
+    "time_limit",
+    "ego_speed",
+    "lead_speed",
+    "lead_gap",
+    "lead_behaviour",
+    "lead_boost",
+    "oncoming_count",
+    "oncoming_speed",
+    "oncoming_gap",
+    "oncoming_headway",
+    "oncoming_reveal",
+    "follower_count",
+    "follower_gap",
+    "reaction_time",
+    "ego_length",
+    "vehicle_width",
+]
+_SIM_KEYS = [
+    "dt",
+    "decision_interval",
+    "num_egos",
+    "npc_agents",
+    "seed",
+    "planner.num_rollouts",
+    "planner.horizon_time",
+    "planner.enable_prediction",
+    "planner.modes.follow.rollout_number",
+    "planner.modes.overtake.rollout_id",
+    "planner.modes.abort.velocity",
+    "npc.min_gap",
+    "reward.crash",
+    "observation.vehicles_per_lane",
+    "observation.speed_scale",
+    "render_mode",
+]
 # Edge values first (inf, NaN, integral floats, huge numbers), then anything.
-_scalar = st.one_of(st.sampled_from([math.inf, -math.inf, math.nan, 2.0, 0.0, -1.0, 1e300, 1, 0, 3, 2**63, True,
-                                     '"idm"', '""']),
-                    st.floats(0, 100), st.integers(-10, 40), st.floats(), st.integers(-2**70, 2**70))
+_scalar = st.one_of(
+    st.sampled_from([math.inf, -math.inf, math.nan, 2.0, 0.0, -1.0, 1e300, 1, 0, 3, 2**63, True, '"idm"', '""']),
+    st.floats(0, 100),
+    st.integers(-10, 40),
+    st.floats(),
+    st.integers(-(2**70), 2**70),
+)
 _value = st.one_of(_scalar, st.lists(_scalar, min_size=2, max_size=2), st.lists(_scalar, max_size=3))
 
 
@@ -239,12 +337,13 @@ def _suite_text(scenario, sim):
 
 
 @settings(max_examples=150)
-@given(st.dictionaries(st.sampled_from(_SCENARIO_KEYS), _value, max_size=3),
-       st.dictionaries(st.sampled_from(_SIM_KEYS), _value, max_size=3))
+@given(
+    st.dictionaries(st.sampled_from(_SCENARIO_KEYS), _value, max_size=3),
+    st.dictionaries(st.sampled_from(_SIM_KEYS), _value, max_size=3),
+)
 def test_fuzz_suite_values_load_run_or_fail_with_user_errors(scenario, sim):
-    from overtakezoo.envs.suites import SuiteError
-    from overtakezoo.envs.suites import parse_suite
     from overtakezoo.envs import OvertakeCore
+    from overtakezoo.envs.suites import SuiteError, parse_suite
 
     try:
         suite = parse_suite(_suite_text(scenario, sim).encode(), SUITES_DIR / "fuzz.toml")
@@ -257,14 +356,17 @@ def test_fuzz_suite_values_load_run_or_fail_with_user_errors(scenario, sim):
     core = OvertakeCore(suite.config)
     core.reset(scenarios)
     for mode in (0, 1, 1):
-        core.step(np.full(scenarios.num * suite.config.num_egos, mode)[:core.num])
+        core.step(np.full(scenarios.num * suite.config.num_egos, mode)[: core.num])
 
 
 @settings(max_examples=25)
-@given(shard=st.one_of(st.none(), st.text(max_size=6), st.sampled_from(["0/1", "1/2", "2/2", "0/9"])),
-       chunk=st.integers(-3, 5), decider=st.sampled_from(["always-follow", "nope", "", "always-follow\0"]),
-       out=st.sampled_from(["r.json", "", ".", "x/../r.json", "a\0b.json", "sub/"]),
-       suite=st.sampled_from(["small", "nope", "", "small.toml\0"]))
+@given(
+    shard=st.one_of(st.none(), st.text(max_size=6), st.sampled_from(["0/1", "1/2", "2/2", "0/9"])),
+    chunk=st.integers(-3, 5),
+    decider=st.sampled_from(["always-follow", "nope", "", "always-follow\0"]),
+    out=st.sampled_from(["r.json", "", ".", "x/../r.json", "a\0b.json", "sub/"]),
+    suite=st.sampled_from(["small", "nope", "", "small.toml\0"]),
+)
 def test_fuzz_eval_arguments_are_one_line_errors(tmp_path_factory, shard, chunk, decider, out, suite):
     import contextlib
     import io
@@ -272,8 +374,18 @@ def test_fuzz_eval_arguments_are_one_line_errors(tmp_path_factory, shard, chunk,
     tmp = tmp_path_factory.mktemp("fuzz-eval")
     small = small_suite_file(tmp, count=2).with_name("small.toml")
     suite_arg = str(small) + suite[5:] if suite.startswith("small") else suite
-    argv = ["eval", "--suite", suite_arg, "--decider", decider, "--out", str(tmp / out), "--no-progress",
-            "--chunk-size", str(chunk)] + (["--shard", shard] if shard is not None else [])
+    argv = [
+        "eval",
+        "--suite",
+        suite_arg,
+        "--decider",
+        decider,
+        "--out",
+        str(tmp / out),
+        "--no-progress",
+        "--chunk-size",
+        str(chunk),
+    ] + (["--shard", shard] if shard is not None else [])
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         try:
@@ -286,19 +398,20 @@ def test_fuzz_eval_arguments_are_one_line_errors(tmp_path_factory, shard, chunk,
 
 # Issue 18: count = 1000000 with 64 oncoming and 64 followers ended in a MemoryError traceback.
 def test_a_suite_too_big_for_memory_is_refused_before_drawing(tmp_path, capsys, monkeypatch):
-    from overtakezoo.envs import suites
-    from overtakezoo.envs import ScenarioDistribution
+    from overtakezoo.envs import ScenarioDistribution, suites
 
     drawn = []
     sample = ScenarioDistribution.sample
     monkeypatch.setattr(ScenarioDistribution, "sample", lambda self, n, seed: drawn.append(n) or sample(self, n, seed))
     monkeypatch.setattr(suites, "available_memory", lambda: 8 * 2**30)  # a laptop, whatever this machine has
     big = tmp_path / "big.toml"
-    big.write_text('name = "big"\nversion = 1\ncount = 1000000\nseed = 1\n[scenario]\n'
-                   "oncoming_count = 64\nfollower_count = 64\n")
+    big.write_text(
+        'name = "big"\nversion = 1\ncount = 1000000\nseed = 1\n[scenario]\noncoming_count = 64\nfollower_count = 64\n'
+    )
     out = tmp_path / "r.json"
-    err = one_line_error(capsys, ["eval", "--suite", str(big), "--decider", "always-follow", "--out", str(out),
-                                  "--no-progress"])
+    err = one_line_error(
+        capsys, ["eval", "--suite", str(big), "--decider", "always-follow", "--out", str(out), "--no-progress"]
+    )
     assert err.startswith(f"error: {big}: count: 1000000 scenarios of 129 NPCs need about "), err
     assert "only 8.0 GiB is available" in err and not out.exists()
     assert max(drawn) == 1  # only the one-scenario probe of the estimate was drawn

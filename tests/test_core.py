@@ -3,8 +3,20 @@
 import numpy as np
 import pytest
 
-from overtakezoo.envs import (ABORT, CRASH, FOLLOW, OVERTAKE, SUCCESS, TIMEOUT, ConfigError, EnvConfig,
-                              OvertakeCore, ScenarioDistribution, Scenarios, make_scenario)
+from overtakezoo.envs import (
+    ABORT,
+    CRASH,
+    FOLLOW,
+    OVERTAKE,
+    SUCCESS,
+    TIMEOUT,
+    ConfigError,
+    EnvConfig,
+    OvertakeCore,
+    ScenarioDistribution,
+    Scenarios,
+    make_scenario,
+)
 
 
 def run(core, scen, policy, max_steps=700):
@@ -84,7 +96,7 @@ def test_abort_returns_behind_the_lead_when_an_oncoming_car_appears_mid_overtake
     core = OvertakeCore()
     core.reset(make_scenario(lead=(8.0, 2.0), oncoming=[(70.0, 3.0)], reveal=35.0))
     mode, aborted_at = OVERTAKE, None
-    for k in range(600):
+    for _ in range(600):
         if mode == OVERTAKE and core.geometry()["visible"][0, 1]:
             mode, aborted_at = ABORT, (core.x[0], core.y[0])
         core.step(np.array([mode]))

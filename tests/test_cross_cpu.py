@@ -22,6 +22,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
+
 def other_kernels() -> dict[str, str]:
     """Environment that moves NumPy to its baseline code (every dispatched SIMD target off) and
     OpenBLAS to its AVX2 kernels; torch (not used by `eval` or `verify`) to its scalar kernels."""
@@ -30,8 +31,14 @@ def other_kernels() -> dict[str, str]:
     except ImportError:  # NumPy 1.x
         from numpy.core._multiarray_umath import __cpu_baseline__, __cpu_dispatch__
     dispatched = [f for f in __cpu_dispatch__ if f not in __cpu_baseline__]
-    return {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(dispatched), "OPENBLAS_CORETYPE": "Haswell",
-            "ATEN_CPU_CAPABILITY": "default", "ONEDNN_MAX_CPU_ISA": "AVX2"}
+    return {
+        **os.environ,
+        "NPY_DISABLE_CPU_FEATURES": " ".join(dispatched),
+        "OPENBLAS_CORETYPE": "Haswell",
+        "ATEN_CPU_CAPABILITY": "default",
+        "ONEDNN_MAX_CPU_ISA": "AVX2",
+    }
+
 
 PROBE = """
 import json, threadpoolctl
@@ -43,20 +50,39 @@ blas = [i.get("architecture") for i in threadpoolctl.threadpool_info() if i["use
 print(json.dumps({"found": [f for f in __cpu_dispatch__ if __cpu_features__.get(f)], "blas": blas}))
 """
 
+
 def test_other_kernels_are_really_in_force():
     import json
 
-    seen = json.loads(subprocess.run([sys.executable, "-c", PROBE], env=other_kernels(), capture_output=True,
-                                     text=True, check=True).stdout)
+    seen = json.loads(
+        subprocess.run(
+            [sys.executable, "-c", PROBE], env=other_kernels(), capture_output=True, text=True, check=True
+        ).stdout
+    )
     assert seen == {"found": [], "blas": ["Haswell"]}
+
 
 def test_shipped_rows_verify_under_other_cpu_kernels():
     # Every member's row on dense (the learned members' matrix products, the planner's trig on the
     # busiest suite), 5 scenarios each, under the other kernels. Measured once on the whole board
     # (225 rows, --sample 2 --seed 11) and on 18 suite x member runs of 500 scenarios: no value moved.
-    cmd = [sys.executable, "-m", "overtakezoo.benchmark.cli", "leaderboard", "--verify", "--only", "dense/*",
-           "--sample", "5", "--seed", "1204", "--base", "HEAD",
-           "--root", str(REPO / "leaderboards")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "overtakezoo.benchmark.cli",
+        "leaderboard",
+        "--verify",
+        "--only",
+        "dense/*",
+        "--sample",
+        "5",
+        "--seed",
+        "1204",
+        "--base",
+        "HEAD",
+        "--root",
+        str(REPO / "leaderboards"),
+    ]
     res = subprocess.run(cmd, env=other_kernels(), capture_output=True, text=True, cwd=REPO, timeout=900)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     verified = [line for line in res.stdout.splitlines() if line.startswith("verified submissions/dense/")]

@@ -8,7 +8,6 @@ import subprocess
 import pytest
 
 from overtakezoo.benchmark.cli import main
-
 from test_benchmark_cli import one_line_error
 
 DECIDERS = "rule-fsm,always-overtake"
@@ -71,8 +70,7 @@ def test_a_declared_label_is_refused(tmp_path, measured, capsys):
     assert "crossplay/duel.json: deciders: recorded" in err and "labels are derived" in err
 
 
-def test_against_a_base_an_unchanged_matrix_is_sampled_and_a_changed_one_rerun(tmp_path, measured, capsys,
-                                                                               monkeypatch):
+def test_against_a_base_an_unchanged_matrix_is_sampled_and_a_changed_one_rerun(tmp_path, measured, capsys, monkeypatch):
     from overtakezoo.benchmark.leaderboard import crossplay
 
     monkeypatch.setattr(crossplay, "VERIFY_PAIRS", 1)  # (12 of a real matrix; this one has 4 pairs)
@@ -86,8 +84,10 @@ def test_against_a_base_an_unchanged_matrix_is_sampled_and_a_changed_one_rerun(t
     assert "verified crossplay/duel.json: 1 of 4 pairs reproduce exactly" in capsys.readouterr().out
     doc = json.loads(measured)
     pair = doc["pairs"][-1]
-    pair["av_crash"] = [pair["av_crash"][0] + (1 if pair["av_crash"][0] < pair["av_crash"][1] else -1),
-                        pair["av_crash"][1]]
+    pair["av_crash"] = [
+        pair["av_crash"][0] + (1 if pair["av_crash"][0] < pair["av_crash"][1] else -1),
+        pair["av_crash"][1],
+    ]
     (root / "crossplay" / "duel.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
     err = one_line_error(capsys, _verify(root, "--sample", "1", "--base", "HEAD"))
     assert f"pair A={pair['a']}, B={pair['b']}: av_crash" in err  # changed: every pair, so the edit is met
@@ -107,7 +107,9 @@ def test_pairs_batched_together_count_as_a_pair_run_alone(monkeypatch):
     monkeypatch.setattr(crossplay, "BATCH_ROADS", 80)  # two pairs of 40 roads per batch: two batches
     batched = crossplay.run_pairs(suite, pairs, 40)
     for a, b in pairs:
-        alone = Pairing([zoo.load(a, suite.config), *(zoo.load(b, suite.config) for _ in range(suite.num_avs - 1))],
-                        suite.config.decision_interval)
+        alone = Pairing(
+            [zoo.load(a, suite.config), *(zoo.load(b, suite.config) for _ in range(suite.num_avs - 1))],
+            suite.config.decision_interval,
+        )
         summary = run_suite(suite, alone, limit=40, progress=False).summary
         assert batched[a, b] == {"a": a, "b": b, **crossplay._counts(summary)}

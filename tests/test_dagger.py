@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("torch")
 
 from overtakezoo import zoo  # noqa: E402
-from overtakezoo.envs import OVERTAKE, SUCCESS, CRASH  # noqa: E402
+from overtakezoo.envs import CRASH, OVERTAKE, SUCCESS  # noqa: E402
 from overtakezoo.envs.suites import load_suite, load_training  # noqa: E402
 from overtakezoo.zoo.members.learned import MLPDecider  # noqa: E402
 from overtakezoo.zoo.train import dagger  # noqa: E402
@@ -28,8 +28,9 @@ def outcomes(decider, suite, n):
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("dagger")
-    trained = dagger.train(load_training("table1-train"), suite_name="table1-train", out=out, overrides=SHORT,
-                           progress=False)
+    trained = dagger.train(
+        load_training("table1-train"), suite_name="table1-train", out=out, overrides=SHORT, progress=False
+    )
     return trained, out
 
 
@@ -53,8 +54,9 @@ def test_a_short_run_learns_to_overtake_on_the_training_split(short_run):
 @pytest.mark.slow
 def test_the_same_seed_gives_the_same_bytes(short_run, tmp_path):
     trained, _ = short_run
-    again = dagger.train(load_training("table1-train"), suite_name="table1-train", out=tmp_path, overrides=SHORT,
-                         progress=False)
+    again = dagger.train(
+        load_training("table1-train"), suite_name="table1-train", out=tmp_path, overrides=SHORT, progress=False
+    )
     assert again.npz == trained.npz
 
 
@@ -64,8 +66,10 @@ def test_the_chosen_threshold_is_baked_into_the_exported_overtake_logit(short_ru
     offset = trained.card["training"]["overtake_logit_offset"]
     assert offset in SHORT["offsets"]
     sel = trained.card["training"]["threshold_selection"]
-    assert sel["offsets"][int(np.argmax(sel["score"]))] == offset or max(sel["score"]) == sel["score"][
-        sel["offsets"].index(offset)]
+    assert (
+        sel["offsets"][int(np.argmax(sel["score"]))] == offset
+        or max(sel["score"]) == sel["score"][sel["offsets"].index(offset)]
+    )
     suite = load_suite("table1-train")
     x = dagger.features(_obs(suite), suite.config)
     import torch
@@ -113,8 +117,9 @@ def test_a_frame_stack_member_reads_its_last_decisions_and_forgets_them_at_reset
     from overtakezoo.zoo.members.learned import StackedMLPDecider, load_pretrained
 
     tiny = {"steps": 1, "episodes": 4, "grad_steps": 20, "select_scenarios": 8, "offsets": [0.0], "frame_stack": 3}
-    trained = dagger.train(load_training("table1-train"), suite_name="table1-train", out=tmp_path, overrides=tiny,
-                           progress=False)
+    trained = dagger.train(
+        load_training("table1-train"), suite_name="table1-train", out=tmp_path, overrides=tiny, progress=False
+    )
     assert trained.card["frame_stack"] == 3
     check_card(trained.card)
     suite = load_suite("table1-train")

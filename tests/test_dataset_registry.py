@@ -13,7 +13,6 @@ import pytest
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.datasets.recipes import RECIPES_FILE, read_recipes
-
 from test_datasets import RangeHandler, load_minari, server  # noqa: F401 - server: a fixture
 
 RECIPES = """
@@ -53,8 +52,10 @@ def published(home, monkeypatch):  # noqa: F811 - the imported fixture
     """A registry regenerated from a small recipe table (6 scenarios), then an empty cache."""
     recipes = home / "recipes.toml"
     recipes.write_text(RECIPES.format(base=dead_url()))
-    assert main(["dataset", "regenerate", "--recipes", str(recipes), "--archives", str(home / "release"),
-                 "--no-progress"]) == 0
+    assert (
+        main(["dataset", "regenerate", "--recipes", str(recipes), "--archives", str(home / "release"), "--no-progress"])
+        == 0
+    )
     reg = json.loads((home / "registry.json").read_text())["datasets"]
     built = home / "home" / "datasets"
     monkeypatch.setenv("OVERTAKEZOO_HOME", str(home / "fresh"))
@@ -67,15 +68,18 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
     e = reg[MEDIUM]
     assert e["level"] == "medium" and e["episodes"] == 6 and len(e["content_sha256"]) == 64
     assert e["recipe"]["suite"] == "table1-train" and len(e["recipe"]["suite_sha256"]) == 64
-    assert e["recipe"]["policies"] == [{"decider": "rule-fsm", "decider_version": "1", "weights_sha256": None,
-                                        "epsilon": 0.1, "seed": 0}]
+    assert e["recipe"]["policies"] == [
+        {"decider": "rule-fsm", "decider_version": "1", "weights_sha256": None, "epsilon": 0.1, "seed": 0}
+    ]
     assert e["mirrors"][0].endswith("/overtakezoo__t1__rule-fsm-v0.tar.gz")
     archive = home / "release" / "overtakezoo__t1__rule-fsm-v0.tar.gz"
     assert archive.stat().st_size == e["size"]
     # The outcome shares are the episodes' own last outcomes.
     ds = load_minari(built, MEDIUM)
-    ends = [("running", "success", "crash", "timeout", "offroad")[int(ep.infos["outcome"][-1])]
-            for ep in ds.iterate_episodes()]
+    ends = [
+        ("running", "success", "crash", "timeout", "offroad")[int(ep.infos["outcome"][-1])]
+        for ep in ds.iterate_episodes()
+    ]
     assert e["outcomes"] == {k: round(ends.count(k) / len(ends), 4) for k in set(ends)}
 
     # Offline with --no-build: the only mirror refuses the connection; one error line says how to rebuild.
@@ -95,7 +99,7 @@ def test_regenerate_records_recipes_and_build_reproduces_offline(published, home
     ds = load_minari(fresh, MEDIUM)  # Minari's own loader reads the rebuild
     assert ds.total_episodes == 6 and content_sha256(ds) == e["content_sha256"]
     first = load_minari(built, MEDIUM)  # the regenerated copy: the same arrays
-    for a, b in zip(first.iterate_episodes(), ds.iterate_episodes()):
+    for a, b in zip(first.iterate_episodes(), ds.iterate_episodes(), strict=True):
         assert np.array_equal(a.observations, b.observations) and np.array_equal(a.actions, b.actions)
 
     # The mixed dataset alternates its components' episodes exactly.
@@ -128,8 +132,12 @@ def test_tampered_content_hash_or_other_versions_are_refused(published, home, ca
     edit(lambda e: e.update(content_sha256=reg[MEDIUM]["content_sha256"]) or e["recipe"].update(suite_sha256="1" * 64))
     assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
     assert "another version" in capsys.readouterr().err
-    edit(lambda e: e["recipe"].update(suite_sha256=reg[MEDIUM]["recipe"]["suite_sha256"])
-         or e["recipe"]["policies"][0].update(decider_version="99"))
+    edit(
+        lambda e: (
+            e["recipe"].update(suite_sha256=reg[MEDIUM]["recipe"]["suite_sha256"])
+            or e["recipe"]["policies"][0].update(decider_version="99")
+        )
+    )
     assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
     assert "the recipe used v99" in capsys.readouterr().err
 
@@ -143,7 +151,7 @@ def test_mirrors_in_order_with_resume(published, home, server, capsys):  # noqa:
     (home / "registry.json").write_text(json.dumps(data))
     part = home / "fresh" / "downloads" / "overtakezoo__t1__rule-fsm-v0.tar.gz.part"
     part.parent.mkdir(parents=True)
-    part.write_bytes(blob[:len(blob) // 2])  # an earlier, interrupted download
+    part.write_bytes(blob[: len(blob) // 2])  # an earlier, interrupted download
     assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 0
     assert RangeHandler.seen == [f"bytes={len(blob) // 2}-"]  # the dead mirror skipped, the live one resumed
     assert not part.exists()
@@ -154,8 +162,23 @@ def test_mirrors_in_order_with_resume(published, home, server, capsys):  # noqa:
 
 def test_pack_is_byte_deterministic_and_recipe_table_is_checked(home, tmp_path, capsys):  # noqa: F811
     name = "overtakezoo/t1/p-v0"
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "always-follow", "--count", "2",
-                 "--name", name]) == 0
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--suite",
+                "table1-train",
+                "--decider",
+                "always-follow",
+                "--count",
+                "2",
+                "--name",
+                name,
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     shas = []
     for out in ("a.tar.gz", "b.tar.gz"):

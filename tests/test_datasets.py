@@ -40,10 +40,28 @@ def load_minari(path, name):
 
 def test_build_load_and_behaviour_cloning(home, capsys):
     decider = "rule-fsm" if "rule-fsm" in zoo.names() else "always-overtake"
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", decider, "--count", "40",
-                 "--epsilon", "0.1", "--name", NAME]) == 0
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", decider, "--count", "2",
-                 "--name", NAME]) == 2  # exists already
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--suite",
+                "table1-train",
+                "--decider",
+                decider,
+                "--count",
+                "40",
+                "--epsilon",
+                "0.1",
+                "--name",
+                NAME,
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(["dataset", "build", "--suite", "table1-train", "--decider", decider, "--count", "2", "--name", NAME]) == 2
+    )  # exists already
     assert "already exists" in capsys.readouterr().err
     assert main(["dataset", "list"]) == 0
     assert NAME in capsys.readouterr().out
@@ -101,7 +119,7 @@ class RangeHandler(http.server.BaseHTTPRequestHandler):
         cut = type(self).drop_first_after
         if cut is not None:
             type(self).drop_first_after = None
-            self.wfile.write(body[start:start + cut])
+            self.wfile.write(body[start : start + cut])
             self.wfile.flush()
             self.close_connection = True
             return  # the client sees a short body: an interrupted transfer
@@ -125,14 +143,28 @@ def server():
 def publish(home, server, name, path, blob, sha=None):
     RangeHandler.files[path] = blob
     reg = json.loads((home / "registry.json").read_text())
-    reg["datasets"][name] = {"url": server + path, "size": len(blob),
-                             "sha256": sha or hashlib.sha256(blob).hexdigest()}
+    reg["datasets"][name] = {"url": server + path, "size": len(blob), "sha256": sha or hashlib.sha256(blob).hexdigest()}
     (home / "registry.json").write_text(json.dumps(reg))
 
 
 def test_download_resumes_verifies_and_unpacks(home, server, monkeypatch, capsys):
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "always-overtake", "--count", "3",
-                 "--name", NAME]) == 0
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--suite",
+                "table1-train",
+                "--decider",
+                "always-overtake",
+                "--count",
+                "3",
+                "--name",
+                NAME,
+            ]
+        )
+        == 0
+    )
     packed = home / "ds.tar.gz"
     assert main(["dataset", "pack", NAME, "--out", str(packed)]) == 0
     blob = packed.read_bytes()
@@ -180,12 +212,15 @@ def _tar(members):
     return buf.getvalue()
 
 
-@pytest.mark.parametrize("members", [
-    [("overtakezoo/evil/x-v0/../../../../escape.txt", "file")],
-    [("/tmp/overtakezoo-abs.txt", "file")],
-    [("overtakezoo/evil/x-v0/link", "symlink")],
-    [("overtakezoo/other/y-v0/data.txt", "file")],  # inside the cache, but not the dataset's folder
-])
+@pytest.mark.parametrize(
+    "members",
+    [
+        [("overtakezoo/evil/x-v0/../../../../escape.txt", "file")],
+        [("/tmp/overtakezoo-abs.txt", "file")],
+        [("overtakezoo/evil/x-v0/link", "symlink")],
+        [("overtakezoo/other/y-v0/data.txt", "file")],  # inside the cache, but not the dataset's folder
+    ],
+)
 def test_archives_that_escape_are_refused(home, server, members, capsys):
     name = "overtakezoo/evil/x-v0"
     publish(home, server, name, "/evil.tar.gz", _tar(members))
@@ -198,9 +233,20 @@ def test_archives_that_escape_are_refused(home, server, members, capsys):
 
 def test_parent_folder_entries_are_fine_and_http_errors_are_one_line(home, server, capsys):
     name = "overtakezoo/ok/x-v0"
-    publish(home, server, name, "/ok.tar.gz", _tar([("overtakezoo", "dir"), ("overtakezoo/ok", "dir"),
-                                                    ("overtakezoo/ok/x-v0", "dir"),
-                                                    ("overtakezoo/ok/x-v0/data.txt", "file")]))
+    publish(
+        home,
+        server,
+        name,
+        "/ok.tar.gz",
+        _tar(
+            [
+                ("overtakezoo", "dir"),
+                ("overtakezoo/ok", "dir"),
+                ("overtakezoo/ok/x-v0", "dir"),
+                ("overtakezoo/ok/x-v0/data.txt", "file"),
+            ]
+        ),
+    )
     assert main(["dataset", "download", name, "--no-progress"]) == 0
     assert (home / "home" / "datasets" / name / "data.txt").read_bytes() == b"ok"
     capsys.readouterr()
@@ -211,8 +257,9 @@ def test_parent_folder_entries_are_fine_and_http_errors_are_one_line(home, serve
     assert "HTTP 404" in err and err.count("\n") == 1
 
 
-@pytest.mark.parametrize("argv", [["dataset"], ["dataset", "build"], ["dataset", "list"], ["dataset", "download"],
-                                  ["dataset", "pack"]])
+@pytest.mark.parametrize(
+    "argv", [["dataset"], ["dataset", "build"], ["dataset", "list"], ["dataset", "download"], ["dataset", "pack"]]
+)
 def test_help_has_examples(capsys, argv):
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--help"])
@@ -226,8 +273,10 @@ def test_bad_names_and_urls(home, server, capsys):
     (home / "registry.json").write_text(json.dumps(reg))
     assert main(["dataset", "download", "overtakezoo/local/f-v0"]) == 2
     assert "only http(s)" in capsys.readouterr().err
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "always-follow",
-                 "--name", "../escape-v0"]) == 2
+    assert (
+        main(["dataset", "build", "--suite", "table1-train", "--decider", "always-follow", "--name", "../escape-v0"])
+        == 2
+    )
     assert "bad dataset name" in capsys.readouterr().err
 
 
@@ -262,8 +311,10 @@ def test_full_disk_is_one_error_line_and_keeps_the_old_dataset(home, capsys, mon
         usage = shutil.disk_usage(home)
         monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=1000))
     else:
+
         def full(**kw):
             raise OSError(errno.ENOSPC, "No space left on device")
+
         monkeypatch.setattr(minari, "create_dataset_from_buffers", full)
     err = one_line_error(capsys, BUILD + ["--overwrite"])
     assert err.startswith(f"error: cannot write dataset {NAME}") and "nothing was changed" in err
@@ -295,8 +346,13 @@ def test_a_crashing_hdf5_writer_is_one_error_line_not_a_segfault(home):
     assert main(BUILD) == 0
     before = _content(NAME)
     code = _CRASHING_BUILD.format(name=NAME, argv=BUILD + ["--overwrite"])
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "PYTHONFAULTHANDLER": ""})
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONFAULTHANDLER": ""},
+    )
     err = proc.stderr.strip()
     assert proc.returncode == 2 and err.startswith(f"error: cannot write dataset {NAME}") and "\n" not in err, err
     assert "crashed" in err and _hidden(home) == [] and _content(NAME) == before
@@ -307,9 +363,11 @@ def test_a_killed_builds_temp_folder_is_swept_by_the_next_build(home):
     import subprocess
     import sys
 
-    code = ("import os, signal\nfrom overtakezoo.benchmark.datasets.store import datasets_dir, staging_root\n"
-            f"with staging_root(datasets_dir() / {NAME!r}) as staging:\n"
-            "    (staging / 'half.hdf5').write_bytes(b'x')\n    os.kill(os.getpid(), signal.SIGKILL)\n")
+    code = (
+        "import os, signal\nfrom overtakezoo.benchmark.datasets.store import datasets_dir, staging_root\n"
+        f"with staging_root(datasets_dir() / {NAME!r}) as staging:\n"
+        "    (staging / 'half.hdf5').write_bytes(b'x')\n    os.kill(os.getpid(), signal.SIGKILL)\n"
+    )
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == -9
     [stale] = _hidden(home)
     assert stale.startswith(".test-v0.build-")
@@ -327,12 +385,19 @@ def test_minari_finds_an_installed_dataset_with_no_environment_variable(tmp_path
     monkeypatch.setenv("HOME", str(tmp_path))  # Minari's default is ~/.minari/datasets
     monkeypatch.delenv("OVERTAKEZOO_HOME", raising=False)
     monkeypatch.delenv("MINARI_DATASETS_PATH", raising=False)
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "rule-fsm", "--count", "3",
-                 "--name", NAME]) == 0
+    assert (
+        main(["dataset", "build", "--suite", "table1-train", "--decider", "rule-fsm", "--count", "3", "--name", NAME])
+        == 0
+    )
     assert (tmp_path / ".minari" / "datasets" / NAME).is_dir()
     env = {k: v for k, v in os.environ.items() if k not in ("OVERTAKEZOO_HOME", "MINARI_DATASETS_PATH")}
-    out = subprocess.run([sys.executable, "-c", f"import minari; print(minari.load_dataset({NAME!r}).total_episodes)"],
-                         env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", f"import minari; print(minari.load_dataset({NAME!r}).total_episodes)"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0 and out.stdout.strip() == "3", out.stderr
 
 

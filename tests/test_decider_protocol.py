@@ -6,14 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import LEARNED, needs_shipped_weights
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution, observation_size
 from overtakezoo.envs.hold import hold, hold_steps
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.testing import check_decider
-
-from conftest import LEARNED, needs_shipped_weights
 
 MEMBERS = sorted(zoo.names())  # the registry itself: a new member is checked here without touching this file
 
@@ -182,8 +181,11 @@ def _bound(name, learned_dir, rows):
 def test_non_finite_observations_are_refused_naming_the_column(name, learned_dir):
     dec, obs = _bound(name, learned_dir, 3)
     for bad in (np.nan, np.inf, -np.inf):
-        with pytest.raises(zoo.ObservationError, match=r"^\S+: observation feature 0 \(ego\[0\]\) is \S*(nan|inf) "
-                                                       r"in row 0; observations must be finite$"):
+        with pytest.raises(
+            zoo.ObservationError,
+            match=r"^\S+: observation feature 0 \(ego\[0\]\) is \S*(nan|inf) "
+            r"in row 0; observations must be finite$",
+        ):
             dec.act(np.full_like(obs, bad))
     one = obs.copy()
     one[2, 12] = np.nan  # a single value, deep in the vector: named by its place in the layout
@@ -198,7 +200,9 @@ def test_observations_of_the_wrong_width_are_refused(name, learned_dir):
     dec, obs = _bound(name, learned_dir, 2)
     width = observation_size(EnvConfig())
     for bad in (obs[:, :-1], np.concatenate([obs, obs[:, :1]], axis=1), obs[0, :5]):
-        with pytest.raises(zoo.ObservationError, match=rf"observations have {bad.shape[-1]} features, expected {width}"):
+        with pytest.raises(
+            zoo.ObservationError, match=rf"observations have {bad.shape[-1]} features, expected {width}"
+        ):
             dec.act(bad)
 
 
@@ -224,8 +228,8 @@ def test_the_oracle_refuses_a_core_of_another_width():
 def test_legitimate_observations_are_always_finite():
     # Refusing NaN / inf is safe: every shipped suite's observation Box is finite (an empty slot is
     # zeros, not an inf "no vehicle" code), and a run's observations lie in it.
-    from overtakezoo.envs.suites import list_suites
     from overtakezoo.envs.faces.spaces import ego_observation_space
+    from overtakezoo.envs.suites import list_suites
 
     for suite in list_suites():
         box = ego_observation_space(suite.config)

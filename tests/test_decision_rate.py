@@ -16,8 +16,15 @@ import pytest
 
 from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
-from overtakezoo.zoo.members.learned import (PRETRAINED, MLPDecider, WeightsError, deployed_repeat, describe,
-                                             load_weights, read_card)
+from overtakezoo.zoo.members.learned import (
+    PRETRAINED,
+    MLPDecider,
+    WeightsError,
+    deployed_repeat,
+    describe,
+    load_weights,
+    read_card,
+)
 from overtakezoo.zoo.train.contract import CARD_SCHEMA
 
 SCHEMA = json.loads(CARD_SCHEMA.read_text())
@@ -100,8 +107,9 @@ def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_pat
         card["seed"] = seed
         (run / "dqn.json").write_text(json.dumps(card))
         runs.append(str(run))
-    monkeypatch.setattr(sys, "argv", ["decision_rate.py", "dqn", *runs, "--candidates", "10,1",
-                                      "--train-suite", str(split)])
+    monkeypatch.setattr(
+        sys, "argv", ["decision_rate.py", "dqn", *runs, "--candidates", "10,1", "--train-suite", str(split)]
+    )
     decision_rate.main()
     cards = [json.loads((Path(r) / "dqn.json").read_text()) for r in runs]
     sel = cards[0]["decide_every_selection"]

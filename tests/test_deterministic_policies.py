@@ -10,12 +10,11 @@ import json
 import numpy as np
 import pytest
 
+from conftest import last_error_line
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.results.results import Results
 from overtakezoo.benchmark.run.determinism import random_ops
 from overtakezoo.envs import EnvConfig, observation_size
-
-from conftest import last_error_line
 
 onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
@@ -27,12 +26,17 @@ D = observation_size(EnvConfig())
 def _model(nodes=(), inits=(), out="scores", opset=17, functions=()):
     """An ONNX MLP layer (N, D) -> 3 scores (seeded weights), then ``nodes`` computing ``out``."""
     rng = np.random.default_rng(0)
-    weights = [numpy_helper.from_array(rng.normal(size=(D, 3)).astype(np.float32), "w"),
-               numpy_helper.from_array(rng.normal(size=3).astype(np.float32), "b")]
+    weights = [
+        numpy_helper.from_array(rng.normal(size=(D, 3)).astype(np.float32), "w"),
+        numpy_helper.from_array(rng.normal(size=3).astype(np.float32), "b"),
+    ]
     graph = helper.make_graph(
-        [helper.make_node("MatMul", ["obs", "w"], ["xw"]), helper.make_node("Add", ["xw", "b"], ["scores"]),
-         *nodes], "policy", [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", D])],
-        [helper.make_tensor_value_info(out, TensorProto.FLOAT, ["N", 3])], initializer=[*weights, *inits])
+        [helper.make_node("MatMul", ["obs", "w"], ["xw"]), helper.make_node("Add", ["xw", "b"], ["scores"]), *nodes],
+        "policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", D])],
+        [helper.make_tensor_value_info(out, TensorProto.FLOAT, ["N", 3])],
+        initializer=[*weights, *inits],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)], functions=list(functions))
     model.ir_version = 8
     return model
@@ -48,14 +52,30 @@ def _bool(name, value):
     return numpy_helper.from_array(np.array(value), name)
 
 
-HONEST = lambda: _model([helper.make_node("Dropout", ["scores"], ["out"], name="inference-dropout")], out="out")  # noqa: E731
+def HONEST():
+    return _model([helper.make_node("Dropout", ["scores"], ["out"], name="inference-dropout")], out="out")
+
+
 # Scores minus their mean over the batch axis: the decision for a row depends on the other rows.
-BATCH = lambda: _model([helper.make_node("ReduceMean", ["scores"], ["mean"], axes=[0], keepdims=1),  # noqa: E731
-                        helper.make_node("Sub", ["scores", "mean"], ["out"])], out="out")
+def BATCH():
+    return _model(
+        [
+            helper.make_node("ReduceMean", ["scores"], ["mean"], axes=[0], keepdims=1),
+            helper.make_node("Sub", ["scores", "mean"], ["out"]),
+        ],
+        out="out",
+    )
+
+
 # Seeded noise: a fresh session draws the same sequence, so a full re-run reproduces the run it follows.
-RANDOM = lambda: _model([helper.make_node("RandomUniform", [], ["noise"], name="noise", shape=[1, 3],  # noqa: E731
-                                          low=0.0, high=10.0, seed=1.0),
-                         helper.make_node("Add", ["scores", "noise"], ["out"])], out="out")
+def RANDOM():
+    return _model(
+        [
+            helper.make_node("RandomUniform", [], ["noise"], name="noise", shape=[1, 3], low=0.0, high=10.0, seed=1.0),
+            helper.make_node("Add", ["scores", "noise"], ["out"]),
+        ],
+        out="out",
+    )
 
 
 def _eval(tmp_path, suite, policy, out):
@@ -77,16 +97,25 @@ def test_random_ops_are_found_in_graphs_subgraphs_and_functions():
     assert random_ops(m.SerializeToString()) == ["RandomNormal"]
 
     # Dropout: random only when its training_mode may be true.
-    drop = lambda *inputs: _model([helper.make_node("Dropout", ["scores", *inputs], ["out"])], out="out",  # noqa: E731
-                                  inits=[numpy_helper.from_array(np.array(0.5, np.float32), "ratio"),
-                                         _bool("off", False), _bool("on", True)])
+    def drop(*inputs):
+        return _model(
+            [helper.make_node("Dropout", ["scores", *inputs], ["out"])],
+            out="out",
+            inits=[numpy_helper.from_array(np.array(0.5, np.float32), "ratio"), _bool("off", False), _bool("on", True)],
+        )
+
     assert random_ops(drop().SerializeToString()) == []
     assert random_ops(drop("ratio").SerializeToString()) == []
     assert random_ops(drop("ratio", "").SerializeToString()) == []
     assert random_ops(drop("ratio", "off").SerializeToString()) == []
     assert random_ops(drop("ratio", "on").SerializeToString()) == ["Dropout"]
-    const = _model([helper.make_node("Constant", [], ["t"], value=_bool("v", True)),
-                    helper.make_node("Dropout", ["scores", "", "t"], ["out"])], out="out")
+    const = _model(
+        [
+            helper.make_node("Constant", [], ["t"], value=_bool("v", True)),
+            helper.make_node("Dropout", ["scores", "", "t"], ["out"]),
+        ],
+        out="out",
+    )
     assert random_ops(const.SerializeToString()) == ["Dropout"]
     fed = _model([helper.make_node("Dropout", ["scores", "", "train"], ["out"])], out="out")
     fed.graph.input.append(helper.make_tensor_value_info("train", TensorProto.BOOL, []))  # the caller may feed true
@@ -97,15 +126,29 @@ def test_random_ops_are_found_in_graphs_subgraphs_and_functions():
     assert random_ops(old.SerializeToString()) == []
 
     # Inside an If branch, inside a model-local function, and a contrib op of another domain.
-    branch = helper.make_graph([helper.make_node("RandomNormalLike", ["scores"], ["r"], name="deep")], "then", [],
-                               [helper.make_tensor_value_info("r", TensorProto.FLOAT, None)])
-    plain = helper.make_graph([helper.make_node("Identity", ["scores"], ["r2"])], "else", [],
-                              [helper.make_tensor_value_info("r2", TensorProto.FLOAT, None)])
-    m = _model([helper.make_node("Constant", [], ["c"], value=_bool("cv", True)),
-                helper.make_node("If", ["c"], ["out"], then_branch=branch, else_branch=plain)], out="out")
+    branch = helper.make_graph(
+        [helper.make_node("RandomNormalLike", ["scores"], ["r"], name="deep")],
+        "then",
+        [],
+        [helper.make_tensor_value_info("r", TensorProto.FLOAT, None)],
+    )
+    plain = helper.make_graph(
+        [helper.make_node("Identity", ["scores"], ["r2"])],
+        "else",
+        [],
+        [helper.make_tensor_value_info("r2", TensorProto.FLOAT, None)],
+    )
+    m = _model(
+        [
+            helper.make_node("Constant", [], ["c"], value=_bool("cv", True)),
+            helper.make_node("If", ["c"], ["out"], then_branch=branch, else_branch=plain),
+        ],
+        out="out",
+    )
     assert random_ops(m.SerializeToString()) == ["RandomNormalLike (node 'deep')"]
-    fn = helper.make_function("mine", "Noisy", ["x"], ["y"], [helper.make_node("Bernoulli", ["x"], ["y"])],
-                              [helper.make_opsetid("", 17)])
+    fn = helper.make_function(
+        "mine", "Noisy", ["x"], ["y"], [helper.make_node("Bernoulli", ["x"], ["y"])], [helper.make_opsetid("", 17)]
+    )
     m = _model([helper.make_node("Noisy", ["scores"], ["out"], domain="mine")], out="out", functions=[fn])
     assert random_ops(m.SerializeToString()) == ["Bernoulli"]
     m = _model([helper.make_node("BiasDropout", ["scores"], ["out"], domain="com.microsoft")], out="out")
@@ -116,8 +159,9 @@ def test_random_ops_are_found_in_graphs_subgraphs_and_functions():
 def test_submit_refuses_a_random_op_naming_it(tiny, tmp_path, capsys):
     policy = _save(RANDOM(), tmp_path / "noisy.onnx")
     results = _eval(tmp_path, tiny, policy, "noisy.json")
-    err = last_error_line(capsys, ["submit", str(results), "--policy", str(policy), "--name", "noisy",
-                                  "--root", str(tmp_path / "lb")])
+    err = last_error_line(
+        capsys, ["submit", str(results), "--policy", str(policy), "--name", "noisy", "--root", str(tmp_path / "lb")]
+    )
     assert f"--policy {policy}: the ONNX graph uses the random op RandomUniform (node 'noise')" in err
     assert not (tmp_path / "lb" / "submissions" / tiny / "noisy.json").exists()
 
@@ -126,8 +170,9 @@ def test_submit_refuses_a_batch_dependent_policy_and_files_an_honest_one(tiny, t
     root = tmp_path / "lb"
     policy = _save(BATCH(), tmp_path / "batchy.onnx")
     results = _eval(tmp_path, tiny, policy, "batchy.json")  # its own run: one batch of 12, reproduced as such
-    err = last_error_line(capsys, ["submit", str(results), "--policy", str(policy), "--name", "batchy",
-                                  "--root", str(root)])
+    err = last_error_line(
+        capsys, ["submit", str(results), "--policy", str(policy), "--name", "batchy", "--root", str(root)]
+    )
     assert f"--policy {policy}: not deterministic: observation " in err and "decide each observation" in err
     assert not (root / "submissions" / tiny / "batchy.json").exists()
 
@@ -143,19 +188,29 @@ def _direct_row(root, suite, name, results, model: bytes):
     sha = hashlib.sha256(model).hexdigest()
     (root / "submissions" / "artifacts").mkdir(parents=True, exist_ok=True)
     (root / "submissions" / "artifacts" / f"{sha}.onnx").write_bytes(model)
-    decider = {"name": name, "version": "1", "weights_sha256": sha, "privileged": False,
-               "policy": {"kind": "onnx", "file": f"{sha}.onnx", "sha256": sha}}
-    doc = {**results.to_dict(), "decider": decider,
-           "submission": {"name": name, "policy": {"artifact": f"artifacts/{sha}.onnx", "sha256": sha}}}
+    decider = {
+        "name": name,
+        "version": "1",
+        "weights_sha256": sha,
+        "privileged": False,
+        "policy": {"kind": "onnx", "file": f"{sha}.onnx", "sha256": sha},
+    }
+    doc = {
+        **results.to_dict(),
+        "decider": decider,
+        "submission": {"name": name, "policy": {"artifact": f"artifacts/{sha}.onnx", "sha256": sha}},
+    }
     path = root / "submissions" / suite / f"{name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc))
     return path
 
 
-@pytest.mark.parametrize("make, says", [(BATCH, "not deterministic: observation "),
-                                        (RANDOM, "uses the random op RandomUniform (node 'noise')")],
-                         ids=["batch-dependent", "random-op"])
+@pytest.mark.parametrize(
+    "make, says",
+    [(BATCH, "not deterministic: observation "), (RANDOM, "uses the random op RandomUniform (node 'noise')")],
+    ids=["batch-dependent", "random-op"],
+)
 def test_verify_refuses_a_planted_row_whose_policy_is_not_deterministic(tiny, tmp_path, capsys, make, says):
     policy = _save(make(), tmp_path / "p.onnx")
     results = Results.load(_eval(tmp_path, tiny, policy, "r.json"))

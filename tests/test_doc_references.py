@@ -21,11 +21,18 @@ RELATIVE = re.compile(r":mod:`(\.\w+)`")
 
 
 def _texts() -> list[tuple[str, str]]:
-    files = [p for top in (*PACKAGES, "scripts", "tests", "docs") for p in (REPO / top).rglob("*")
-             if p.suffix in (".py", ".md") and p.is_file()]
+    files = [
+        p
+        for top in (*PACKAGES, "scripts", "tests", "docs")
+        for p in (REPO / top).rglob("*")
+        if p.suffix in (".py", ".md") and p.is_file()
+    ]
     files += [REPO / "README.md", REPO / "leaderboards" / "README.md"]
-    return [(p.relative_to(REPO).as_posix(), p.read_text(errors="replace")) for p in files
-            if p.relative_to(REPO).as_posix() not in SKIP]
+    return [
+        (p.relative_to(REPO).as_posix(), p.read_text(errors="replace"))
+        for p in files
+        if p.relative_to(REPO).as_posix() not in SKIP
+    ]
 
 
 def _resolves(dotted: str) -> bool:
@@ -47,19 +54,27 @@ def _resolves(dotted: str) -> bool:
 
 
 def test_named_files_exist():
-    missing = sorted({(rel, path) for rel, text in _texts() for path in PATH.findall(text)
-                      if not (REPO / path).exists() and path == path.lower()})  # (ALGO.toml: a placeholder)
+    missing = sorted(
+        {
+            (rel, path)
+            for rel, text in _texts()
+            for path in PATH.findall(text)
+            if not (REPO / path).exists() and path == path.lower()
+        }
+    )  # (ALGO.toml: a placeholder)
     assert not missing, missing
 
 
 def test_named_modules_and_objects_exist():
-    missing = sorted({(rel, name) for rel, text in _texts() for name in DOTTED.findall(text)
-                      if not _resolves(name.rstrip("."))})
+    missing = sorted(
+        {(rel, name) for rel, text in _texts() for name in DOTTED.findall(text) if not _resolves(name.rstrip("."))}
+    )
     assert not missing, missing
 
 
-@pytest.mark.parametrize("init", sorted(p.relative_to(REPO).as_posix() for top in PACKAGES
-                                        for p in (REPO / top).rglob("__init__.py")))
+@pytest.mark.parametrize(
+    "init", sorted(p.relative_to(REPO).as_posix() for top in PACKAGES for p in (REPO / top).rglob("__init__.py"))
+)
 def test_a_package_docstring_names_its_own_submodules(init):
     folder = (REPO / init).parent
     for rel in RELATIVE.findall((REPO / init).read_text()):

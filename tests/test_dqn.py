@@ -10,19 +10,25 @@ import numpy as np
 import pytest
 import torch
 
-from overtakezoo.envs.suites import load_suite, load_training
-
+from conftest import needs_shipped_weights
 from overtakezoo import zoo
-from overtakezoo.envs import (ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution, make_scenario,
-                              observation_size)
+from overtakezoo.envs import (
+    ABORT,
+    FOLLOW,
+    OVERTAKE,
+    EnvConfig,
+    OvertakeCore,
+    ScenarioDistribution,
+    make_scenario,
+    observation_size,
+)
 from overtakezoo.envs.hold import hold, hold_steps
-from overtakezoo.zoo.members.learned import MLPDecider, WeightsError, action_mask, load_pretrained
+from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
+from overtakezoo.zoo.members.learned import MLPDecider, WeightsError, action_mask, load_pretrained
 from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams
 from overtakezoo.zoo.train.dqn import DQNHyperparams, train
 from overtakezoo.zoo.train.qlearning import QNetwork, td_targets
-
-from conftest import needs_shipped_weights
 
 
 class _Table(torch.nn.Module):
@@ -50,11 +56,12 @@ def test_double_dqn_target_differs_from_dqn_as_the_formula_says():
     assert torch.allclose(ddqn, torch.tensor([1 + 0.9 * 0.5, -1 + 0.9 * 4.0]))
     # A mask removes the masked mode from both the max and the online argmax.
     mask = torch.tensor([[True, True, False], [True, True, False]])
-    assert torch.allclose(td_targets(online, target, reward, next_obs, done, gamma, False, mask),
-                          torch.tensor([1 + 0.9 * 3.0, -1 + 0.9 * 7.0]))
+    assert torch.allclose(
+        td_targets(online, target, reward, next_obs, done, gamma, False, mask),
+        torch.tensor([1 + 0.9 * 3.0, -1 + 0.9 * 7.0]),
+    )
     # Terminal rows do not bootstrap.
-    assert torch.allclose(td_targets(online, target, reward, next_obs, torch.tensor([1.0, 1.0]), gamma, True),
-                          reward)
+    assert torch.allclose(td_targets(online, target, reward, next_obs, torch.tensor([1.0, 1.0]), gamma, True), reward)
 
 
 def test_action_mask_allows_abort_only_while_overtaking_and_follow_only_in_lane():
@@ -152,8 +159,9 @@ def test_load_refuses_truncated_and_modified_weights(tmp_path, learned_dir):
     with pytest.raises(WeightsError, match="truncated or modified"):
         load_pretrained("dqn", directory=d)
     (d / "dqn.npz").write_bytes(data)
-    assert load_pretrained("dqn", directory=d).weights_sha256 == json.loads((d / "dqn.json").read_text())[
-        "weights_sha256"]
+    assert (
+        load_pretrained("dqn", directory=d).weights_sha256 == json.loads((d / "dqn.json").read_text())["weights_sha256"]
+    )
     (d / "dqn.json").unlink()
     with pytest.raises(WeightsError, match="not found"):
         load_pretrained("dqn", directory=d)
@@ -175,8 +183,12 @@ def _rates(net_or_card, algo, suite):
     from overtakezoo.benchmark.run.training import evaluate
 
     hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file(algo))
-    dec = MLPDecider(net_or_card.to_numpy(), algo, suite.config,
-                     {"action_repeat": hp.action_repeat, "action_mask": True, "features": FEATURES_VERSION})
+    dec = MLPDecider(
+        net_or_card.to_numpy(),
+        algo,
+        suite.config,
+        {"action_repeat": hp.action_repeat, "action_mask": True, "features": FEATURES_VERSION},
+    )
     summary = evaluate(dec, suite, limit=200)[0]
     return summary["success_rate"], summary["crash_rate"]
 
@@ -197,9 +209,21 @@ def test_short_training_beats_an_untrained_network(tmp_path, n_step):
     # default / avx2 / avx512): 3-step returns 83.5-93 % success, 7-16.5 % crashes; one-step targets
     # 0-87 %, 0-12 % (seed 0: 34.5-47.5 %). So this checks that learning started -- safe passes
     # appear, crashes stay below rule-fsm's 29 % -- with room for any CPU, not how far it gets.
-    trained = train(load_training("table1-train"), member="dqn", steps=100_000, seed=0, out=tmp_path, progress=False,
-                    overrides={"eps_fraction": 0.5, "learning_starts": 2000, "checkpoint_every": 50000,
-                               "log_every": 10000, "n_step": n_step})
+    trained = train(
+        load_training("table1-train"),
+        member="dqn",
+        steps=100_000,
+        seed=0,
+        out=tmp_path,
+        progress=False,
+        overrides={
+            "eps_fraction": 0.5,
+            "learning_starts": 2000,
+            "checkpoint_every": 50000,
+            "log_every": 10000,
+            "n_step": n_step,
+        },
+    )
     s1, c1 = _rates(trained.module, "dqn", scen)
     assert s1 >= 0.1 and c1 <= 0.25 and s1 - 2 * c1 > s0 - 2 * c0 + 0.1, ((s0, c0), (s1, c1))
     assert ("3-step returns" in trained.card["algorithm"]) == (n_step == 3)
@@ -213,8 +237,16 @@ def test_resume_continues_from_a_checkpoint(tmp_path):
     ov = {"num_envs": 64, "learning_starts": 300, "checkpoint_every": 1500, "log_every": 500}
     suites = load_training("table1-train")
     first = train(suites, member="double-dqn", steps=1500, seed=1, out=tmp_path, progress=False, overrides=ov).card
-    card = train(suites, member="double-dqn", steps=3000, seed=1, out=tmp_path, resume=tmp_path / "checkpoint.pt",
-                 progress=False, overrides=ov).card
+    card = train(
+        suites,
+        member="double-dqn",
+        steps=3000,
+        seed=1,
+        out=tmp_path,
+        resume=tmp_path / "checkpoint.pt",
+        progress=False,
+        overrides=ov,
+    ).card
     assert first["steps"] < 3000 <= card["steps"]
     done, before = card["training"], first["training"]
     assert done["gradient_updates"] > before["gradient_updates"] and done["episodes"] >= before["episodes"]
@@ -236,8 +268,24 @@ def test_train_command_writes_log_weights_and_card(tmp_path, capsys):
     from overtakezoo.benchmark.cli import main
 
     out = tmp_path / "run"
-    assert main(["train", "dqn", "--steps", "3000", "--seed", "2", "--out", str(out), "--eval-suite", "none",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "dqn",
+                "--steps",
+                "3000",
+                "--seed",
+                "2",
+                "--out",
+                str(out),
+                "--eval-suite",
+                "none",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     card = json.loads((out / "dqn.json").read_text())
     assert card["steps"] >= 3000 and card["seed"] == 2 and card["train_suite"]["name"] == "table1-train"
     sha = __import__("hashlib").sha256
@@ -257,11 +305,27 @@ def test_model_selection_ships_the_best_greedy_network_and_survives_resume(tmp_p
     from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     suites = load_training("table1-train")
-    ov = {"num_envs": 64, "learning_starts": 1000, "checkpoint_every": 6000, "log_every": 2000, "eps_fraction": 0.5,
-          "select_every": 3000, "select_from": 3000, "select_scenarios": 64}
+    ov = {
+        "num_envs": 64,
+        "learning_starts": 1000,
+        "checkpoint_every": 6000,
+        "log_every": 2000,
+        "eps_fraction": 0.5,
+        "select_every": 3000,
+        "select_from": 3000,
+        "select_scenarios": 64,
+    }
     first = train(suites, member="dqn", steps=6000, seed=0, out=tmp_path, progress=False, overrides=ov)
-    done = train(suites, member="dqn", steps=12000, seed=0, out=tmp_path, resume=tmp_path / "checkpoint.pt",
-                 progress=False, overrides=ov)
+    done = train(
+        suites,
+        member="dqn",
+        steps=12000,
+        seed=0,
+        out=tmp_path,
+        resume=tmp_path / "checkpoint.pt",
+        progress=False,
+        overrides=ov,
+    )
     sel, sel_first = done.card["training"]["selection"], first.card["training"]["selection"]
     assert sel["scenarios"] == 64 and sel["every"] == 3000 and sel["score"] >= sel_first["score"]
     assert 3000 <= sel["transitions"] <= done.card["steps"]
@@ -297,7 +361,7 @@ def _nstep_reference(rewards, finished, done, n, gamma):
         for t in range(T):
             ret, k = 0.0, 0
             while k < n and t + k < T:
-                ret += gamma ** k * rewards[t + k, r]
+                ret += gamma**k * rewards[t + k, r]
                 k += 1
                 if finished[t + k - 1, r]:
                     break
@@ -322,7 +386,9 @@ def test_n_step_returns_match_a_by_hand_sum_over_episode_ends(n):
         # obs carries (row, decision) so each emitted transition says where it started; next_obs where it ended.
         obs = np.stack([np.arange(R), np.full(R, t)], 1).astype(np.float32)
         out = acc.push(obs, np.full(R, t % 3), rewards[t], obs, done[t], finished[t])
-        for o, ret, k, d, nxt in zip(out["obs"], out["reward"], out["steps"], out["done"], out["next_obs"]):
+        for o, ret, k, d, nxt in zip(
+            out["obs"], out["reward"], out["steps"], out["done"], out["next_obs"], strict=True
+        ):
             got.append((int(o[0]), int(o[1]), float(ret), int(k), float(d), int(nxt[1])))
     want = _nstep_reference(rewards.astype(np.float64), finished, done, n, gamma)
     got = sorted(got)

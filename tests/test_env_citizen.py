@@ -10,15 +10,22 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 import pytest
-from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 from gymnasium.wrappers import vector as vector_wrappers
 
 from overtakezoo.benchmark.results.results import config_sha256
-from overtakezoo.envs.suites import load_suite
-from overtakezoo.envs import (EnvConfig, OvertakeCore, make_scenario, make_vec, observation_layout, observation_size,
-                              parallel_env)
+from overtakezoo.envs import (
+    EnvConfig,
+    OvertakeCore,
+    make_scenario,
+    make_vec,
+    observation_layout,
+    observation_size,
+    parallel_env,
+)
 from overtakezoo.envs.config import RewardConfig
+from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
+from overtakezoo.envs.suites import load_suite
 
 ENV_ID = "overtakezoo/Overtake-v0"
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "zoo" / "hyperparams"
@@ -113,8 +120,10 @@ def test_npc_agents_observations_lie_in_their_boxes():
             for agent, o in obs.items():
                 _assert_in(o[None], env.observation_space(agent), agent)
             # NPCs mostly accelerate flat out: the fastest they can get.
-            actions = {a: (int(rng.integers(0, 3)) if a.startswith("av_") else int(rng.choice([2, 3, 3, 3])))
-                       for a in env.agents}
+            actions = {
+                a: (int(rng.integers(0, 3)) if a.startswith("av_") else int(rng.choice([2, 3, 3, 3])))
+                for a in env.agents
+            }
             obs, *_ = env.step(actions)
     dist = env.distribution
     assert np.isfinite(npc_observation_space(env.config, npc_start_extent(dist)).high).all()
@@ -132,15 +141,21 @@ def test_a_scenario_outside_the_distribution_is_clipped_into_the_box():
 def _assert_in(obs, space, where):
     low, high = space.low, space.high
     bad = np.argwhere((obs < low) | (obs > high))
-    assert not len(bad), f"{where}: feature {bad[0][1]} = {obs[tuple(bad[0])]} outside [{low[bad[0][1]]}, {high[bad[0][1]]}]"
+    assert not len(bad), (
+        f"{where}: feature {bad[0][1]} = {obs[tuple(bad[0])]} outside [{low[bad[0][1]]}, {high[bad[0][1]]}]"
+    )
 
 
 # ----------------------------------------------------------- vector faces
-@pytest.mark.parametrize("wrap", [
-    vector_wrappers.NormalizeObservation,
-    vector_wrappers.FlattenObservation,
-    lambda v: vector_wrappers.TransformObservation(v, lambda o: 2.0 * o),
-], ids=["normalize", "flatten", "transform"])
+@pytest.mark.parametrize(
+    "wrap",
+    [
+        vector_wrappers.NormalizeObservation,
+        vector_wrappers.FlattenObservation,
+        lambda v: vector_wrappers.TransformObservation(v, lambda o: 2.0 * o),
+    ],
+    ids=["normalize", "flatten", "transform"],
+)
 def test_make_vec_steps_under_gymnasiums_observation_wrappers(wrap):
     vec = wrap(gymnasium.make_vec(ENV_ID, num_envs=4, scenario={"time_limit": 1.0}))
     obs, _ = vec.reset(seed=0)
@@ -162,7 +177,9 @@ def test_make_vec_next_step_autoreset():
     obs, rew, term, trunc, infos = vec.step(np.full(3, 2, np.int64))  # actions ignored: new episodes
     assert not term.any() and not trunc.any() and (rew == 0.0).all()
     np.testing.assert_array_equal(infos["t"], 0.0)
-    assert not np.array_equal(obs, ended) and (obs[:, observation_layout(EnvConfig())["mode"]][:, 0] == 1.0).all()  # mode one-hot: follow
+    assert (
+        not np.array_equal(obs, ended) and (obs[:, observation_layout(EnvConfig())["mode"]][:, 0] == 1.0).all()
+    )  # mode one-hot: follow
     obs, rew, *_ = vec.step(np.zeros(3, np.int64))
     np.testing.assert_allclose(vec.core.t, 0.1)
     # The same seed draws the same episodes in both modes (one generator, same order of draws).
@@ -178,7 +195,9 @@ def test_gymnasium_single_env_normalize_wrapper_refuses_vector_envs():
     with pytest.raises((TypeError, AssertionError)) as err:  # AssertionError before 1.2
         gymnasium.wrappers.NormalizeObservation(gymnasium.make_vec(ENV_ID, num_envs=2))
     # gymnasium 1.0's check is a bare `assert isinstance(env, Env)`, without a message
-    assert "gymnasium.Env" in str(err.value) or (err.type is AssertionError and gymnasium.__version__.startswith("1.0."))
+    assert "gymnasium.Env" in str(err.value) or (
+        err.type is AssertionError and gymnasium.__version__.startswith("1.0.")
+    )
 
 
 # ------------------------------------------------------------------ misuse
@@ -207,8 +226,10 @@ def test_gym_env_refuses_bad_actions(action):
     e.step(np.array(2))
 
 
-@pytest.mark.parametrize("agent,action", [("av_0", -1), ("av_0", 3), ("av_0", 1.5), ("av_1", 2.0),
-                                          ("npc_0", -1), ("npc_1", 4), ("npc_0", 0.5)])
+@pytest.mark.parametrize(
+    "agent,action",
+    [("av_0", -1), ("av_0", 3), ("av_0", 1.5), ("av_1", 2.0), ("npc_0", -1), ("npc_1", 4), ("npc_0", 0.5)],
+)
 def test_pettingzoo_bad_actions_raise_naming_the_agent(agent, action):
     env = parallel_env(npc_agents=True, scenario={"platoon_size": 2})
     env.reset(seed=0)
@@ -231,7 +252,9 @@ def test_vector_env_refuses_bad_actions():
         vec.step([0, -1, 0])
     with pytest.raises(ValueError, match=r"^actions\[1\]: action 1.5 is not an integer in 0\.\.2$"):
         vec.step(np.array([0.0, 1.5, 0.0]))
-    with pytest.raises(ValueError, match=r"^actions\[0\]: action 0.0 is not an integer"):  # floats: refused, as gym's 1.0
+    with pytest.raises(
+        ValueError, match=r"^actions\[0\]: action 0.0 is not an integer"
+    ):  # floats: refused, as gym's 1.0
         vec.step(np.array([0.0, 1.0, 0.0]))
     with pytest.raises(ValueError, match="dtype bool"):
         vec.step(np.array([True, False, True]))
@@ -267,8 +290,11 @@ def _face_step(face: str, action):
 FACE_WHO = {"gym": r"OvertakeEnv\.step", "vector": r"actions\[1\]", "pettingzoo": "av_1", "rsl_rl": r"actions\[1\]"}
 
 
-@pytest.mark.parametrize("action,shown", [(5, r"5(\.0)?"), (-1, r"-1(\.0)?"), (1.7, r"1\.7"), (float("nan"), "nan")],
-                         ids=["5", "-1", "1.7", "nan"])
+@pytest.mark.parametrize(
+    "action,shown",
+    [(5, r"5(\.0)?"), (-1, r"-1(\.0)?"), (1.7, r"1\.7"), (float("nan"), "nan")],
+    ids=["5", "-1", "1.7", "nan"],
+)
 @pytest.mark.parametrize("face", list(FACE_WHO))
 def test_every_face_refuses_a_bad_action_with_one_message(face, action, shown):
     # The same one-line ValueError from every face: never rounded, clamped or wrapped into a mode.

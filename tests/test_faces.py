@@ -31,8 +31,8 @@ from overtakezoo.envs import (  # noqa: E402
     parallel_env,
     register_envs,
 )
-from overtakezoo.envs.faces.pettingzoo import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
 from overtakezoo.envs.faces._compat import AutoresetMode  # noqa: E402  (gymnasium 1.1+'s own, or its stand-in on 1.0)
+from overtakezoo.envs.faces.pettingzoo import NPC_ACCELERATIONS, NPC_OBS_SIZE  # noqa: E402
 
 ENV_ID = "overtakezoo/Overtake-v0"
 # Observation bounds are finite (envs/faces/spaces.py): no checker warning is accepted, but (with NPC
@@ -54,8 +54,9 @@ def test_parallel_api_test_default():
 
 
 def test_parallel_api_test_avs_and_npc_agents():
-    par = parallel_env(npc_agents=True, scenario={"platoon_size": 3, "oncoming_count": 2, "follower_count": 1,
-                                                  "time_limit": 20.0})
+    par = parallel_env(
+        npc_agents=True, scenario={"platoon_size": 3, "oncoming_count": 2, "follower_count": 1, "time_limit": 20.0}
+    )
     assert par.possible_agents == ["av_0", "av_1", "av_2", "npc_0", "npc_1", "npc_2", "npc_3"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -111,7 +112,7 @@ def test_same_seed_bit_identical_over_200_steps():
     a = _rollout(parallel_env(**cfg), seed=5, steps=200)
     b = _rollout(parallel_env(**cfg), seed=5, steps=200)
     assert len(a) == len(b) > 200
-    assert all(_same(x, y) for x, y in zip(a, b))
+    assert all(_same(x, y) for x, y in zip(a, b, strict=True))
     c = _rollout(parallel_env(**cfg), seed=6, steps=20)
     assert not _same(a[0], c[0])
 

@@ -12,7 +12,6 @@ from overtakezoo import zoo  # noqa: E402
 from overtakezoo.benchmark.cli import main  # noqa: E402
 from overtakezoo.benchmark.failures.search import Archive, cma_search, random_search  # noqa: E402
 from overtakezoo.envs.suites import SUITES_DIR, load_suite  # noqa: E402
-
 from test_benchmark_cli import one_line_error  # noqa: E402
 
 
@@ -71,16 +70,51 @@ def test_archive_counts_near_points_once():
 
 def test_nothing_found_writes_nothing(tmp_path, capsys):
     out = tmp_path / "f.toml"
-    assert main(["search", "--decider", "always-follow", "--suite", "table1", "--budget", "64", "--out", str(out),
-                 "--no-progress"]) == 1
+    assert (
+        main(
+            [
+                "search",
+                "--decider",
+                "always-follow",
+                "--suite",
+                "table1",
+                "--budget",
+                "64",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 1
+    )
     assert not out.exists() and "nothing written" in capsys.readouterr().err
 
 
 def test_rss_target_and_params(tmp_path, capsys):
     out = tmp_path / "f.toml"
-    assert main(["search", "--decider", "fuzzy", "--suite", "table1", "--budget", "128", "--target", "rss",
-                 "--param", "oncoming_gap=20:80", "--param", "sensor_range=30:60", "--out", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "search",
+                "--decider",
+                "fuzzy",
+                "--suite",
+                "table1",
+                "--budget",
+                "128",
+                "--target",
+                "rss",
+                "--param",
+                "oncoming_gap=20:80",
+                "--param",
+                "sensor_range=30:60",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     suite = load_suite(out)
     doc = tomllib.loads(out.read_text())
     assert doc["search"]["parameters"] == ["oncoming_gap", "sensor_range"]
@@ -91,28 +125,35 @@ def test_rss_target_and_params(tmp_path, capsys):
 
 def fixed_suite(tmp_path):
     text = (SUITES_DIR / "table1.toml").read_text()
-    for key, value in (("lead_speed", "[2.0, 2.0]"), ("oncoming_speed", "[2.0, 2.0]"), ("lead_gap", "[9.0, 9.0]"),
-                       ("oncoming_gap", "[60.0, 60.0]")):
+    for key, value in (
+        ("lead_speed", "[2.0, 2.0]"),
+        ("oncoming_speed", "[2.0, 2.0]"),
+        ("lead_gap", "[9.0, 9.0]"),
+        ("oncoming_gap", "[60.0, 60.0]"),
+    ):
         text = text.replace(f"{key} = [", f"{key} = {value} #[", 1)
     path = tmp_path / "fixed.toml"
     path.write_text(text.replace('name = "table1"', 'name = "fixed"'))
     return path
 
 
-@pytest.mark.parametrize("extra, needle", [
-    (["--budget", "0"], "--budget 0: expected a positive number of episodes"),
-    (["--budget", "-5"], "--budget -5: expected a positive number"),
-    (["--budget", ""], "--budget '': expected a positive number"),
-    (["--budget", "many"], "--budget 'many': expected a positive number"),
-    (["--param", "lead_sped"], "--param lead_sped: unknown parameter for suite 'table1'"),
-    (["--param", "ego_speed"], "is a single value"),
-    (["--decider", "nobody"], "nobody"),
-    (["--out", "/proc/nope/f.toml"], "cannot write /proc/nope/f.toml"),
-    (["--suite", "nosuch"], "unknown suite 'nosuch'"),
-    (["--distinct", "1.5"], "--distinct 1.5"),
-    (["--name", "Bad Name"], "--name 'Bad Name'"),
-    (["--ttc", "-1"], "--ttc -1.0"),
-])
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--budget", "0"], "--budget 0: expected a positive number of episodes"),
+        (["--budget", "-5"], "--budget -5: expected a positive number"),
+        (["--budget", ""], "--budget '': expected a positive number"),
+        (["--budget", "many"], "--budget 'many': expected a positive number"),
+        (["--param", "lead_sped"], "--param lead_sped: unknown parameter for suite 'table1'"),
+        (["--param", "ego_speed"], "is a single value"),
+        (["--decider", "nobody"], "nobody"),
+        (["--out", "/proc/nope/f.toml"], "cannot write /proc/nope/f.toml"),
+        (["--suite", "nosuch"], "unknown suite 'nosuch'"),
+        (["--distinct", "1.5"], "--distinct 1.5"),
+        (["--name", "Bad Name"], "--name 'Bad Name'"),
+        (["--ttc", "-1"], "--ttc -1.0"),
+    ],
+)
 def test_bad_input_is_one_error_line(tmp_path, capsys, extra, needle):
     argv = {"--decider": "rule-fsm", "--suite": "table1", "--budget": "64", "--out": str(tmp_path / "f.toml")}
     rest = []
@@ -120,15 +161,27 @@ def test_bad_input_is_one_error_line(tmp_path, capsys, extra, needle):
         if extra[i] in argv:
             argv[extra[i]] = extra[i + 1]
         else:
-            rest += extra[i:i + 2]
+            rest += extra[i : i + 2]
     err = one_line_error(capsys, ["search", *[x for kv in argv.items() for x in kv], *rest, "--no-progress"])
     assert needle in err, err
     assert not (tmp_path / "f.toml").exists()
 
 
 def test_a_suite_with_no_range_is_one_error(tmp_path, capsys):
-    err = one_line_error(capsys, ["search", "--decider", "rule-fsm", "--suite", str(fixed_suite(tmp_path)),
-                                  "--budget", "10", "--out", str(tmp_path / "f.toml")])
+    err = one_line_error(
+        capsys,
+        [
+            "search",
+            "--decider",
+            "rule-fsm",
+            "--suite",
+            str(fixed_suite(tmp_path)),
+            "--budget",
+            "10",
+            "--out",
+            str(tmp_path / "f.toml"),
+        ],
+    )
     assert "has no searchable range" in err
 
 
@@ -139,13 +192,16 @@ def test_help_has_examples(capsys, command):
     assert exc.value.code == 0 and "examples:" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["--budget", "0"], "--budget 0"),
-    (["--jobs", "0"], "--jobs 0"),
-    (["--deciders", "rule-fsm,nobody"], "unknown decider 'nobody'"),
-    (["--deciders", "rule-fsm,rule-fsm"], "expected distinct zoo names"),
-    (["--out", "/proc/nope/b"], "cannot write /proc/nope"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--budget", "0"], "--budget 0"),
+        (["--jobs", "0"], "--jobs 0"),
+        (["--deciders", "rule-fsm,nobody"], "unknown decider 'nobody'"),
+        (["--deciders", "rule-fsm,rule-fsm"], "expected distinct zoo names"),
+        (["--out", "/proc/nope/b"], "cannot write /proc/nope"),
+    ],
+)
 def test_failure_board_bad_input(tmp_path, capsys, argv, needle):
     err = one_line_error(capsys, ["failure-board", "--out", str(tmp_path / "b"), *argv])
     assert needle in err and not (tmp_path / "b").exists()

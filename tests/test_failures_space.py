@@ -42,8 +42,9 @@ def test_table1_box_is_its_four_ranges():
 
 
 def test_counts_and_sensor_range_per_scenario():
-    space = space_for(load_suite("oncoming-4").distribution,
-                      ["oncoming_count=1:4", "sensor_range=20:80", "oncoming_gap"])
+    space = space_for(
+        load_suite("oncoming-4").distribution, ["oncoming_count=1:4", "sensor_range=20:80", "oncoming_gap"]
+    )
     assert [d.label for d in space.dims] == ["oncoming_gap", "oncoming_count", "sensor_range"]
     unit = np.random.default_rng(0).uniform(size=(64, 3))
     vals = space.values(unit)
@@ -57,17 +58,20 @@ def test_counts_and_sensor_range_per_scenario():
     assert np.array_equal(space.canonical(space.canonical(unit)), space.canonical(unit))
 
 
-@pytest.mark.parametrize("params, needle", [
-    (["lead_sped"], "--param lead_sped: unknown parameter for suite (searchable: "),
-    (["ego_speed"], "--param ego_speed: suite: its range [4.16667, 4.16667] is a single value"),
-    (["reaction_time"], "--param reaction_time: suite: it cannot change an episode here"),
-    (["sensor_range"], "--param sensor_range: suite has one sensor_range (60.0); give a range"),
-    (["lead_speed=3:1"], "expected finite LO < HI"),
-    (["lead_speed=0:99"], "scenario.lead_speed: 99.0 is out of range [0.0, 40.0] m/s"),
-    (["lead_speed=x"], "expected NAME or NAME=LO:HI"),
-    (["oncoming_count=1.5:3"], "a count takes integers"),
-    (["lead_gap", "lead_gap"], "given twice"),
-])
+@pytest.mark.parametrize(
+    "params, needle",
+    [
+        (["lead_sped"], "--param lead_sped: unknown parameter for suite (searchable: "),
+        (["ego_speed"], "--param ego_speed: suite: its range [4.16667, 4.16667] is a single value"),
+        (["reaction_time"], "--param reaction_time: suite: it cannot change an episode here"),
+        (["sensor_range"], "--param sensor_range: suite has one sensor_range (60.0); give a range"),
+        (["lead_speed=3:1"], "expected finite LO < HI"),
+        (["lead_speed=0:99"], "scenario.lead_speed: 99.0 is out of range [0.0, 40.0] m/s"),
+        (["lead_speed=x"], "expected NAME or NAME=LO:HI"),
+        (["oncoming_count=1.5:3"], "a count takes integers"),
+        (["lead_gap", "lead_gap"], "given twice"),
+    ],
+)
 def test_bad_parameters_are_one_user_error(params, needle):
     with pytest.raises(ConfigError) as exc:
         space_for(load_suite("table1").distribution, params, "suite")
@@ -77,8 +81,15 @@ def test_bad_parameters_are_one_user_error(params, needle):
 def test_a_suite_without_ranges_has_no_box(tmp_path):
     from overtakezoo.envs import ScenarioDistribution
 
-    dist = ScenarioDistribution.from_dict({"lead_speed": [2.0, 2.0], "lead_gap": [10.0, 10.0],
-                                           "oncoming_speed": [2.0, 2.0], "oncoming_gap": [50.0, 50.0],
-                                           "oncoming_headway": [20.0, 20.0], "reaction_time": [0.5, 0.5]})
+    dist = ScenarioDistribution.from_dict(
+        {
+            "lead_speed": [2.0, 2.0],
+            "lead_gap": [10.0, 10.0],
+            "oncoming_speed": [2.0, 2.0],
+            "oncoming_gap": [50.0, 50.0],
+            "oncoming_headway": [20.0, 20.0],
+            "reaction_time": [0.5, 0.5],
+        }
+    )
     with pytest.raises(ConfigError, match="has no searchable range"):
         space_for(dist, None, "suite 'fixed'")

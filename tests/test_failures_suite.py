@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.envs.config import ConfigError
-from overtakezoo.envs.explicit import ExplicitDistribution, entries_of, suite_tables, to_toml
-from overtakezoo.envs.draws import space_for
 from overtakezoo.benchmark.run.runner import run_indices, run_suite
+from overtakezoo.envs.config import ConfigError
+from overtakezoo.envs.draws import space_for
+from overtakezoo.envs.explicit import ExplicitDistribution, entries_of, suite_tables, to_toml
 from overtakezoo.envs.suites import load_suite, parse_suite
 
 
@@ -18,17 +18,31 @@ def explicit_file(tmp_path, suite_name="table1", n=6, params=None, seed=0, name=
     suite = load_suite(suite_name)
     space = space_for(suite.distribution, params)
     unit = np.random.default_rng(seed).uniform(size=(n, space.size))
-    doc = {"name": name, "version": 1, "count": n, "seed": 0, "scenario": space.base.to_dict(),
-           "sim": suite_tables(suite), "scenarios": entries_of(space, space.values(unit))}
+    doc = {
+        "name": name,
+        "version": 1,
+        "count": n,
+        "seed": 0,
+        "scenario": space.base.to_dict(),
+        "sim": suite_tables(suite),
+        "scenarios": entries_of(space, space.values(unit)),
+    }
     path = tmp_path / f"{name}.toml"
     path.write_bytes(to_toml("a test suite", doc))
     return path, space, unit, suite
 
 
-@pytest.mark.parametrize("suite_name, params", [
-    ("table1", None), ("oncoming-4", None), ("dense", None), ("occluded", None), ("duel", None),
-    ("oncoming-4", ["oncoming_count=0:4", "sensor_range=10:90", "oncoming_speed"]),
-])
+@pytest.mark.parametrize(
+    "suite_name, params",
+    [
+        ("table1", None),
+        ("oncoming-4", None),
+        ("dense", None),
+        ("occluded", None),
+        ("duel", None),
+        ("oncoming-4", ["oncoming_count=0:4", "sensor_range=10:90", "oncoming_speed"]),
+    ],
+)
 def test_listed_scenarios_load_as_built(tmp_path, suite_name, params):
     path, space, unit, _ = explicit_file(tmp_path, suite_name, params=params)
     suite = load_suite(path)
@@ -75,18 +89,21 @@ def edit(path, old, new):
     return path
 
 
-@pytest.mark.parametrize("old, new, needle", [
-    ("count = 6", "count = 5", "count: 5 but 6 [[scenarios]] are listed"),
-    ("lead_boost = 0.0\n", "", "scenarios[0].lead_boost: missing"),
-    ("lead_boost = 0.0\n", "lead_boost = 0.0\nlead_bost = 1.0\n", "scenarios[0].lead_bost: unknown key"),
-    ("oncoming_speed = [", "oncoming_speed = [1.0, ", "scenarios[0].oncoming_speed: expected a list of 1 numbers"),
-    ("ego_speed = 4.166666666666667\n", "ego_speed = 5.0\n", "is outside the [scenario] table's range"),
-    ("lead_gap = ", "lead_gap = \"x\" #", "scenarios[0].lead_gap: expected a finite number"),
-    ("lead_gap = ", "lead_gap = inf #", "scenarios[0].lead_gap: expected a finite number"),
-    ("[[scenarios]]\n", "[[scenarios]]\noncoming_count = 99\n", "oncoming_count: expected an integer in [0, 64]"),
-    ('name = "listed"', 'name = "listed"\nbase = "table1"', "a split takes its tables from its base suite"),
-    ('name = "listed"', 'name = "listed"\nsearch = 3', "search: expected a table"),
-])
+@pytest.mark.parametrize(
+    "old, new, needle",
+    [
+        ("count = 6", "count = 5", "count: 5 but 6 [[scenarios]] are listed"),
+        ("lead_boost = 0.0\n", "", "scenarios[0].lead_boost: missing"),
+        ("lead_boost = 0.0\n", "lead_boost = 0.0\nlead_bost = 1.0\n", "scenarios[0].lead_bost: unknown key"),
+        ("oncoming_speed = [", "oncoming_speed = [1.0, ", "scenarios[0].oncoming_speed: expected a list of 1 numbers"),
+        ("ego_speed = 4.166666666666667\n", "ego_speed = 5.0\n", "is outside the [scenario] table's range"),
+        ("lead_gap = ", 'lead_gap = "x" #', "scenarios[0].lead_gap: expected a finite number"),
+        ("lead_gap = ", "lead_gap = inf #", "scenarios[0].lead_gap: expected a finite number"),
+        ("[[scenarios]]\n", "[[scenarios]]\noncoming_count = 99\n", "oncoming_count: expected an integer in [0, 64]"),
+        ('name = "listed"', 'name = "listed"\nbase = "table1"', "a split takes its tables from its base suite"),
+        ('name = "listed"', 'name = "listed"\nsearch = 3', "search: expected a table"),
+    ],
+)
 def test_bad_lists_are_one_error_naming_the_entry(tmp_path, old, new, needle):
     path, *_ = explicit_file(tmp_path)
     with pytest.raises(ConfigError) as exc:
@@ -95,13 +112,19 @@ def test_bad_lists_are_one_error_naming_the_entry(tmp_path, old, new, needle):
 
 
 def test_no_scenarios_listed(tmp_path):
-    data = (load_suite("table1").path.read_bytes() + b"\n[search]\nnote = 'x'\n")
+    data = load_suite("table1").path.read_bytes() + b"\n[search]\nnote = 'x'\n"
     with pytest.raises(ConfigError, match="scenarios: expected one or more"):
         parse_suite(data, tmp_path / "x.toml")
 
 
 def test_toml_writer_reads_back():
-    doc = {"a": 1.0000000000000002, "b": [1e-05, float("inf"), -0.0], "c": "q\"\\\n", "t": {"u": {"v": True}},
-           "arr": [{"x": 1, "y": {"z": 2}}, {"x": 2}], "empty": []}
+    doc = {
+        "a": 1.0000000000000002,
+        "b": [1e-05, float("inf"), -0.0],
+        "c": 'q"\\\n',
+        "t": {"u": {"v": True}},
+        "arr": [{"x": 1, "y": {"z": 2}}, {"x": 2}],
+        "empty": [],
+    }
     back = tomllib.loads(to_toml("h", doc).decode())
     assert back == doc

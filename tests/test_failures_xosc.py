@@ -13,11 +13,10 @@ import pytest
 pytest.importorskip("scenariogeneration")
 
 from overtakezoo.benchmark.cli import main  # noqa: E402
-from overtakezoo.envs.explicit import in_memory  # noqa: E402
 from overtakezoo.benchmark.failures.xosc import export, read_back  # noqa: E402
-from overtakezoo.envs.suites import load_suite  # noqa: E402
 from overtakezoo.envs import Scenarios  # noqa: E402
-
+from overtakezoo.envs.explicit import in_memory  # noqa: E402
+from overtakezoo.envs.suites import load_suite  # noqa: E402
 from test_benchmark_cli import one_line_error  # noqa: E402
 
 
@@ -27,13 +26,23 @@ def assert_same(ref: Scenarios, got: Scenarios) -> None:
         assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), (key, a, b)
 
 
-@pytest.mark.parametrize("name, indices", [("table1", [0, 7]), ("adversarial", [3]), ("occluded", [1]),
-                                           ("dense", [2]), ("oncoming-4", [5]), ("duel", [0]), ("platoon", [4])])
+@pytest.mark.parametrize(
+    "name, indices",
+    [
+        ("table1", [0, 7]),
+        ("adversarial", [3]),
+        ("occluded", [1]),
+        ("dense", [2]),
+        ("oncoming-4", [5]),
+        ("duel", [0]),
+        ("platoon", [4]),
+    ],
+)
 def test_round_trip(tmp_path, name, indices):
     suite = load_suite(name)
     paths = export(suite, tmp_path, indices)
     ref = suite.scenarios().take(np.array(indices))
-    for i, (k, path) in enumerate(zip(indices, paths)):
+    for i, (k, path) in enumerate(zip(indices, paths, strict=True)):
         got, meta = read_back(path)
         assert_same(ref.take(slice(i, i + 1)), got)
         assert meta["overtakezoo.suite_hash"] == suite.hash and meta["overtakezoo.index"] == str(k)
@@ -66,8 +75,23 @@ def test_export_is_the_same_bytes_every_time(tmp_path):
 def test_cli_exports_a_failure_file(tmp_path, capsys):
     pytest.importorskip("cma")
     f = tmp_path / "f.toml"
-    assert main(["search", "--decider", "always-overtake", "--suite", "table1", "--budget", "32", "--out", str(f),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "search",
+                "--decider",
+                "always-overtake",
+                "--suite",
+                "table1",
+                "--budget",
+                "32",
+                "--out",
+                str(f),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     out = tmp_path / "x"
     assert main(["export-xosc", "--failures", str(f), "--out", str(out)]) == 0
     failures = load_suite(f)
@@ -78,13 +102,16 @@ def test_cli_exports_a_failure_file(tmp_path, capsys):
     assert meta["overtakezoo.suite_hash"] == failures.hash
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["--suite", "table1", "--index", "3000"], "--index 3000: out of range (suite 'table1' has scenarios 0-2999)"),
-    (["--suite", "table1", "--index", "-1"], "--index -1: out of range"),
-    (["--suite", "table1", "--index", "1", "--index", "1"], "an index is given twice"),
-    (["--failures", "table1"], "lists no scenarios"),
-    (["--suite", "nosuch"], "unknown suite 'nosuch'"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--suite", "table1", "--index", "3000"], "--index 3000: out of range (suite 'table1' has scenarios 0-2999)"),
+        (["--suite", "table1", "--index", "-1"], "--index -1: out of range"),
+        (["--suite", "table1", "--index", "1", "--index", "1"], "an index is given twice"),
+        (["--failures", "table1"], "lists no scenarios"),
+        (["--suite", "nosuch"], "unknown suite 'nosuch'"),
+    ],
+)
 def test_bad_input_is_one_error_line(tmp_path, capsys, argv, needle):
     err = one_line_error(capsys, ["export-xosc", *argv, "--out", str(tmp_path / "x")])
     assert needle in err
@@ -107,16 +134,19 @@ QC = {"xosc": ("qc_openscenario", "xoscBundle"), "xodr": ("qc_opendrive", "xodrB
 needs_checkers = pytest.mark.skipif(
     not all(checker(exe) for exe, _ in QC.values()),
     reason="ASAM quality checkers (qc_openscenario, qc_opendrive) not found: asam-qc-opendrive 1.0 pins numpy<2, so "
-           "install the [xosc-check] extra in an environment of its own and set OVERTAKEZOO_QC_BIN to its bin folder")
+    "install the [xosc-check] extra in an environment of its own and set OVERTAKEZOO_QC_BIN to its bin folder",
+)
 
 
 def run_checker(path: Path, kind: str, tmp_path: Path) -> ET.Element:
     exe, bundle = QC[kind]
     result = tmp_path / f"{path.name}.xqar"
     config = tmp_path / f"{path.name}.config.xml"
-    config.write_text(f'<?xml version="1.0" encoding="UTF-8"?>\n<Config>\n  <Param name="InputFile" value="{path}"/>\n'
-                      f'  <CheckerBundle application="{bundle}">\n    <Param name="resultFile" value="{result}"/>\n'
-                      "  </CheckerBundle>\n</Config>\n")
+    config.write_text(
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<Config>\n  <Param name="InputFile" value="{path}"/>\n'
+        f'  <CheckerBundle application="{bundle}">\n    <Param name="resultFile" value="{result}"/>\n'
+        "  </CheckerBundle>\n</Config>\n"
+    )
     done = subprocess.run([checker(exe), "-c", str(config)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     return ET.parse(result).getroot()
@@ -128,8 +158,10 @@ def test_asam_checkers_find_no_issue(tmp_path, name, index):
     xosc = export(load_suite(name), tmp_path / "out", [index])[0]
     for path, kind, at_least in ((xosc, "xosc", 17), (xosc.with_suffix(".xodr"), "xodr", 22)):
         root = run_checker(path, kind, tmp_path)
-        issues = [i.get("description") + ": " + " ".join(loc.get("description", "") for loc in i.iter("Locations"))
-                  for i in root.iter("Issue")]
+        issues = [
+            i.get("description") + ": " + " ".join(loc.get("description", "") for loc in i.iter("Locations"))
+            for i in root.iter("Issue")
+        ]
         assert issues == [], (kind, issues)
         checkers = list(root.iter("Checker"))
         completed = [c for c in checkers if c.get("status") == "completed"]

@@ -22,8 +22,16 @@ FAST = HYPERPARAMS / "ppo-fast.toml"
 def _train(tmp_path, name, steps, seed=0, **overrides):
     from overtakezoo.zoo.train import ppo
 
-    return ppo.train(load_training("table1-train"), suite_name="table1-train", steps=steps, seed=seed,
-                     out=tmp_path / name, hyperparams=FAST, overrides=overrides or None, progress=False)
+    return ppo.train(
+        load_training("table1-train"),
+        suite_name="table1-train",
+        steps=steps,
+        seed=seed,
+        out=tmp_path / name,
+        hyperparams=FAST,
+        overrides=overrides or None,
+        progress=False,
+    )
 
 
 def test_backward_matches_finite_differences():
@@ -33,7 +41,7 @@ def test_backward_matches_finite_differences():
     x, w = rng.standard_normal((4, 5)), rng.standard_normal((4, 3))
     out, acts = net.forward(x)
     grads = net.backward(acts, w)  # d sum(w * out) / d params
-    for p, g in zip(net.params, grads):
+    for p, g in zip(net.params, grads, strict=True):
         for idx in [(0,) * p.ndim, tuple(s - 1 for s in p.shape)]:
             keep = p[idx]
             p[idx] = keep + 1e-6
@@ -83,10 +91,12 @@ def test_same_seed_same_bits_other_seed_other_bits(tmp_path):
 
 
 def test_trains_without_importing_torch(tmp_path):
-    code = ("import sys; from overtakezoo.benchmark.cli import main; "
-            f"rc = main(['train', 'ppo', '--hyperparams', {str(FAST)!r}, '--steps', '2048', '--eval-suite', 'none', "
-            f"'--out', {str(tmp_path / 'run')!r}, '--no-progress']); "
-            "assert rc == 0; assert 'torch' not in sys.modules, 'torch imported'")
+    code = (
+        "import sys; from overtakezoo.benchmark.cli import main; "
+        f"rc = main(['train', 'ppo', '--hyperparams', {str(FAST)!r}, '--steps', '2048', '--eval-suite', 'none', "
+        f"'--out', {str(tmp_path / 'run')!r}, '--no-progress']); "
+        "assert rc == 0; assert 'torch' not in sys.modules, 'torch imported'"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "run" / "ppo.npz").is_file()
@@ -102,7 +112,13 @@ def test_bad_hyperparameters_are_one_error_naming_the_key(tmp_path):
     with pytest.raises(TrainError, match="--resume"):
         from overtakezoo.zoo.train import ppo
 
-        ppo.train(load_training("table1-train"), steps=2048, out=tmp_path / "r", hyperparams=FAST,
-                  resume=tmp_path / "x.pt", progress=False)
+        ppo.train(
+            load_training("table1-train"),
+            steps=2048,
+            out=tmp_path / "r",
+            hyperparams=FAST,
+            resume=tmp_path / "x.pt",
+            progress=False,
+        )
     with pytest.raises(TrainError, match="single-AV"):
         ppo.train(load_training("multi-train"), steps=2048, out=tmp_path / "m", hyperparams=FAST, progress=False)

@@ -28,7 +28,9 @@ def test_z_score_is_zero_for_equal_rates_and_grows_with_the_gap():
     assert fresh.z_score(99, 100, 80, 100) < fresh.z_score(990, 1000, 400, 500)
     assert fresh.disagreement({"n": 1000, "success": 990, "crash": 10}, {"n": 500, "success": 400, "crash": 90})
     # an honest policy's two draws: 2.6 standard errors apart is chance, not a flag
-    assert fresh.disagreement({"n": 1000, "success": 900, "crash": 100}, {"n": 500, "success": 430, "crash": 70}) is None
+    assert (
+        fresh.disagreement({"n": 1000, "success": 900, "crash": 100}, {"n": 500, "success": 430, "crash": 70}) is None
+    )
 
 
 def test_outcomes_round_trip_as_one_digit_each():
@@ -66,24 +68,32 @@ def oracle_pairs(suite):
 def memoriser(path: Path, keys: np.ndarray, modes: np.ndarray, otherwise: int = 1) -> Path:
     """An ONNX policy that looks its observation up among ``keys`` and answers the recorded mode, and
     ``otherwise`` (overtake) for an observation it never saw: it knows scenarios, not driving."""
-    nodes = [helper.make_node("Unsqueeze", ["obs", "one"], ["o3"]),
-             helper.make_node("Sub", ["o3", "keys"], ["diff"]),
-             helper.make_node("Mul", ["diff", "diff"], ["sq"]),
-             helper.make_node("ReduceSum", ["sq", "two"], ["dist"], keepdims=0),
-             helper.make_node("ArgMin", ["dist"], ["nearest"], axis=1, keepdims=0),
-             helper.make_node("ReduceMin", ["dist"], ["best"], axes=[1], keepdims=0),
-             helper.make_node("Gather", ["modes", "nearest"], ["recalled"]),
-             helper.make_node("Less", ["best", "eps"], ["known"]),
-             helper.make_node("Where", ["known", "recalled", "otherwise"], ["mode"])]
-    inits = [numpy_helper.from_array(np.array([1], np.int64), "one"),
-             numpy_helper.from_array(np.array([2], np.int64), "two"),
-             numpy_helper.from_array(keys.astype(np.float32), "keys"),
-             numpy_helper.from_array(modes.astype(np.int64), "modes"),
-             numpy_helper.from_array(np.array(1e-9, np.float32), "eps"),
-             numpy_helper.from_array(np.array(otherwise, np.int64), "otherwise")]
-    graph = helper.make_graph(nodes, "memoriser",
-                              [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", keys.shape[1]])],
-                              [helper.make_tensor_value_info("mode", TensorProto.INT64, ["N"])], initializer=inits)
+    nodes = [
+        helper.make_node("Unsqueeze", ["obs", "one"], ["o3"]),
+        helper.make_node("Sub", ["o3", "keys"], ["diff"]),
+        helper.make_node("Mul", ["diff", "diff"], ["sq"]),
+        helper.make_node("ReduceSum", ["sq", "two"], ["dist"], keepdims=0),
+        helper.make_node("ArgMin", ["dist"], ["nearest"], axis=1, keepdims=0),
+        helper.make_node("ReduceMin", ["dist"], ["best"], axes=[1], keepdims=0),
+        helper.make_node("Gather", ["modes", "nearest"], ["recalled"]),
+        helper.make_node("Less", ["best", "eps"], ["known"]),
+        helper.make_node("Where", ["known", "recalled", "otherwise"], ["mode"]),
+    ]
+    inits = [
+        numpy_helper.from_array(np.array([1], np.int64), "one"),
+        numpy_helper.from_array(np.array([2], np.int64), "two"),
+        numpy_helper.from_array(keys.astype(np.float32), "keys"),
+        numpy_helper.from_array(modes.astype(np.int64), "modes"),
+        numpy_helper.from_array(np.array(1e-9, np.float32), "eps"),
+        numpy_helper.from_array(np.array(otherwise, np.int64), "otherwise"),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "memoriser",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", keys.shape[1]])],
+        [helper.make_tensor_value_info("mode", TensorProto.INT64, ["N"])],
+        initializer=inits,
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     # the oracle's hold (it re-plans every 1 s), so the lookup meets the very observations it recorded
@@ -99,8 +109,8 @@ def _cli(*argv) -> None:
 
 @pytest.fixture
 def board(tiny_suite, tmp_path, capsys):
-    """A leaderboard on a tiny oncoming-4 suite (where the oracle beats fuzzy and rule-fsm by 8-16 points): fuzzy, rule-fsm and a policy that memorised the oracle's
-    decisions on the public scenarios."""
+    """A leaderboard on a tiny oncoming-4 suite (where the oracle beats fuzzy and rule-fsm by 8-16
+    points): fuzzy, rule-fsm and a policy that memorised the oracle's decisions on the public scenarios."""
     from overtakezoo.envs.suites import load_suite
 
     name = tiny_suite(COUNT, base="oncoming-4", time_limit=60.0)
@@ -175,7 +185,7 @@ def test_a_recorded_draw_is_re_derived_and_may_not_be_a_public_seed(board, capsy
     row = json.loads(row_path.read_text())
     outcomes = row["submission"]["fresh"]["outcomes"]
     i = next(i for i, c in enumerate(outcomes) if c != "1")
-    row["submission"]["fresh"]["outcomes"] = outcomes[:i] + "1" + outcomes[i + 1:]  # a crash turned success
+    row["submission"]["fresh"]["outcomes"] = outcomes[:i] + "1" + outcomes[i + 1 :]  # a crash turned success
     row_path.write_text(json.dumps(row, indent=1, sort_keys=True) + "\n")
     line = last_error_line(capsys, ["leaderboard", "--root", str(lb), "--verify", "--only", f"{name}/fuzzy"])
     assert f"fuzzy.json: submission.fresh (seed {row['submission']['fresh']['seed']}): scenario {i}" in line, line

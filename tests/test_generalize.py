@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from overtakezoo.envs.suites import SuiteError
-from overtakezoo.envs.suites import CORE, MIXTURES, load_suite, load_training
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, make_scenario, observation_layout
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore, split_rows
+from overtakezoo.envs.suites import CORE, MIXTURES, SuiteError, load_suite, load_training
 from overtakezoo.zoo.members.features import speed_relative
 
 
@@ -38,8 +37,9 @@ def test_a_split_takes_its_tables_from_its_base_and_its_hash_covers_the_base(tmp
     before = load_suite(split).hash
     (folder / "oncoming-2.toml").write_bytes(base.replace(b"count = 1000", b"count = 999"))
     assert load_suite(split).hash != before  # an edit of the base re-identifies the split
-    split.write_text('name = "x-train"\nversion = 1\nbase = "oncoming-2"\ncount = 10\nseed = 1\n'
-                     '[scenario]\ngoal = 50.0\n')
+    split.write_text(
+        'name = "x-train"\nversion = 1\nbase = "oncoming-2"\ncount = 10\nseed = 1\n[scenario]\ngoal = 50.0\n'
+    )
     with pytest.raises(SuiteError, match="scenario: a split takes its tables from its base suite"):
         load_suite(split)
     split.write_text('name = "x-train"\nversion = 1\nbase = "nope"\ncount = 10\nseed = 1\n')
@@ -69,14 +69,14 @@ def test_a_mixture_steps_each_suite_as_its_own_core_would():
     mix = MixedCore([s.config for s in suites], sources, [3, 2], seed=7)
     # The same scenarios on cores of their own (no episode ends within the 1 s held below).
     alone = []
-    for core, src in zip(mix.cores, sources):
+    for core, src in zip(mix.cores, sources, strict=True):
         twin = OvertakeCore(core.cfg, auto_reset=True, source=src, seed=0)
         twin.reset(core.scen)
         alone.append(twin)
     assert mix.num == 5 and mix.observe().shape == (5, alone[0].obs_size)
     modes = np.array([OVERTAKE, FOLLOW, OVERTAKE, OVERTAKE, FOLLOW])
     held = hold(mix, modes, 10)
-    ref = [hold(core, modes[s], 10) for core, s in zip(alone, (slice(0, 3), slice(3, 5)))]
+    ref = [hold(core, modes[s], 10) for core, s in zip(alone, (slice(0, 3), slice(3, 5)), strict=True)]
     np.testing.assert_array_equal(held.obs, np.concatenate([r.obs for r in ref]))
     np.testing.assert_array_equal(held.reward, np.concatenate([r.reward for r in ref]))
     # The urban rows keep their own speed limit: each core kept its suite's scenarios.
@@ -104,11 +104,20 @@ def test_a_mixture_refills_finished_rows_from_their_own_suite():
 def test_features_do_not_change_when_speeds_and_distances_scale_together(k):
     """A scenario driven k times faster over k times the distances reads the same (but the speed
     limit feature, which tells the regimes apart)."""
+
     def first_obs(scale):
-        sc = make_scenario(lead=(15.0 * scale, 2.0 * scale), oncoming=[(50.0 * scale, 2.5 * scale)],
-                           ego_speed=4.0 * scale, speed_limit=4.2 * scale, goal=100.0 * scale,
-                           sensor_range=60.0 * scale, ego_length=4.54 * scale, vehicle_length=4.54 * scale,
-                           lead_behaviour="scripted", oncoming_behaviour="scripted")
+        sc = make_scenario(
+            lead=(15.0 * scale, 2.0 * scale),
+            oncoming=[(50.0 * scale, 2.5 * scale)],
+            ego_speed=4.0 * scale,
+            speed_limit=4.2 * scale,
+            goal=100.0 * scale,
+            sensor_range=60.0 * scale,
+            ego_length=4.54 * scale,
+            vehicle_length=4.54 * scale,
+            lead_behaviour="scripted",
+            oncoming_behaviour="scripted",
+        )
         cfg = EnvConfig()
         return cfg, OvertakeCore(cfg).reset(sc)
 

@@ -1,7 +1,7 @@
-"""The README's "Guide: rsl-rl" works as written: examples/rsl_rl_ppo.py trains rsl-rl's own
-OnPolicyRunner on table1-train (the zoo's 1 s hold), exports with rsl-rl's own ONNX exporter and
-writes the policy card; the exported file then evaluates on table1 to the guide's target, submits to
-a leaderboard and verifies there."""
+"""The guide docs/guides/rsl-rl.md works as written (its code block names this test):
+examples/rsl_rl_ppo.py trains rsl-rl's own OnPolicyRunner on table1-train (the zoo's 1 s hold), exports
+with rsl-rl's own ONNX exporter and writes the policy card; the exported file then evaluates on table1
+to the guide's target, submits to a leaderboard and verifies there."""
 
 from __future__ import annotations
 
@@ -26,9 +26,15 @@ def test_rsl_rl_guide_trains_exports_evaluates_submits_and_verifies(tmp_path, ca
     pytest.importorskip("onnxruntime")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     t0 = time.perf_counter()
-    # As the README writes it (from a directory of the user's own).
-    run = subprocess.run([sys.executable, str(EXAMPLE), "--iterations", "60", "--seed", "0", "--out", "runs/rsl-ppo"],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1800)
+    # As the guide writes it (from a directory of the user's own).
+    run = subprocess.run(
+        [sys.executable, str(EXAMPLE), "--iterations", "60", "--seed", "0", "--out", "runs/rsl-ppo"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     minutes = (time.perf_counter() - t0) / 60
     assert run.returncode == 0, run.stderr[-3000:]
     policy = tmp_path / "runs" / "rsl-ppo" / "policy.onnx"
@@ -37,8 +43,9 @@ def test_rsl_rl_guide_trains_exports_evaluates_submits_and_verifies(tmp_path, ca
     assert minutes < 15
 
     out = tmp_path / "runs" / "rsl-ppo" / "table1.json"
-    assert main(["eval", "--suite", "table1", "--policy", str(policy), "--out", str(out), "--no-progress"]) == 0, \
+    assert main(["eval", "--suite", "table1", "--policy", str(policy), "--out", str(out), "--no-progress"]) == 0, (
         capsys.readouterr().err
+    )
     capsys.readouterr()
     summary = Results.load(out).summary
     success, crash = summary["success_rate"]["value"], summary["crash_rate"]["value"]
@@ -47,8 +54,9 @@ def test_rsl_rl_guide_trains_exports_evaluates_submits_and_verifies(tmp_path, ca
     assert success >= 0.71 and crash <= 0.29
 
     root = tmp_path / "my-lb"
-    assert main(["submit", str(out), "--name", "my-rsl-ppo", "--policy", str(policy), "--root", str(root)]) == 0, \
+    assert main(["submit", str(out), "--name", "my-rsl-ppo", "--policy", str(policy), "--root", str(root)]) == 0, (
         capsys.readouterr().err
+    )
     capsys.readouterr()
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0, capsys.readouterr().err
     assert "verified submissions/table1/my-rsl-ppo.json: 3000 of 3000 scenarios reproduce" in capsys.readouterr().out

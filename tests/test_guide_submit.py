@@ -1,11 +1,12 @@
-"""The one "Submit your policy" guide, ``overtakezoo.benchmark.leaderboard.guide.GUIDE``: the same text
-on the leaderboard page (``leaderboards/README.md``, generated) and in the repository README (checked
-verbatim here, so the two cannot drift), and, slow, its code blocks run as written: the python block
-(SB3 DQN's defaults on ``overtakezoo/Overtake-v1``, 200k decisions) in a subprocess, then every
-``overtakezoo`` line of its bash blocks (card, eval on table1, submit, verify, regenerate) in a
-temporary folder holding a copy of the repository's ``leaderboards/`` (the guide runs from a clone's
-root, where ``./leaderboards`` is the board, so nothing is written into the repository's own). The
-policy must reach at least rule-fsm's table1 success (0.71) at no more than its crash rate (0.29).
+"""The one "Submit your policy" guide, ``overtakezoo.benchmark.leaderboard.guide.GUIDE``: the same text on
+the leaderboard page (``leaderboards/README.md``, generated) and on the documentation site
+(``guides/submit.md``, generated from it); the README's quickstart is its code (checked here), and,
+slow, its code blocks run as written: the python block (SB3 DQN's defaults on
+``overtakezoo/Overtake-v1``, 200k decisions) in a subprocess, then every ``overtakezoo`` line of its
+bash blocks (card, eval on table1, submit, verify, regenerate) in a temporary folder holding a copy of
+the repository's ``leaderboards/`` (the guide runs from a clone's root, where ``./leaderboards`` is the
+board, so nothing is written into the repository's own). The policy must reach at least rule-fsm's
+table1 success (0.71) at no more than its crash rate (0.29).
 
     python -m pytest -m slow tests/test_guide_submit.py -q
 """
@@ -41,18 +42,28 @@ def guide_blocks() -> list[tuple[str, str]]:
 
 def guide_commands() -> list[list[str]]:
     """Every command line of the guide's bash blocks, split as a shell would (comments dropped)."""
-    return [args for lang, body in guide_blocks() if lang == "bash"
-            for args in (shlex.split(line, comments=True) for line in body.splitlines()) if args]
+    return [
+        args
+        for lang, body in guide_blocks()
+        if lang == "bash"
+        for args in (shlex.split(line, comments=True) for line in body.splitlines())
+        if args
+    ]
 
 
 def option(args: list[str], name: str) -> str:
     return args[args.index(name) + 1]
 
 
-def test_the_readme_and_the_leaderboard_page_show_the_one_guide():
-    readme = (REPO / "README.md").read_text("utf-8")
-    assert "\n### Submit your policy\n\n" + GUIDE in readme, \
-        "README.md's 'Submit your policy' section must be overtakezoo.benchmark.leaderboard.guide.GUIDE verbatim"
+def test_the_readme_quickstart_is_the_guide_and_the_leaderboard_page_shows_it():
+    # README.md's "Evaluate and submit your own policy" blocks name this test: they are the guide's
+    # own code (its python block verbatim, its commands), which the slow test below runs.
+    from doc_blocks import run_by
+
+    python, bash = run_by("tests/test_guide_submit.py")
+    assert python.body == guide_blocks()[0][1]
+    readme_commands = [args for args in (shlex.split(line, comments=True) for line in bash.body.splitlines()) if args]
+    assert readme_commands == guide_commands()
     page = (REPO / "leaderboards" / "README.md").read_text("utf-8")
     assert "\n" + GUIDE_HEADING + "\n\n" + GUIDE in page, "regenerate the leaderboard: overtakezoo leaderboard"
 
@@ -77,8 +88,9 @@ def test_the_guide_trains_on_the_training_world_cards_its_hold_then_evaluates_an
 
 
 def _tree(root: Path) -> list[tuple[str, int, int]]:
-    return sorted((str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns)
-                  for p in root.rglob("*") if p.is_file())
+    return sorted(
+        (str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()
+    )
 
 
 @pytest.mark.slow
@@ -96,8 +108,9 @@ def test_the_guide_as_written_beats_rule_fsm_and_its_row_verifies(tmp_path):
             script = tmp_path / f"guide_block_{i}.py"
             script.write_text(body, "utf-8")
             start = time.perf_counter()
-            done = subprocess.run([sys.executable, script.name], cwd=tmp_path, capture_output=True, text=True,
-                                  env=dict(os.environ))
+            done = subprocess.run(
+                [sys.executable, script.name], cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ)
+            )
             walls.append(("python block", time.perf_counter() - start))
             assert done.returncode == 0, done.stdout + done.stderr
             continue
@@ -119,7 +132,8 @@ def test_the_guide_as_written_beats_rule_fsm_and_its_row_verifies(tmp_path):
     assert success >= RULE_FSM_TABLE1["success_rate"], summary["success_rate"]
     assert crash <= RULE_FSM_TABLE1["crash_rate"], summary["crash_rate"]
 
-    assert any("verified submissions/table1/my-dqn.json: 3000 of 3000 scenarios reproduce exactly" in out
-               for out in outputs), outputs
+    assert any(
+        "verified submissions/table1/my-dqn.json: 3000 of 3000 scenarios reproduce exactly" in out for out in outputs
+    ), outputs
     assert (tmp_path / "leaderboards" / "submissions" / "table1" / "my-dqn.json").is_file()
     assert _tree(REPO / "leaderboards") == repo_board  # the repository's board was never written

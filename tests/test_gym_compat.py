@@ -48,7 +48,10 @@ def test_stand_in_has_gymnasium_1_1s_names_and_values(shim_without_gymnasiums_mo
     shim, _ = shim_without_gymnasiums_mode
     assert not shim.HAS_AUTORESET_MODE
     assert {m.name: m.value for m in shim.AutoresetMode} == {
-        "NEXT_STEP": "NextStep", "SAME_STEP": "SameStep", "DISABLED": "Disabled"}
+        "NEXT_STEP": "NextStep",
+        "SAME_STEP": "SameStep",
+        "DISABLED": "Disabled",
+    }
     real = getattr(importlib.import_module("gymnasium.vector.vector_env"), "AutoresetMode", None)
     if real is not None:  # the very names and values of gymnasium's own
         assert [(m.name, m.value) for m in shim.AutoresetMode] == [(m.name, m.value) for m in real]

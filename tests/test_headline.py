@@ -5,8 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from overtakezoo.benchmark.leaderboard import headline
-from overtakezoo.benchmark.leaderboard import paper_table
+from overtakezoo.benchmark.leaderboard import headline, paper_table
 from overtakezoo.benchmark.leaderboard.headline import Counts, score
 from overtakezoo.envs.suites import CORE
 
@@ -52,15 +51,23 @@ def test_paper_table_verdicts_follow_the_cis():
     def rate(v, lo, hi):
         return {"value": v, "lo": lo, "hi": hi}
 
-    dqn = {"success_rate": rate(0.95, 0.94, 0.96), "crash_share_npc1": rate(0.1, 0.05, 0.2),
-           "crash_share_npc2": rate(0.9, 0.8, 0.95)}
-    fsm = {"success_rate": rate(0.7, 0.68, 0.72), "crash_share_npc1": rate(0.1, 0.07, 0.12),
-           "crash_share_npc2": rate(0.9, 0.88, 0.93)}
+    dqn = {
+        "success_rate": rate(0.95, 0.94, 0.96),
+        "crash_share_npc1": rate(0.1, 0.05, 0.2),
+        "crash_share_npc2": rate(0.9, 0.8, 0.95),
+    }
+    fsm = {
+        "success_rate": rate(0.7, 0.68, 0.72),
+        "crash_share_npc1": rate(0.1, 0.07, 0.12),
+        "crash_share_npc2": rate(0.9, 0.88, 0.93),
+    }
     v = paper_table.verdicts(ref["rows"][0], ref["rows"][1], dqn, fsm)
     assert v["success_rate"] == ("above", "above")  # the paper's shape holds
     assert v["crash_share_npc1"] == ("above", "level")  # overlapping CIs: level, the shape differs
-    notes = {"success_rate": {"shape": "holds", "text": "WHY-HOLDS"},
-             "crash_share_npc1": {"shape": "holds", "text": "STALE"}}
+    notes = {
+        "success_rate": {"shape": "holds", "text": "WHY-HOLDS"},
+        "crash_share_npc1": {"shape": "holds", "text": "STALE"},
+    }
     md = paper_table.render(ref, dqn, fsm, None, notes)
     assert "WHY-HOLDS" in md and "STALE" not in md  # a note whose verdict no longer matches is not shown
     assert md.count("\n| ") == 7  # 7 Table I rows after the header

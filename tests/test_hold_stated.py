@@ -18,12 +18,13 @@ import pettingzoo
 import pytest
 
 import overtakezoo.envs  # noqa: F401  (registers the ids)
+from conftest import suite_file
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
-from overtakezoo.envs import OvertakeEnv, env as aec_env, make_vec, parallel_env
+from overtakezoo.envs import OvertakeEnv, make_vec, parallel_env
+from overtakezoo.envs import env as aec_env
 from overtakezoo.envs.hold import hold_steps
 from overtakezoo.envs.suites import SUITES_DIR, load_suite, suite_env_ids
-from conftest import suite_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,7 +78,7 @@ def _aec_steps(aec, seed=5, turns=4):
 
 def _same(a, b):
     assert len(a) == len(b)
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         if isinstance(x, dict):
             assert x.keys() == y.keys()
             for k in x:
@@ -96,8 +97,13 @@ def test_every_face_of_a_suite_holds_what_its_registered_id_holds(tmp_path):
     # the single Gymnasium env
     by_id = gymnasium.make(ids["table1"][0]).unwrapped
     ref = _gym_steps(by_id)
-    for made in (OvertakeEnv("table1"), OvertakeEnv(suite="table1"), OvertakeEnv(table1), OvertakeEnv(suite=str(path)),
-                 gymnasium.make("overtakezoo/Overtake-v0", suite="table1").unwrapped):
+    for made in (
+        OvertakeEnv("table1"),
+        OvertakeEnv(suite="table1"),
+        OvertakeEnv(table1),
+        OvertakeEnv(suite=str(path)),
+        gymnasium.make("overtakezoo/Overtake-v0", suite="table1").unwrapped,
+    ):
         assert made.hold_steps == by_id.hold_steps == 10
         _same(_gym_steps(made), ref)
     # the vector env
@@ -161,8 +167,10 @@ def test_eval_and_submit_say_a_zoo_deciders_hold(capsys, tiny, tmp_path):
     err, _ = _eval(capsys, tiny, tmp_path, "--decider", "dqn")
     card = json.loads((ROOT / "zoo" / "pretrained" / "dqn.json").read_text())
     assert card["decide_every"] == 1 and card["action_repeat"] == 10
-    assert ("hold: 1 core step per decision (from dqn's model card: decide_every 1, its decision rate when "
-            "deployed; trained at a hold of 10)") in err.splitlines(), err
+    assert (
+        "hold: 1 core step per decision (from dqn's model card: decide_every 1, its decision rate when "
+        "deployed; trained at a hold of 10)"
+    ) in err.splitlines(), err
     err, results = _eval(capsys, tiny, tmp_path, "--decider", "rule-fsm")
     assert "hold: 1 core step per decision (the default: rule-fsm declares no action_repeat" in err, err
     assert "warning" not in err
@@ -181,7 +189,8 @@ def test_a_model_card_beside_weights_is_named(tmp_path):
     dec = load_policy(str(ROOT / "zoo" / "pretrained" / "dqn.npz"), config)
     try:
         assert hold_lines(dec, config) == [
-            "hold: 1 core step per decision (from the model card dqn.json: decide_every 1, trained at a hold of 10)"]
+            "hold: 1 core step per decision (from the model card dqn.json: decide_every 1, trained at a hold of 10)"
+        ]
     finally:
         dec.inner.close()
 
@@ -206,8 +215,9 @@ def test_eval_and_submit_say_a_policy_files_hold_and_warn_without_a_card(capsys,
     err, results = _eval(capsys, tiny, tmp_path, "--policy", str(model))
     assert "hold: 10 core steps per decision (from the policy card model.card.json)" in err.splitlines(), err
     assert "warning" not in err
-    assert main(["submit", str(results), "--name", "my-sb3", "--policy", str(model),
-                 "--root", str(tmp_path / "lb")]) == 0
+    assert (
+        main(["submit", str(results), "--name", "my-sb3", "--policy", str(model), "--root", str(tmp_path / "lb")]) == 0
+    )
     got = capsys.readouterr()
     assert "hold: 10 core steps per decision (from the policy card model.card.json)" in got.err.splitlines(), got.err
     assert "hold:" not in got.out
@@ -215,9 +225,24 @@ def test_eval_and_submit_say_a_policy_files_hold_and_warn_without_a_card(capsys,
 
 def test_eval_prints_the_hold_on_stderr_only(tmp_path):
     suite = suite_file(tmp_path / "small.toml", 4)
-    p = subprocess.run([sys.executable, "-m", "overtakezoo.benchmark.cli", "eval", "--suite", str(suite),
-                        "--decider", "always-follow", "--out", str(tmp_path / "r.json"), "--no-progress"],
-                       capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "overtakezoo.benchmark.cli",
+            "eval",
+            "--suite",
+            str(suite),
+            "--decider",
+            "always-follow",
+            "--out",
+            str(tmp_path / "r.json"),
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 0, p.stderr
     assert p.stderr.splitlines()[0].startswith("hold: 1 core step per decision ("), p.stderr
     assert p.stdout.startswith("suite small v2") and "hold:" not in p.stdout
@@ -234,9 +259,14 @@ def test_decision_rate_and_training_hold_are_named_apart():
     assert "decision rate" in zoo.Decider.__doc__ and "training hold" in zoo.Decider.__doc__
     assert "decide_every" in zoo.Decider.__doc__ and "from training" not in zoo.Decider.__doc__
     assert "decision rate" in deployed_repeat.__doc__
-    for rel in ("zoo/base.py", "zoo/members/learned.py", "benchmark/run/policy.py", "envs/hold.py",
-                *(f"benchmark/commands/{p.name}" for p in (ROOT / "benchmark" / "commands").glob("*.py")),
-                *(f"envs/faces/{p.name}" for p in (ROOT / "envs" / "faces").glob("*.py"))):
+    for rel in (
+        "zoo/base.py",
+        "zoo/members/learned.py",
+        "benchmark/run/policy.py",
+        "envs/hold.py",
+        *(f"benchmark/commands/{p.name}" for p in (ROOT / "benchmark" / "commands").glob("*.py")),
+        *(f"envs/faces/{p.name}" for p in (ROOT / "envs" / "faces").glob("*.py")),
+    ):
         assert "from training" not in (ROOT / rel).read_text(), rel
     from overtakezoo.benchmark.commands import card
 
@@ -245,9 +275,9 @@ def test_decision_rate_and_training_hold_are_named_apart():
 
 # ------------------------------------------------------------------ 4. the README's Python example
 def _readme_python_example() -> str:
-    text = (ROOT / "README.md").read_text("utf-8")
-    section = text.split("\n### Python\n", 1)[1]
-    return section.split("```python\n", 1)[1].split("\n```", 1)[0]
+    from doc_blocks import blocks
+
+    return next(b.body for b in blocks(ROOT / "README.md") if b.lang == "python")
 
 
 def test_readmes_python_example_prints_the_hold_its_comment_says(capsys):

@@ -16,13 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from overtakezoo.envs.io import file_sha256
-from overtakezoo.envs import suites
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.results.results import Results
 from overtakezoo.benchmark.run.sandbox import landlock_abi
-from overtakezoo.envs import EnvConfig, observation_size
-
+from overtakezoo.envs import EnvConfig, observation_size, suites
+from overtakezoo.envs.io import file_sha256
 from test_submissions import one_line_error, scripted_policy
 
 torch = pytest.importorskip("torch")
@@ -53,8 +51,7 @@ def _sb3_zip(tmp_path: Path, marker: Path) -> Path:
 
     from overtakezoo.envs import OvertakeEnv  # the env's defaults: only its spaces matter (tiny replaces the suites)
 
-    model = DQN("MlpPolicy", OvertakeEnv(), seed=0, verbose=0, device="cpu",
-                policy_kwargs={"net_arch": [16]})
+    model = DQN("MlpPolicy", OvertakeEnv(), seed=0, verbose=0, device="cpu", policy_kwargs={"net_arch": [16]})
     model.save(tmp_path / "honest.zip")
     payload = base64.b64encode(pickle.dumps(Plant(marker))).decode()
     out = tmp_path / "hostile.zip"
@@ -81,8 +78,10 @@ def test_sb3_zip_is_read_as_data_and_its_pickles_never_run(tmp_path, tiny, capsy
     assert doc["decider"]["policy"]["kind"] == "sb3" and doc["decider"]["weights_sha256"] == file_sha256(hostile)
     # Submitted, it is stored as the npz MLP (data), and the row verifies from that alone.
     root = tmp_path / "lb"
-    assert main(["submit", str(tmp_path / "r.json"), "--name", "sb3-row", "--policy", str(hostile),
-                 "--root", str(root)]) == 0
+    assert (
+        main(["submit", str(tmp_path / "r.json"), "--name", "sb3-row", "--policy", str(hostile), "--root", str(root)])
+        == 0
+    )
     stored = sorted(p.suffix for p in (root / "submissions" / "artifacts").iterdir())
     assert stored == [".json", ".npz"]
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
@@ -193,8 +192,9 @@ def test_torchscript_that_writes_files_writes_nothing(tmp_path, tiny, capsys, sc
         assert (outside / "existing.py").read_text() == "# a file of the checkout\n"
 
 
-def test_torchscript_reads_no_file_outside_the_code_it_imports(tmp_path_factory, tmp_path, tiny, capsys, scripts,
-                                                               monkeypatch):
+def test_torchscript_reads_no_file_outside_the_code_it_imports(
+    tmp_path_factory, tmp_path, tiny, capsys, scripts, monkeypatch
+):
     """A secret in the user's home (here a folder of its own, on no sys.path) or in /etc: the box
     refuses the read; the same module reads it unboxed (the payload is real)."""
     if landlock_abi() < 1:
@@ -235,8 +235,9 @@ def test_a_hanging_policy_is_killed_and_named(tmp_path, tiny, capsys, scripts, m
     assert "scenarios 0-11, step 0" in err and not (tmp_path / "r.json").exists()
 
 
-@pytest.mark.parametrize("how, says", [(0, "returned mode 7.0"), (1, "returned non-finite scores"),
-                                       (2, "returned shape (12, 4)")])
+@pytest.mark.parametrize(
+    "how, says", [(0, "returned mode 7.0"), (1, "returned non-finite scores"), (2, "returned shape (12, 4)")]
+)
 def test_a_misbehaving_policy_is_one_line_naming_scenario_and_step(tmp_path, tiny, capsys, scripts, how, says):
     torch.jit.save(torch.jit.script(scripts.Bad(how)), tmp_path / "bad.pt")
     code, err = evaluate(capsys, tiny, tmp_path / "bad.pt", tmp_path / "r.json")
@@ -253,12 +254,25 @@ def _onnx_with_external_data(directory: Path, seed: int) -> Path:
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(net, (torch.zeros(1, D),), buf, input_names=["obs"], output_names=["q"],
-                          dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}}, dynamo=False)
+        torch.onnx.export(
+            net,
+            (torch.zeros(1, D),),
+            buf,
+            input_names=["obs"],
+            output_names=["q"],
+            dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}},
+            dynamo=False,
+        )
     directory.mkdir(parents=True, exist_ok=True)
     model = onnx.load_model_from_string(buf.getvalue())
-    onnx.save_model(model, str(directory / "m.onnx"), save_as_external_data=True, all_tensors_to_one_file=True,
-                    location="m.onnx.data", size_threshold=0)
+    onnx.save_model(
+        model,
+        str(directory / "m.onnx"),
+        save_as_external_data=True,
+        all_tensors_to_one_file=True,
+        location="m.onnx.data",
+        size_threshold=0,
+    )
     return directory / "m.onnx"
 
 
@@ -296,8 +310,9 @@ def test_onnx_external_data_is_inlined_and_hashed(tmp_path, tiny, capsys, monkey
 
 
 # ----------------------------------------------------------------------------- stored formats only
-def _direct_row(root: Path, suite: str, name: str, results: Results, artifact: bytes, ext: str,
-                card: bytes | None = None) -> Path:
+def _direct_row(
+    root: Path, suite: str, name: str, results: Results, artifact: bytes, ext: str, card: bytes | None = None
+) -> Path:
     """A row as a hostile pull request writes it, its labels set as verify derives them."""
     sha = hashlib.sha256(artifact).hexdigest()
     store = root / "submissions" / "artifacts"
@@ -308,8 +323,13 @@ def _direct_row(root: Path, suite: str, name: str, results: Results, artifact: b
         (store / f"{sha}.json").write_bytes(card)
         policy["card_sha256"] = hashlib.sha256(card).hexdigest()
     kind = "onnx" if ext == ".onnx" else "overtakezoo-dqn"
-    decider = {"name": name, "version": "1", "weights_sha256": sha, "privileged": False,
-               "policy": {"kind": kind, "file": f"{sha}{ext}", "sha256": sha}}
+    decider = {
+        "name": name,
+        "version": "1",
+        "weights_sha256": sha,
+        "privileged": False,
+        "policy": {"kind": kind, "file": f"{sha}{ext}", "sha256": sha},
+    }
     path = root / "submissions" / suite / f"{name}.json"
     # a well-formed fresh draw (the public outcomes): verify gets to run the artifact itself
     outcome = results.per["outcome"][:500]
@@ -323,8 +343,10 @@ def _direct_row(root: Path, suite: str, name: str, results: Results, artifact: b
 def test_a_row_storing_code_is_refused_by_verify(tmp_path, tiny, capsys, scripts):
     torch.jit.save(torch.jit.script(scripts.Writer(str(tmp_path / "pwned"))), tmp_path / "w.pt")
     policy = scripted_policy(tmp_path / "honest.pt", 0, 1)
-    assert main(["eval", "--policy", str(policy), "--suite", tiny, "--out", str(tmp_path / "r.json"),
-                 "--no-progress"]) == 0
+    assert (
+        main(["eval", "--policy", str(policy), "--suite", tiny, "--out", str(tmp_path / "r.json"), "--no-progress"])
+        == 0
+    )
     root = tmp_path / "lb"
     _direct_row(root, tiny, "ts-row", Results.load(tmp_path / "r.json"), (tmp_path / "w.pt").read_bytes(), ".pt")
     capsys.readouterr()  # (eval's hold line and no-card warning on stderr)
@@ -340,13 +362,19 @@ def test_a_stored_artifact_failing_mid_run_names_row_scenario_and_step(tmp_path,
     from overtakezoo.benchmark.run.policy import boxed
 
     torch.jit.save(torch.jit.script(net), tmp_path / "bad.pt")
-    box = boxed(Artifact("torchscript", (tmp_path / "bad.pt").read_bytes()), suites.load_suite(tiny).config, "bad",
-                allow_code=True)
+    box = boxed(
+        Artifact("torchscript", (tmp_path / "bad.pt").read_bytes()),
+        suites.load_suite(tiny).config,
+        "bad",
+        allow_code=True,
+    )
     onnx_bytes = box.inner.export_onnx(D)
     box.inner.close()
     honest = scripted_policy(tmp_path / "honest.pt", 0, 1)
-    assert main(["eval", "--policy", str(honest), "--suite", tiny, "--out", str(tmp_path / "r.json"),
-                 "--no-progress"]) == 0
+    assert (
+        main(["eval", "--policy", str(honest), "--suite", tiny, "--out", str(tmp_path / "r.json"), "--no-progress"])
+        == 0
+    )
     root = tmp_path / "lb"
     _direct_row(root, tiny, "seven", Results.load(tmp_path / "r.json"), onnx_bytes, ".onnx")
     capsys.readouterr()  # (eval's hold line and no-card warning on stderr)
@@ -371,6 +399,7 @@ def test_resume_never_unpickles_a_checkpoint(tmp_path, capsys, algo):
     marker = tmp_path / f"pwned-{algo}"
     ckpt = tmp_path / "checkpoint.pt"
     torch.save({"algo": algo, "net": Plant(marker), "iter": 1, "infos": {}}, ckpt)
-    err = one_line_error(capsys, ["train", algo, "--resume", str(ckpt), "--out", str(tmp_path / "run"),
-                                  "--steps", "64", "--no-progress"])
+    err = one_line_error(
+        capsys, ["train", algo, "--resume", str(ckpt), "--out", str(tmp_path / "run"), "--steps", "64", "--no-progress"]
+    )
     assert "checkpoint" in err and not marker.exists()

@@ -28,22 +28,26 @@ def train_dqn_with(tmp_path, capsys, old, new, extra=()):
     path = tmp_path / "bad.toml"
     path.write_text(DQN_TOML.replace(old, new))
     out = tmp_path / "run"
-    err = one_line_error(capsys, ["train", "dqn", "--hyperparams", str(path), "--out", str(out), "--no-progress",
-                                  *extra])
+    err = one_line_error(
+        capsys, ["train", "dqn", "--hyperparams", str(path), "--out", str(out), "--no-progress", *extra]
+    )
     assert not (out / "dqn.pt").exists() and not (out / "log.csv").exists()  # refused before training
     return err, str(path)
 
 
-@pytest.mark.parametrize("old, new, needle", [
-    ("gamma = 0.99", "gama = 0.99", "gama: unknown key (did you mean 'gamma'?)"),
-    ("stats_window = 1000", "stats_window = 1000\ntime_penality = 0.1", "time_penality: unknown key"),
-    ("gamma = 0.99", "gamma = 1.5", "gamma: 1.5 is out of range [0.0, 1.0]"),
-    ("batch_size = 256", "batch_size = 256.5", "batch_size: expected an integer, got 256.5"),
-    ("hidden = [128, 128]", 'hidden = "big"', "hidden: expected an array, got 'big'"),
-    ("hidden = [128, 128]", "hidden = [128, 0]", "hidden[1]: 0 is out of range"),
-    ("dueling = true", "dueling = 1", "dueling: expected true or false, got 1"),
-    ("lr = 5e-4\n", "", "lr: missing (required)"),
-])
+@pytest.mark.parametrize(
+    "old, new, needle",
+    [
+        ("gamma = 0.99", "gama = 0.99", "gama: unknown key (did you mean 'gamma'?)"),
+        ("stats_window = 1000", "stats_window = 1000\ntime_penality = 0.1", "time_penality: unknown key"),
+        ("gamma = 0.99", "gamma = 1.5", "gamma: 1.5 is out of range [0.0, 1.0]"),
+        ("batch_size = 256", "batch_size = 256.5", "batch_size: expected an integer, got 256.5"),
+        ("hidden = [128, 128]", 'hidden = "big"', "hidden: expected an array, got 'big'"),
+        ("hidden = [128, 128]", "hidden = [128, 0]", "hidden[1]: 0 is out of range"),
+        ("dueling = true", "dueling = 1", "dueling: expected true or false, got 1"),
+        ("lr = 5e-4\n", "", "lr: missing (required)"),
+    ],
+)
 def test_bad_dqn_hyperparameters_are_one_line_naming_file_and_key(tmp_path, capsys, old, new, needle):
     err, path = train_dqn_with(tmp_path, capsys, old, new)
     assert needle in err and path in err, err
@@ -62,17 +66,32 @@ def test_set_overrides_go_through_the_same_checks(tmp_path, capsys):
     assert "eps_end: 2 is out of range" in err
     assert "expected KEY=VALUE" in one_line_error(capsys, ["train", "dqn", "--set", "gamma", "--out", out])
     assert parse_overrides(["hidden=[64, 64]", "train.steps=10", "schedule=fixed"]) == {
-        "hidden": [64, 64], "train": {"steps": 10}, "schedule": "fixed"}
+        "hidden": [64, 64],
+        "train": {"steps": 10},
+        "schedule": "fixed",
+    }
 
 
-@pytest.mark.parametrize("section, old, new, needle", [
-    ("train", "select_every = 20", "select_evry = 20", "train.select_evry: unknown key (did you mean 'select_every'?)"),
-    ("env", "num_envs = 256", "num_envs = 0", "env.num_envs: 0 is out of range"),
-    ("runner", "save_interval = 50", "save_intervall = 50", "runner.save_intervall: unknown key"),
-    ("algorithm", "lam = 0.95", "lamda = 0.95", "algorithm.lamda: unknown key (did you mean 'lam'?)"),
-    ("actor", 'activation = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]',
-     'activaton = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]', "actor.activaton: unknown key"),
-])
+@pytest.mark.parametrize(
+    "section, old, new, needle",
+    [
+        (
+            "train",
+            "select_every = 20",
+            "select_evry = 20",
+            "train.select_evry: unknown key (did you mean 'select_every'?)",
+        ),
+        ("env", "num_envs = 256", "num_envs = 0", "env.num_envs: 0 is out of range"),
+        ("runner", "save_interval = 50", "save_intervall = 50", "runner.save_intervall: unknown key"),
+        ("algorithm", "lam = 0.95", "lamda = 0.95", "algorithm.lamda: unknown key (did you mean 'lam'?)"),
+        (
+            "actor",
+            'activation = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]',
+            'activaton = "elu"\nobs_normalization = false\n\n[actor.distribution_cfg]',
+            "actor.activaton: unknown key",
+        ),
+    ],
+)
 def test_bad_ppo_hyperparameters_are_one_line_naming_section_and_key(tmp_path, capsys, section, old, new, needle):
     pytest.importorskip("rsl_rl")
     text = hyperparams_file("ppo").read_text()
@@ -111,21 +130,41 @@ def test_a_cards_reproduce_line_carries_the_overrides_it_was_trained_with():
     # card says train.overtake_bias=0 since ppo.toml's default changed).
     import shlex
 
-    from overtakezoo.zoo.train.contract import (hyperparams_file, load_hyperparams, model_card, parse_overrides,
-                                                set_flags)
+    from overtakezoo.zoo.train.contract import (
+        hyperparams_file,
+        load_hyperparams,
+        model_card,
+        parse_overrides,
+        set_flags,
+    )
     from overtakezoo.zoo.train.dqn import DQNHyperparams
 
     given = {"num_envs": 64, "hidden": [64, 64], "lr": 1e-5, "steps": 10, "action_repeat": 5}
     hp, name = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"), given)
     flags = set_flags(hp, name)
-    again, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"),
-                                {**parse_overrides(shlex.split(" ".join(flags))), "steps": 10})
+    again, _ = load_hyperparams(
+        DQNHyperparams, hyperparams_file("dqn"), {**parse_overrides(shlex.split(" ".join(flags))), "steps": 10}
+    )
     assert again == hp and not any(f.startswith("steps=") for f in flags)
     plain, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))
     assert set_flags(plain, name) == []
-    card = model_card("dqn", algorithm="x", architecture={"kind": "q-network"}, hp=hp, hp_file=name,
-                      action_repeat=5, action_mask=True, source={}, steps=10, steps_unit="decisions", seed=0,
-                      wall_time_s=0.0, training={}, reproduce="overtakezoo train dqn --suite s --steps 10 --seed 0",
-                      torch=False)
+    card = model_card(
+        "dqn",
+        algorithm="x",
+        architecture={"kind": "q-network"},
+        hp=hp,
+        hp_file=name,
+        action_repeat=5,
+        action_mask=True,
+        source={},
+        steps=10,
+        steps_unit="decisions",
+        seed=0,
+        wall_time_s=0.0,
+        training={},
+        reproduce="overtakezoo train dqn --suite s --steps 10 --seed 0",
+        torch=False,
+    )
     assert card["reproduce"] == "overtakezoo train dqn --suite s --steps 10 --seed 0 " + " ".join(
-        f"--set {f}" for f in flags)
+        f"--set {f}" for f in flags
+    )

@@ -63,19 +63,23 @@ def test_a_layer_imports_no_layer_above_it(layer):
 def test_the_import_scan_sees_every_form_of_import(tmp_path, monkeypatch):
     fake = tmp_path / "zoo" / "train"
     fake.mkdir(parents=True)
-    (fake / "x.py").write_text("import importlib\n"
-                               "def f():\n"
-                               "    from ...benchmark import runner\n"
-                               "    from overtakezoo import benchmark\n"
-                               "    import overtakezoo.benchmark.results.metrics\n"
-                               "    importlib.import_module('overtakezoo.benchmark.datasets.store')\n"
-                               "from ..members import learned\n")
+    (fake / "x.py").write_text(
+        "import importlib\n"
+        "def f():\n"
+        "    from ...benchmark import runner\n"
+        "    from overtakezoo import benchmark\n"
+        "    import overtakezoo.benchmark.results.metrics\n"
+        "    importlib.import_module('overtakezoo.benchmark.datasets.store')\n"
+        "from ..members import learned\n"
+    )
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
-    assert violations("zoo") == ["zoo/train/x.py:3 imports overtakezoo.benchmark",
-                                 "zoo/train/x.py:3 imports overtakezoo.benchmark.runner",
-                                 "zoo/train/x.py:4 imports overtakezoo.benchmark",
-                                 "zoo/train/x.py:5 imports overtakezoo.benchmark.results.metrics",
-                                 "zoo/train/x.py:6 imports overtakezoo.benchmark.datasets.store"]
+    assert violations("zoo") == [
+        "zoo/train/x.py:3 imports overtakezoo.benchmark",
+        "zoo/train/x.py:3 imports overtakezoo.benchmark.runner",
+        "zoo/train/x.py:4 imports overtakezoo.benchmark",
+        "zoo/train/x.py:5 imports overtakezoo.benchmark.results.metrics",
+        "zoo/train/x.py:6 imports overtakezoo.benchmark.datasets.store",
+    ]
 
 
 def test_every_import_of_the_project_resolves():

@@ -13,7 +13,6 @@ from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard.generate import generate
 from overtakezoo.benchmark.leaderboard.untrusted import md, plot_text
-
 from test_benchmark_cli import one_line_error
 from test_benchmark_leaderboard import REPO_LEADERBOARDS, fake_board, file_row
 from test_benchmark_results import fake_results
@@ -31,8 +30,18 @@ def _regenerate(root):
 
 
 def test_escape_leaves_ordinary_names_and_neutralises_markup():
-    for plain in ["double-dqn", "always-follow", "ps-dqn", "rule-fsm", "0.4.1", "v2.1+cpu", "92.2 %",
-                  "planner.abort_clearance", "suite table1 v2 (abc123; now v3, def456)", "core-train+multi-train"]:
+    for plain in [
+        "double-dqn",
+        "always-follow",
+        "ps-dqn",
+        "rule-fsm",
+        "0.4.1",
+        "v2.1+cpu",
+        "92.2 %",
+        "planner.abort_clearance",
+        "suite table1 v2 (abc123; now v3, def456)",
+        "core-train+multi-train",
+    ]:
         assert md(plain) == plain and plot_text(plain) == plain
     out = md(HOSTILE)
     assert "\n" not in out and "\x00" not in out and "\u202e" not in out
@@ -80,8 +89,13 @@ def test_index_files_list_cannot_name_inputs_or_paths_outside(root, tmp_path):
     outside = tmp_path / "outside.md"
     outside.write_text("precious")
     index = json.loads((root / "index.json").read_text())
-    index["files"] += ["../outside.md", "submissions/table1/alpha.json", "reference/paper.json", "submissions",
-                       str(outside)]
+    index["files"] += [
+        "../outside.md",
+        "submissions/table1/alpha.json",
+        "reference/paper.json",
+        "submissions",
+        str(outside),
+    ]
     (root / "index.json").write_text(json.dumps(index))
     _regenerate(root)
     assert outside.read_text() == "precious"
@@ -128,8 +142,7 @@ def test_fifo_under_the_root_is_refused_without_hanging(root, capsys, where):
     fifo.unlink(missing_ok=True)
     os.mkfifo(fifo)
     result = {}
-    worker = threading.Thread(target=lambda: result.update(rc=main(["leaderboard", "--root", str(root)])),
-                              daemon=True)
+    worker = threading.Thread(target=lambda: result.update(rc=main(["leaderboard", "--root", str(root)])), daemon=True)
     worker.start()
     worker.join(30)
     if worker.is_alive():  # blocked on the FIFO: open its other end so the thread can finish
@@ -190,21 +203,41 @@ def test_hostile_package_version_is_refused_and_stale_rows_show_names_only(root,
     assert "gamma" not in ranked and "[gamma](submissions/table1/gamma.json): measured on simulator" in stale
     entry = json.loads(files["index.json"])["suites"]["table1"]
     assert [e["name"] for e in entry["entries"]] == ["alpha", "beta"]
-    assert entry["stale"] == [{"file": "submissions/table1/gamma.json",
-                               "reasons": [{"field": "sim_version", "measured_on": entry["stale"][0]["reasons"][0]
-                                            ["measured_on"]}]}]
+    assert entry["stale"] == [
+        {
+            "file": "submissions/table1/gamma.json",
+            "reasons": [{"field": "sim_version", "measured_on": entry["stale"][0]["reasons"][0]["measured_on"]}],
+        }
+    ]
 
 
 def test_hostile_crossplay_seeds_and_reference_strings_are_escaped(root):
     evil = ["<img src=x onerror=alert(1)> ![t](https://x/t.png)", "$\\frac{$ [l] `c` *e* | x -->"]
-    pairs = [{"a": a, "b": b, **{k: [1, 2] for k in ("all_succeed", "av_crash", "any_crash", "a_success",
-                                                      "b_success", "a_yielded", "b_yielded")}}
-             for a in evil for b in evil]
+    pairs = [
+        {
+            "a": a,
+            "b": b,
+            **{
+                k: [1, 2]
+                for k in ("all_succeed", "av_crash", "any_crash", "a_success", "b_success", "a_yielded", "b_yielded")
+            },
+        }
+        for a in evil
+        for b in evil
+    ]
     (root / "crossplay").mkdir()
-    (root / "crossplay" / "duel.json").write_text(json.dumps({
-        "suite": {"name": "duel", "version": "1 <b>x</b>", "hash": "`" * 64, "count": "<b>1000</b>"},
-        "config_sha256": "x" * 64, "sim_version": 0, "scenarios": 2,
-        "deciders": [{"name": n, "version": "<b>1</b>", "weights_sha256": "` <b>"} for n in evil], "pairs": pairs}))
+    (root / "crossplay" / "duel.json").write_text(
+        json.dumps(
+            {
+                "suite": {"name": "duel", "version": "1 <b>x</b>", "hash": "`" * 64, "count": "<b>1000</b>"},
+                "config_sha256": "x" * 64,
+                "sim_version": 0,
+                "scenarios": 2,
+                "deciders": [{"name": n, "version": "<b>1</b>", "weights_sha256": "` <b>"} for n in evil],
+                "pairs": pairs,
+            }
+        )
+    )
     seeds = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
     seeds.update(selection_rule="[l] `c` *e* <b>x</b> t.png")  # the member is the file's name (checked)
     for e in seeds["seeds"]:

@@ -10,7 +10,6 @@ import sys
 
 import pytest
 
-
 from conftest import shipped_weights_current, suite_file
 
 HEAVY = ("torch", "rsl_rl", "tensordict", "matplotlib", "mcap", "minari", "ray")
@@ -28,7 +27,7 @@ modes = dec.act(np.zeros((3, observation_size(EnvConfig()))))
 spec = ["--decider", name] if shipped == "1" else ["--policy", directory + "/" + name + ".npz"]
 rc = main(["eval", "--suite", suite, *spec, "--out", out, "--no-progress"])
 print(json.dumps({"rc": rc, "modes": modes.tolist(), "loaded": [m for m in %r if m in sys.modules]}))
-""" % (HEAVY,)
+""" % (HEAVY,)  # noqa: UP031 (the script's own braces rule out str.format and f-strings)
 
 
 @pytest.fixture
@@ -41,8 +40,12 @@ def test_loading_acting_and_eval_of_a_learned_member_import_no_torch(tmp_path, s
     # The shipped weights when they fit the observation; else random ones in the same format.
     shipped = "1" if shipped_weights_current(name) else "0"
     out = tmp_path / "r.json"
-    proc = subprocess.run([sys.executable, "-c", SCRIPT, str(learned_dir), str(suite), str(out), name, shipped],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", SCRIPT, str(learned_dir), str(suite), str(out), name, shipped],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout.strip().splitlines()[-1])
     assert report["rc"] == 0 and len(report["modes"]) == 3

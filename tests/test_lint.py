@@ -1,4 +1,4 @@
-"""The lint rules of pyproject.toml ([tool.ruff.lint]) hold on the whole repository."""
+"""The lint rules and the code style of pyproject.toml ([tool.ruff*]) hold on the whole repository."""
 
 import subprocess
 import sys
@@ -9,8 +9,18 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_ruff_finds_nothing():
+def _ruff(*args: str) -> subprocess.CompletedProcess:
     pytest.importorskip("ruff")
-    out = subprocess.run([sys.executable, "-m", "ruff", "check", "--output-format", "concise", str(REPO)],
-                         capture_output=True, text=True, cwd=REPO, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "ruff", *args, str(REPO)], capture_output=True, text=True, cwd=REPO, timeout=300
+    )
+
+
+def test_ruff_finds_nothing():
+    out = _ruff("check", "--output-format", "concise")
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_ruff_format_changes_nothing():
+    out = _ruff("format", "--check")
+    assert out.returncode == 0, out.stdout + out.stderr + "\n(run `ruff format` to apply)"

@@ -42,16 +42,19 @@ def _dqn_card():
     return json.loads((PRETRAINED / "dqn.json").read_text())
 
 
-@pytest.mark.parametrize("drift, needle", [
-    (lambda c: c.update(train_suite="core-train"), "train_suite: 'core-train' is not of type 'object'"),
-    (lambda c: c.update(torch="2.13.0"), "'torch' was unexpected"),
-    (lambda c: c.pop("steps_unit"), "'steps_unit' is a required property"),
-    (lambda c: c.pop("action_mask_version"), "'action_mask_version' is a required property"),
-    (lambda c: c.update(dataset={"name": "x"}), "exactly one of train_suite (with training_reward) and dataset"),
-    (lambda c: c["architecture"].update(kind="classfier"), "architecture.kind: 'classfier' is not one of"),
-    (lambda c: c["results"]["table1"].pop("suite_sha256"), "'suite_sha256' is a required property"),
-    (lambda c: c.update(weights_sha256="abc"), "weights_sha256: 'abc' does not match"),
-])
+@pytest.mark.parametrize(
+    "drift, needle",
+    [
+        (lambda c: c.update(train_suite="core-train"), "train_suite: 'core-train' is not of type 'object'"),
+        (lambda c: c.update(torch="2.13.0"), "'torch' was unexpected"),
+        (lambda c: c.pop("steps_unit"), "'steps_unit' is a required property"),
+        (lambda c: c.pop("action_mask_version"), "'action_mask_version' is a required property"),
+        (lambda c: c.update(dataset={"name": "x"}), "exactly one of train_suite (with training_reward) and dataset"),
+        (lambda c: c["architecture"].update(kind="classfier"), "architecture.kind: 'classfier' is not one of"),
+        (lambda c: c["results"]["table1"].pop("suite_sha256"), "'suite_sha256' is a required property"),
+        (lambda c: c.update(weights_sha256="abc"), "weights_sha256: 'abc' does not match"),
+    ],
+)
 def test_a_drifted_card_is_refused_naming_the_key(drift, needle):
     card = _dqn_card()
     assert card_errors(card) == []

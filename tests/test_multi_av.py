@@ -6,8 +6,8 @@ import pytest
 
 from overtakezoo.envs import EnvConfig
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
-from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND
 from overtakezoo.envs.core import CRASH, SUCCESS, TIMEOUT, OvertakeCore
+from overtakezoo.envs.model.controllers import IDM, PLANNER, SCRIPTED_KIND
 from overtakezoo.envs.scenarios import Scenarios, make_scenario
 
 L = 4.54
@@ -19,9 +19,14 @@ def duel(distance: float = 100.0, gap0: float = 15.0, gap1: float = 30.0, speed:
     sc = make_scenario(lead=(gap0, speed), oncoming=[(distance - gap1 - L, speed)], goal=150.0)
     a = sc.to_arrays()
     front = L / 2 + distance
-    a.update(av_s=np.array([[front + L / 2]]), av_d=np.array([[3.5]]), av_v=np.array([[sc.ego_v[0]]]),
-             av_direction=np.array([[-1]], np.int8), av_goal_s=np.array([[front + L / 2 - 150.0]]),
-             av_lead=np.array([[1]], np.int16))
+    a.update(
+        av_s=np.array([[front + L / 2]]),
+        av_d=np.array([[3.5]]),
+        av_v=np.array([[sc.ego_v[0]]]),
+        av_direction=np.array([[-1]], np.int8),
+        av_goal_s=np.array([[front + L / 2 - 150.0]]),
+        av_lead=np.array([[1]], np.int16),
+    )
     return Scenarios.from_arrays(a)
 
 
@@ -103,8 +108,15 @@ def test_npcs_that_touch_both_crash_and_stop_while_the_av_drives_on():
 
 @pytest.mark.parametrize("braking", [False, True])
 def test_emergency_braking_stops_for_a_head_on_car_only_when_enabled(braking):
-    cfg = EnvConfig.from_dict({"planner": {"emergency_braking": braking, "enable_prediction": False,
-                                           "modes": {"overtake": {"rollout_id": 4}}}})
+    cfg = EnvConfig.from_dict(
+        {
+            "planner": {
+                "emergency_braking": braking,
+                "enable_prediction": False,
+                "modes": {"overtake": {"rollout_id": 4}},
+            }
+        }
+    )
     core = OvertakeCore(cfg)  # OVERTAKE forced into the opposite lane, at a reactive oncoming car
     core.reset(make_scenario(lead=(10.0, 1.0), oncoming=[(60.0, 3.0)], reaction_time=3.0))
     drive(core, lambda c: np.array([OVERTAKE]), 600)

@@ -9,21 +9,20 @@ import numpy as np
 import pytest
 
 from overtakezoo import zoo
-from overtakezoo.benchmark.leaderboard import crossplay
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard import crossplay
 from overtakezoo.benchmark.leaderboard.generate import generate, stale_files
-from overtakezoo.benchmark.results.multi_metrics import summarize_multi, yielded
-from overtakezoo.benchmark.run.pairing import Pairing
-from overtakezoo.benchmark.results.results import Results, merge, round_per_scenario
-from overtakezoo.benchmark.run.runner import _per_scenario, run_suite
 from overtakezoo.benchmark.leaderboard.verify import verify
-from overtakezoo.envs.suites import load_suite
+from overtakezoo.benchmark.results.multi_metrics import summarize_multi, yielded
+from overtakezoo.benchmark.results.results import Results, merge, round_per_scenario
+from overtakezoo.benchmark.run.pairing import Pairing
+from overtakezoo.benchmark.run.runner import _per_scenario, run_suite
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.core import CRASH, SUCCESS, OvertakeCore
 from overtakezoo.envs.scenarios import Scenarios
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.base import Decider, load
-
 from test_multi_av import drive, duel
 
 REPO_LEADERBOARDS = Path(__file__).resolve().parents[1] / "leaderboards"
@@ -64,8 +63,12 @@ def test_the_av_that_aborts_yielded_and_nobody_crashes():
 def test_who_yielded_on_hand_made_arrays():
     # Two roads x two AVs (AV-major). Road 0: AV 0 never pulls out and times out while AV 1 succeeds;
     # road 1: both succeed, AV 1 after an abort, but AV 0 finished first -> AV 1 yielded.
-    per = {"outcome": np.array([3, 1, 1, 1]), "completion_time": np.array([np.nan, 20.0, 25.0, 30.0]),
-           "aborts": np.array([0, 0, 0, 1]), "opposite_time": np.array([0.0, 5.0, 4.0, 6.0])}
+    per = {
+        "outcome": np.array([3, 1, 1, 1]),
+        "completion_time": np.array([np.nan, 20.0, 25.0, 30.0]),
+        "aborts": np.array([0, 0, 0, 1]),
+        "opposite_time": np.array([0.0, 5.0, 4.0, 6.0]),
+    }
     assert yielded(per, 2).tolist() == [[True, False], [False, True]]
     per["outcome"] = np.array([2, 1, 1, 1])  # an AV that crashed did not yield
     assert yielded(per, 2).tolist() == [[False, False], [False, True]]
@@ -106,8 +109,7 @@ def test_a_pairing_drives_each_av_index_with_its_own_decider_on_its_own_schedule
 def test_a_pairing_of_one_decider_twice_is_self_play_and_results_round_trip(tmp_path):
     suite = load_suite("duel")
     alone = run_suite(suite, load("rule-fsm", suite.config), limit=12, progress=False)
-    paired = run_suite(suite, Pairing([load("rule-fsm", suite.config) for _ in range(2)], 1), limit=12,
-                       progress=False)
+    paired = run_suite(suite, Pairing([load("rule-fsm", suite.config) for _ in range(2)], 1), limit=12, progress=False)
     assert alone.num_avs == 2 and alone.per["outcome"].shape == (24,)
     for key, value in alone.per.items():
         np.testing.assert_array_equal(paired.per[key], value)
@@ -121,8 +123,18 @@ def test_a_pairing_of_one_decider_twice_is_self_play_and_results_round_trip(tmp_
 
 
 def test_eval_refuses_an_archive_of_a_multi_av_suite_before_writing_anything(tmp_path, capsys):
-    args = ["eval", "--suite", "duel", "--decider", "rule-fsm", "--out", str(tmp_path / "r.json"),
-            "--archive", str(tmp_path / "run.mcap"), "--no-progress"]
+    args = [
+        "eval",
+        "--suite",
+        "duel",
+        "--decider",
+        "rule-fsm",
+        "--out",
+        str(tmp_path / "r.json"),
+        "--archive",
+        str(tmp_path / "run.mcap"),
+        "--no-progress",
+    ]
     assert main(args) == 2
     assert "archives record single-ego suites only" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
@@ -158,7 +170,15 @@ def test_verify_reruns_a_multi_av_row_and_names_the_av_that_differs(tmp_path):
 
 def test_multi_agent_rows_leave_the_single_ego_files_and_the_score_alone(tmp_path):
     root = tmp_path / "lb"  # a slice of the shipped board: two single-ego suites, two multi-agent ones
-    for part in ("reference", "seeds", "crossplay", "submissions/table1", "submissions/oncoming-2", "submissions/duel", "submissions/platoon"):
+    for part in (
+        "reference",
+        "seeds",
+        "crossplay",
+        "submissions/table1",
+        "submissions/oncoming-2",
+        "submissions/duel",
+        "submissions/platoon",
+    ):
         if (REPO_LEADERBOARDS / part).is_dir():
             shutil.copytree(REPO_LEADERBOARDS / part, root / part)
     for rel in [p.relative_to(root) for p in (root / "submissions").glob("*/*.json")]:
@@ -175,14 +195,24 @@ def test_multi_agent_rows_leave_the_single_ego_files_and_the_score_alone(tmp_pat
     alone = generate(root)
     assert "multi_agent" not in json.loads(alone["index.json"])
     assert json.loads(alone["index.json"])["headline"] == index["headline"]
-    assert {k: v for k, v in alone.items() if k not in ("index.json", "README.md")} == \
-        {k: v for k, v in with_multi.items() if k in alone and k not in ("index.json", "README.md")}
+    assert {k: v for k, v in alone.items() if k not in ("index.json", "README.md")} == {
+        k: v for k, v in with_multi.items() if k in alone and k not in ("index.json", "README.md")
+    }
 
 
 def test_crossplay_regenerates_byte_identically_and_check_catches_edits(tmp_path, capsys):
     root = tmp_path / "lb"
-    args = ["crossplay", "--suite", "duel", "--limit", "6", "--deciders", "rule-fsm,always-overtake",
-            "--root", str(root)]
+    args = [
+        "crossplay",
+        "--suite",
+        "duel",
+        "--limit",
+        "6",
+        "--deciders",
+        "rule-fsm,always-overtake",
+        "--root",
+        str(root),
+    ]
     assert main(args) == 0
     doc = json.loads((root / "crossplay" / "duel.json").read_text())
     assert len(doc["pairs"]) == 4 and doc["scenarios"] == 6
@@ -213,13 +243,21 @@ def test_crossplay_changed_only_reruns_just_the_pairs_of_a_changed_decider(tmp_p
     full = (root / "crossplay" / "duel.json").read_bytes()
     ran = []
     real = crossplay.run_pairs
-    monkeypatch.setattr(crossplay, "run_pairs", lambda suite, wanted, k, jobs=1: ran.extend(wanted) or real(suite, wanted, k, jobs))
+    monkeypatch.setattr(
+        crossplay, "run_pairs", lambda suite, wanted, k, jobs=1: ran.extend(wanted) or real(suite, wanted, k, jobs)
+    )
     doc = json.loads(full)
     doc["deciders"][[d["name"] for d in doc["deciders"]].index("fuzzy")]["weights_sha256"] = "0" * 64  # "retrained"
     (root / "crossplay" / "duel.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
     assert main(base + ["--deciders", "rule-fsm,always-overtake,fuzzy", "--changed-only"]) == 0
-    assert sorted(ran) == sorted({(a, b) for a in ("rule-fsm", "always-overtake", "fuzzy")
-                                  for b in ("rule-fsm", "always-overtake", "fuzzy") if "fuzzy" in (a, b)})
+    assert sorted(ran) == sorted(
+        {
+            (a, b)
+            for a in ("rule-fsm", "always-overtake", "fuzzy")
+            for b in ("rule-fsm", "always-overtake", "fuzzy")
+            if "fuzzy" in (a, b)
+        }
+    )
     assert (root / "crossplay" / "duel.json").read_bytes() == full
     ran.clear()
     assert main(base[:4] + ["4"] + base[5:] + ["--deciders", "rule-fsm,always-overtake", "--changed-only"]) == 0
@@ -250,12 +288,22 @@ def test_repo_crossplay_matrix_covers_the_zoo():
 
 def test_against_fuzzy_counts_every_place_and_names_the_largest_shortfall():
     # joint success in %, rows A (the ego) x columns B (the other AVs)
-    table = {("fuzzy", "fuzzy"): 50, ("fuzzy", "x"): 40, ("fuzzy", "y"): 30,
-             ("x", "fuzzy"): 60, ("x", "x"): 45, ("x", "y"): 30,
-             ("y", "fuzzy"): 20, ("y", "x"): 35, ("y", "y"): 10}
+    table = {
+        ("fuzzy", "fuzzy"): 50,
+        ("fuzzy", "x"): 40,
+        ("fuzzy", "y"): 30,
+        ("x", "fuzzy"): 60,
+        ("x", "x"): 45,
+        ("x", "y"): 30,
+        ("y", "fuzzy"): 20,
+        ("y", "x"): 35,
+        ("y", "y"): 10,
+    }
     pairs = {k: {"all_succeed": [v, 100]} for k, v in table.items()}
     lines = crossplay.against_reference(["fuzzy", "x", "y"], pairs)
-    rows = {line.split(" | ")[0].strip("| "): line for line in lines if line.startswith("| x") or line.startswith("| y")}
+    rows = {
+        line.split(" | ")[0].strip("| "): line for line in lines if line.startswith("| x") or line.startswith("| y")
+    }
     # x as ego: 60>=50, 45>=40, 30>=30; as partner: (fuzzy,x) 40>=50? no, (x,x) 45>=60? no, (y,x) 35>=20 -> 4 of 6
     assert "| 4 of 6 |" in rows["x"] and "partner of x: 45.0 % against 60.0 %" in rows["x"]
     # y as ego: 20<50, 35<40, 10<30; as partner: 30<50, 30<60, 10<20 -> 0 of 6, worst (y,fuzzy) 20 vs 50 (-30)

@@ -9,9 +9,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
-from overtakezoo.envs.suites import CORE, MIXTURES, MULTI, load_suite, load_training
 from overtakezoo.envs import ConfigError, ScenarioDistribution, make_scenario
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, Scenarios
+from overtakezoo.envs.suites import CORE, MIXTURES, MULTI, load_suite, load_training
 
 # sha256 of every core suite's (and training split's) scenario arrays, computed on the code before
 # the multi-AV keys existed (commit 4262421): adding AVs must not move a single bit of them.
@@ -143,12 +143,17 @@ def test_multi_suites_layouts():
 def test_adding_avs_leaves_the_single_ego_draws_alone():
     base = ScenarioDistribution(oncoming_count=2, follower_count=2)
     plain = base.sample(200, 5)
-    with_oav = ScenarioDistribution(oncoming_count=2, follower_count=2, oncoming_av=1,
-                                    oncoming_av_distance=(40.0, 100.0), oncoming_gap=(120.0, 150.0))
+    with_oav = ScenarioDistribution(
+        oncoming_count=2,
+        follower_count=2,
+        oncoming_av=1,
+        oncoming_av_distance=(40.0, 100.0),
+        oncoming_gap=(120.0, 150.0),
+    )
     sc = with_oav.sample(200, 5)
     # The first slots are the single-ego draws (the oncoming gap differs, so compare the rest).
     for key in ("npc_v", "npc_reaction", "npc_lane", "npc_behaviour"):
-        assert (getattr(sc, key)[:, :plain.num_npcs] == getattr(plain, key)).all(), key
+        assert (getattr(sc, key)[:, : plain.num_npcs] == getattr(plain, key)).all(), key
     assert (sc.npc_s[:, [0, 3, 4]] == plain.npc_s[:, [0, 3, 4]]).all()
     platoon = ScenarioDistribution(oncoming_count=2, follower_count=2, platoon_size=3).sample(200, 5)
     assert (platoon.npc_s[:, :3] == plain.npc_s[:, :3]).all() and (platoon.npc_v == plain.npc_v).all()
@@ -168,19 +173,22 @@ def test_sampling_is_deterministic():
     assert both.num_avs == 2 and (both.take(slice(64, None)).av_s == c.av_s).all()
 
 
-@pytest.mark.parametrize("key, value, message", [
-    ("platoon_size", 0, "1 .the ego alone. to 16"),
-    ("platoon_size", 17, "1 .the ego alone. to 16"),
-    ("platoon_size", 2.0, "integer"),
-    ("oncoming_av", 2, "0 or 1"),
-    ("oncoming_av", True, "integer"),
-    ("platoon_gap", [0.0, 5.0], "must be > 0"),
-    ("platoon_gap", [5.0], r"\[low, high\]"),
-    ("oncoming_av_lead_gap", [-1.0, 5.0], "must be > 0"),
-    ("oncoming_av_lead_speed", [-1.0, 2.0], ">= 0"),
-    ("oncoming_av_distance", [10.0, 5.0], "above high"),
-    ("oncoming_av_distance", [float("inf"), float("inf")], "finite"),
-])
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("platoon_size", 0, "1 .the ego alone. to 16"),
+        ("platoon_size", 17, "1 .the ego alone. to 16"),
+        ("platoon_size", 2.0, "integer"),
+        ("oncoming_av", 2, "0 or 1"),
+        ("oncoming_av", True, "integer"),
+        ("platoon_gap", [0.0, 5.0], "must be > 0"),
+        ("platoon_gap", [5.0], r"\[low, high\]"),
+        ("oncoming_av_lead_gap", [-1.0, 5.0], "must be > 0"),
+        ("oncoming_av_lead_speed", [-1.0, 2.0], ">= 0"),
+        ("oncoming_av_distance", [10.0, 5.0], "above high"),
+        ("oncoming_av_distance", [float("inf"), float("inf")], "finite"),
+    ],
+)
 def test_bad_av_keys_are_config_errors_naming_the_key(key, value, message):
     with pytest.raises(ConfigError, match=rf"scenario\.{key}: .*{message}"):
         ScenarioDistribution.from_dict({key: value})
@@ -199,13 +207,27 @@ def test_av_layouts_that_would_overlap_are_refused():
     assert ScenarioDistribution.from_dict({"oncoming_av_distance": [20.0, 100.0]}).sample(2, 0).num_avs == 1
 
 
-@given(platoon=st.integers(1, 4), oav=st.integers(0, 1), followers=st.integers(0, 3), oncoming=st.integers(0, 3),
-       gap=st.floats(0.5, 30.0), distance=st.floats(30.0, 200.0), seed=st.integers(0, 2**32 - 1))
+@given(
+    platoon=st.integers(1, 4),
+    oav=st.integers(0, 1),
+    followers=st.integers(0, 3),
+    oncoming=st.integers(0, 3),
+    gap=st.floats(0.5, 30.0),
+    distance=st.floats(30.0, 200.0),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_no_two_vehicles_start_in_contact(platoon, oav, followers, oncoming, gap, distance, seed):
-    keys = dict(platoon_size=platoon, oncoming_av=oav, follower_count=followers, oncoming_count=oncoming,
-                platoon_gap=(gap, gap * 1.5), oncoming_av_distance=(distance, distance + 20.0),
-                oncoming_gap=(distance + 30.0, distance + 90.0) if oav else (20.0, 150.0),
-                lead_gap=(0.5, 25.0), follower_gap=(0.5, 20.0))
+    keys = dict(
+        platoon_size=platoon,
+        oncoming_av=oav,
+        follower_count=followers,
+        oncoming_count=oncoming,
+        platoon_gap=(gap, gap * 1.5),
+        oncoming_av_distance=(distance, distance + 20.0),
+        oncoming_gap=(distance + 30.0, distance + 90.0) if oav else (20.0, 150.0),
+        lead_gap=(0.5, 25.0),
+        follower_gap=(0.5, 20.0),
+    )
     dist = ScenarioDistribution.from_dict({k: list(v) if isinstance(v, tuple) else v for k, v in keys.items()})
     check_avs(dist.sample(32, seed), dist)
 
@@ -264,7 +286,7 @@ def test_the_multi_train_mixture_steps_one_row_per_av():
     from overtakezoo.envs.mixture import MixedCore
 
     suites = load_training("multi-train")
-    sources = [(lambda d: (lambda n, rng: d.sample(n, rng)))(s.distribution) for s in suites]
+    sources = [(lambda d: lambda n, rng: d.sample(n, rng))(s.distribution) for s in suites]
     mix = MixedCore([s.config for s in suites], sources, [3, 2, 2], seed=0)
     rows = 3 * 2 + 2 * 3 + 2 * 2  # duel, platoon, mixed-traffic: 2, 3, 2 AVs per road
     assert mix.num == rows and mix.observe().shape[0] == rows
@@ -276,8 +298,8 @@ def test_the_multi_train_mixture_steps_one_row_per_av():
 @pytest.mark.parametrize("name", MULTI)
 def test_every_av_observation_lies_in_the_observation_space(name):
     from overtakezoo.envs import OvertakeCore
-    from overtakezoo.envs.hold import hold
     from overtakezoo.envs.faces.spaces import ego_observation_space
+    from overtakezoo.envs.hold import hold
 
     suite = load_suite(name)
     box = ego_observation_space(suite.config)

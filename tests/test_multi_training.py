@@ -9,15 +9,14 @@ import hashlib
 import numpy as np
 import pytest
 
+from conftest import needs_shipped_weights
 from overtakezoo import zoo
-from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore
+from overtakezoo.envs.suites import load_suite, load_training
 from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams
 from overtakezoo.zoo.train.dqn import DQNHyperparams, Trainer, row_split, train
-
-from conftest import needs_shipped_weights
 
 
 def _digest(net) -> str:
@@ -33,8 +32,9 @@ def test_single_ego_training_takes_the_plain_path():
     # no row ever waits, every row's decision is stored in order, the rows split evenly. Checked as
     # properties, not as a pinned digest of trained weights: those bits depend on the CPU's float
     # kernels (an AVX-512 Xeon and an AMD EPYC train different bits from the same code and seed).
-    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("dqn"),
-                             {"num_envs": 64, "learning_starts": 300, "steps": 1500, "n_step": 1})
+    hp, _ = load_hyperparams(
+        DQNHyperparams, hyperparams_file("dqn"), {"num_envs": 64, "learning_starts": 300, "steps": 1500, "n_step": 1}
+    )
     trainer = Trainer("dqn", hp, load_training("core-train"), seed=3)
     trainer._start_core()
     assert not trainer.multi_av and sum(r["rows"] for r in trainer.row_counts().values()) == 64
@@ -43,7 +43,7 @@ def test_single_ego_training_takes_the_plain_path():
     while trainer.transitions < hp.steps:
         before, obs = trainer.buffer.size, trainer.obs.copy()
         trainer._env_step()
-        np.testing.assert_array_equal(trainer.buffer.obs[before:trainer.buffer.size], obs)  # all, in order
+        np.testing.assert_array_equal(trainer.buffer.obs[before : trainer.buffer.size], obs)  # all, in order
         decisions += len(obs)
     assert trainer.transitions == decisions == trainer.buffer.size
 
@@ -51,8 +51,15 @@ def test_single_ego_training_takes_the_plain_path():
 def test_single_ego_training_is_deterministic_and_keeps_its_card():
     # ~3 s of CPU. Same seed twice on this machine: the same weights, bit for bit.
     def run():
-        return train(load_training("core-train"), member="dqn", suite_name="core-train", steps=1500, seed=3,
-                     progress=False, overrides={"num_envs": 64, "learning_starts": 300, "n_step": 1})
+        return train(
+            load_training("core-train"),
+            member="dqn",
+            suite_name="core-train",
+            steps=1500,
+            seed=3,
+            progress=False,
+            overrides={"num_envs": 64, "learning_starts": 300, "n_step": 1},
+        )
 
     first, second = run(), run()
     assert _digest(first.module) == _digest(second.module)
@@ -65,8 +72,11 @@ def test_single_ego_training_is_deterministic_and_keeps_its_card():
 
 @pytest.mark.parametrize("n_step", [1, 3])
 def test_waiting_avs_never_enter_the_buffer(n_step):
-    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("ps-dqn"),
-                             {"num_envs": 24, "learning_starts": 10**9, "steps": 2500, "n_step": n_step})
+    hp, _ = load_hyperparams(
+        DQNHyperparams,
+        hyperparams_file("ps-dqn"),
+        {"num_envs": 24, "learning_starts": 10**9, "steps": 2500, "n_step": n_step},
+    )
     trainer = Trainer("ps-dqn", hp, load_training("duel-train+platoon-train"), seed=0)
     trainer._start_core()
     assert trainer.row_counts() == {"duel-train": {"roads": 6, "rows": 12}, "platoon-train": {"roads": 4, "rows": 12}}
@@ -82,15 +92,16 @@ def test_waiting_avs_never_enter_the_buffer(n_step):
         waited += int(waiting.sum())
     assert waited > 50  # AVs of a road finish at different times: the filter was exercised
     # n-step: every stored transition starts at a decision of a running AV; the rest are pending.
-    assert all(o.tobytes() in decided for o in trainer.buffer.obs[:trainer.buffer.size])
+    assert all(o.tobytes() in decided for o in trainer.buffer.obs[: trainer.buffer.size])
     pending = 0 if trainer.nstep is None else int((trainer.nstep.age > 0).sum())
     assert trainer.transitions == trainer.buffer.size + pending  # one transition per decision, no more
 
 
 def test_the_hold_gives_a_waiting_av_no_reward_and_no_steps():
     suite = load_suite("platoon")
-    core = OvertakeCore(suite.config, auto_reset=True, seed=0,
-                        source=lambda n, rng: suite.scenarios().take(rng.integers(0, 50, n)))
+    core = OvertakeCore(
+        suite.config, auto_reset=True, seed=0, source=lambda n, rng: suite.scenarios().take(rng.integers(0, 50, n))
+    )
     core.reset(suite.scenarios().take(slice(0, 8)))
     rng = np.random.default_rng(1)
     seen = 0
@@ -107,8 +118,9 @@ def test_a_mixture_holds_multi_av_suites_as_roads_of_several_rows():
     assert row_split(128, [1] * 9, 0.5) == row_split(128, [1] * 9, None)  # no multi-AV suite: even split
     suites = load_training("table1-train+duel-train")
     pools = [s.scenarios() for s in suites]
-    mix = MixedCore([s.config for s in suites], [lambda n, rng, p=p: p.take(rng.integers(0, 100, n)) for p in pools],
-                    [3, 2], seed=0)
+    mix = MixedCore(
+        [s.config for s in suites], [lambda n, rng, p=p: p.take(rng.integers(0, 100, n)) for p in pools], [3, 2], seed=0
+    )
     assert mix.num == 3 + 2 * 2 and mix.observe().shape[0] == mix.num
     assert mix.step(np.zeros(mix.num, np.int64)).obs.shape[0] == mix.num
 

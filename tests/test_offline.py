@@ -15,14 +15,13 @@ pytest.importorskip("minari")
 
 from overtakezoo import zoo  # noqa: E402
 from overtakezoo.benchmark.cli import main  # noqa: E402
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution  # noqa: E402
-from overtakezoo.zoo.members.learned import WeightsError  # noqa: E402
-from overtakezoo.zoo.members.learned import action_mask, load_pretrained  # noqa: E402
 from overtakezoo.benchmark.datasets import store as datasets  # noqa: E402
 from overtakezoo.benchmark.run import training  # noqa: E402
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution  # noqa: E402
+from overtakezoo.zoo.members.learned import WeightsError, action_mask, load_pretrained  # noqa: E402
+from overtakezoo.zoo.testing import check_decider  # noqa: E402
 from overtakezoo.zoo.train.contract import check_card, load_hyperparams  # noqa: E402
 from overtakezoo.zoo.train.offline import transitions  # noqa: E402
-from overtakezoo.zoo.testing import check_decider  # noqa: E402
 
 NAME = "overtakezoo/table1/offline-test-v0"
 
@@ -34,8 +33,25 @@ def home(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     mp.setenv("OVERTAKEZOO_HOME", str(root / "home"))
     mp.delenv("MINARI_DATASETS_PATH", raising=False)
-    assert main(["dataset", "build", "--suite", "table1-train", "--decider", "rule-fsm", "--count", "40",
-                 "--epsilon", "0.1", "--name", NAME]) == 0
+    assert (
+        main(
+            [
+                "dataset",
+                "build",
+                "--suite",
+                "table1-train",
+                "--decider",
+                "rule-fsm",
+                "--count",
+                "40",
+                "--epsilon",
+                "0.1",
+                "--name",
+                NAME,
+            ]
+        )
+        == 0
+    )
     yield root
     mp.undo()
 
@@ -72,12 +88,14 @@ def test_bc_imitates_rule_fsm_and_acts_without_torch(home, bc_run):
     assert json.loads((out / "bc.json").read_text()) == card and not (out / "bc.pt").exists()
 
     # the decider from the written files, in a fresh process: torch never imported
-    code = ("import sys, numpy as np\n"
-            "from overtakezoo.zoo.members.learned import load_pretrained\n"
-            "from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution\n"
-            f"d = load_pretrained('bc', directory={str(out)!r})\n"
-            "core = OvertakeCore(EnvConfig()); obs = core.reset(ScenarioDistribution().sample(16, 0))\n"
-            "print(d.act(obs).tolist()); assert 'torch' not in sys.modules, 'torch imported'\n")
+    code = (
+        "import sys, numpy as np\n"
+        "from overtakezoo.zoo.members.learned import load_pretrained\n"
+        "from overtakezoo.envs import EnvConfig, OvertakeCore, ScenarioDistribution\n"
+        f"d = load_pretrained('bc', directory={str(out)!r})\n"
+        "core = OvertakeCore(EnvConfig()); obs = core.reset(ScenarioDistribution().sample(16, 0))\n"
+        "print(d.act(obs).tolist()); assert 'torch' not in sys.modules, 'torch imported'\n"
+    )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     decider = load_pretrained("bc", directory=out)
@@ -103,8 +121,24 @@ def test_bc_matches_rule_fsm_decisions_on_its_own_states(home, bc_run):
 
 def test_cql_trains_acts_and_refuses_tampered_weights(home):
     out = home / "cql"
-    assert main(["train", "cql", "--dataset", NAME, "--steps", "300", "--out", str(out), "--eval-suite", "none",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "cql",
+                "--dataset",
+                NAME,
+                "--steps",
+                "300",
+                "--out",
+                str(out),
+                "--eval-suite",
+                "none",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     card = json.loads((out / "cql.json").read_text())
     assert card["hyperparameters"]["alpha"] == 0.1 and card["training"]["gradient_steps"] == 300
     d = load_pretrained("cql", directory=out)
@@ -147,11 +181,13 @@ def test_hyperparameter_files_are_typed(tmp_path, home):
     from overtakezoo.zoo.train.bc import BCHyperparams
     from overtakezoo.zoo.train.cql import CQLHyperparams
 
-    for cls, text, match in [(CQLHyperparams, "gama = 0.9\n", "gama: unknown key"),
-                             (CQLHyperparams, "gamma = 1.5\n", "gamma: 1.5 is out of range"),
-                             (BCHyperparams, "steps = 2.0\n", "steps: expected an integer"),
-                             (BCHyperparams, "hidden = [64, 0]\n", r"hidden\[1\]: 0 is out of range"),
-                             (BCHyperparams, "action_mask = 1\n", "action_mask: expected true or false")]:
+    for cls, text, match in [
+        (CQLHyperparams, "gama = 0.9\n", "gama: unknown key"),
+        (CQLHyperparams, "gamma = 1.5\n", "gamma: 1.5 is out of range"),
+        (BCHyperparams, "steps = 2.0\n", "steps: expected an integer"),
+        (BCHyperparams, "hidden = [64, 0]\n", r"hidden\[1\]: 0 is out of range"),
+        (BCHyperparams, "action_mask = 1\n", "action_mask: expected true or false"),
+    ]:
         path = tmp_path / "hp.toml"
         path.write_text(text)
         with pytest.raises(ValueError, match=match):
@@ -160,8 +196,12 @@ def test_hyperparameter_files_are_typed(tmp_path, home):
     with pytest.raises(ValueError, match="not a training setting"):
         load_hyperparams(BCHyperparams, tmp_path / "hp.toml")
     (tmp_path / "hp.toml").write_text("time_penality = 0.1\n")
-    assert main(["train", "bc", "--dataset", NAME, "--hyperparams", str(tmp_path / "hp.toml"),
-                 "--out", str(tmp_path / "o")]) == 2
+    assert (
+        main(
+            ["train", "bc", "--dataset", NAME, "--hyperparams", str(tmp_path / "hp.toml"), "--out", str(tmp_path / "o")]
+        )
+        == 2
+    )
     assert main(["train", "bc", "--out", str(tmp_path / "o")]) == 2  # no --dataset
     assert main(["train", "cql", "--dataset", "overtakezoo/table1/missing-v0", "--out", str(tmp_path / "o")]) == 2
     assert not (tmp_path / "o" / "bc.npz").exists()

@@ -83,8 +83,9 @@ def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch,
         shutil.copy(PRETRAINED / "ppo.npz", run / "ppo.npz")
         (run / "ppo.json").write_text(json.dumps({**card, "seed": seed}))
         runs.append(str(run))
-    monkeypatch.setattr(sys, "argv", ["decision_rate.py", "ppo", *runs, "--overtake-offsets=-50,0,-1",
-                                      "--train-suite", str(split)])
+    monkeypatch.setattr(
+        sys, "argv", ["decision_rate.py", "ppo", *runs, "--overtake-offsets=-50,0,-1", "--train-suite", str(split)]
+    )
     decision_rate.main()
     cards = [json.loads((Path(r) / "ppo.json").read_text()) for r in runs]
     sel = cards[0]["overtake_offset_selection"]
@@ -102,6 +103,20 @@ def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch,
     for seed, run in enumerate(runs):
         (Path(run) / "ppo.json").write_text(json.dumps({**card, "seed": seed}))
     script = Path(__file__).resolve().parents[1] / "scripts" / "decision_rate.py"
-    subprocess.run([sys.executable, str(script), "ppo", *runs, "--overtake-offsets=-50,0,-1", "--train-suite", str(split),
-                    "--jobs", "2"], check=True, capture_output=True, text=True)
+    subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            "ppo",
+            *runs,
+            "--overtake-offsets=-50,0,-1",
+            "--train-suite",
+            str(split),
+            "--jobs",
+            "2",
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     assert json.loads((Path(runs[0]) / "ppo.json").read_text())["overtake_offset_selection"] == sel

@@ -12,15 +12,40 @@ from test_benchmark_cli import one_line_error, small_suite_file
 
 def test_perf_writes_every_figure_with_median_and_range(tmp_path, capsys):
     out = tmp_path / "perf"
-    assert main(["perf", "--sizes", "1", "4", "--seconds", "0.05", "--repeats", "2", "--batch", "2",
-                 "--no-suites", "--no-training", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "perf",
+                "--sizes",
+                "1",
+                "4",
+                "--seconds",
+                "0.05",
+                "--repeats",
+                "2",
+                "--batch",
+                "2",
+                "--no-suites",
+                "--no-training",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads((tmp_path / "perf.json").read_text())
     markdown = (tmp_path / "perf.md").read_text()
     ids = [row["id"] for row in report["figures"]]
     expected = ["core-1", "core-4", "pettingzoo-1", "gym-1", "gym-vec-2"]
     if highway_version():  # the [compare] extra: one env against one env, a batch of 2 against 2
-        expected += ["highway-1", "highway-vec-sync-2", "highway-vec-async-2", "ratio-1", "ratio-vec-sync-2",
-                     "ratio-vec-async-2"]
+        expected += [
+            "highway-1",
+            "highway-vec-sync-2",
+            "highway-vec-async-2",
+            "ratio-1",
+            "ratio-vec-sync-2",
+            "ratio-vec-async-2",
+        ]
     assert ids == expected
     for row in report["figures"]:
         assert f"| `{row['id']}` |" in markdown
@@ -60,10 +85,16 @@ def test_training_rows_time_whole_processes_to_the_paper_level(tmp_path, monkeyp
     assert main(["perf", "--only-training", "--repeats", "1", "--out", str(out)]) == 0
     report = json.loads((tmp_path / "perf.json").read_text())
     rows = {row["id"]: row for row in report["figures"]}
-    assert list(rows) == [f"{r}{s}" for r in ("train-throughput-core-train", "train-throughput-core-train-rsl-rl",
-                                               "time-to-paper-level", "time-to-paper-level-rsl-rl")
-                          for s in (("", "-wall") if "throughput" in r else ("", "-cpu", "-with-eval"))] + [
-                              "time-to-zoo-quality", "time-to-zoo-quality-wall"]
+    assert list(rows) == [
+        f"{r}{s}"
+        for r in (
+            "train-throughput-core-train",
+            "train-throughput-core-train-rsl-rl",
+            "time-to-paper-level",
+            "time-to-paper-level-rsl-rl",
+        )
+        for s in (("", "-wall") if "throughput" in r else ("", "-cpu", "-with-eval"))
+    ] + ["time-to-zoo-quality", "time-to-zoo-quality-wall"]
     assert rows["train-throughput-core-train"]["median"] > 1000  # env-steps per CPU second
     ttp = rows["time-to-paper-level"]
     # seed 0 of the numpy PPO gets there in 8 iterations (a whole process: imports, training, outputs)
@@ -73,8 +104,12 @@ def test_training_rows_time_whole_processes_to_the_paper_level(tmp_path, monkeyp
     assert "`time-to-paper-level`" in (tmp_path / "perf.md").read_text()
     # one iteration (16k decisions) on core-train stays below the shipped ppo: the row says so, it does not pass
     zoo_row = rows["time-to-zoo-quality"]
-    assert "seed 0: not within 1 iterations" in zoo_row["what"] and "held-back training scenarios 950-999" in zoo_row["what"]
-    # the yardstick is the member as the leaderboard runs it: the new run is scored with the shipped card's rate and threshold
+    assert (
+        "seed 0: not within 1 iterations" in zoo_row["what"]
+        and "held-back training scenarios 950-999" in zoo_row["what"]
+    )
+    # the yardstick is the member as the leaderboard runs it: the new run is scored with the shipped
+    # card's rate and threshold
     card = json.loads((Path(perf_training.__file__).parents[2] / "zoo/pretrained/ppo.json").read_text())
     assert f"decision every {card['decide_every']} core steps" in zoo_row["what"]
     assert f"{card['overtake_offset']:+g} on the OVERTAKE score" in zoo_row["what"]

@@ -13,10 +13,10 @@ with warnings.catch_warnings():  # pettingzoo.test imports its own example envs 
     warnings.simplefilter("ignore", DeprecationWarning)
     from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-from overtakezoo.envs.config import OVERTAKE
-from overtakezoo.envs.suites import MULTI, load_suite
 from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env, sb3_vec_env
+from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.faces.spaces import ego_observation_space
+from overtakezoo.envs.suites import MULTI, load_suite
 
 KMH = 1 / 3.6
 # With NPC agents PettingZoo's checker notes that AVs and NPCs observe different sizes.
@@ -44,8 +44,8 @@ def duel_env(**kwargs):
 def test_parallel_api_test_on_multi_suites(name, npc_agents):
     par = parallel_env(load_suite(name), npc_agents=npc_agents)
     avs = [f"av_{e}" for e in range(load_suite(name).scenarios().num_avs)]
-    assert par.possible_agents[:len(avs)] == avs
-    npcs = par.possible_agents[len(avs):]
+    assert par.possible_agents[: len(avs)] == avs
+    npcs = par.possible_agents[len(avs) :]
     assert all(a.startswith("npc_") for a in npcs) and bool(npcs) == npc_agents
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -208,8 +208,17 @@ def test_parameter_sharing_ppo_on_supersuit_vector():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # a 32-unit MLP: more threads only contend with the other tests
     try:
-        model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64, n_epochs=2, device="cpu", seed=0,
-                    policy_kwargs={"net_arch": [32]}, verbose=0)
+        model = PPO(
+            "MlpPolicy",
+            vec,
+            n_steps=64,
+            batch_size=64,
+            n_epochs=2,
+            device="cpu",
+            seed=0,
+            policy_kwargs={"net_arch": [32]},
+            verbose=0,
+        )
         before = [p.detach().clone() for p in model.policy.parameters()]
         model.learn(total_timesteps=512)  # 128 steps of the vector: 2 roads x 2 AVs
     finally:
@@ -217,7 +226,7 @@ def test_parameter_sharing_ppo_on_supersuit_vector():
     assert model.num_timesteps == 512
     after = list(model.policy.parameters())
     assert all(torch.isfinite(p).all() for p in after)
-    assert all(not torch.equal(a, b) for a, b in zip(before, after))
+    assert all(not torch.equal(a, b) for a, b in zip(before, after, strict=True))
 
 
 # ---------------------------------------------------------------- batching on the core
@@ -249,8 +258,9 @@ def test_same_seed_same_episodes_over_several_roads():
     keys); this runs 300 steps across road resets, NPC agents included."""
 
     def rollout(seed: int) -> list:
-        par = parallel_env(load_suite("duel"), npc_agents=True, scenario={**load_suite("duel").config.scenario,
-                                                                          "time_limit": 8.0})
+        par = parallel_env(
+            load_suite("duel"), npc_agents=True, scenario={**load_suite("duel").config.scenario, "time_limit": 8.0}
+        )
         rng = np.random.default_rng(5)
         trace = [par.reset(seed=seed)[0]]
         for _ in range(300):
@@ -263,7 +273,7 @@ def test_same_seed_same_episodes_over_several_roads():
     def flat(trace) -> list:
         out = []
         for item in trace:
-            for d in (item if isinstance(item, tuple) else (item,)):
+            for d in item if isinstance(item, tuple) else (item,):
                 out += [(k, np.asarray(v).tobytes()) for k, v in sorted(d.items())]
         return out
 

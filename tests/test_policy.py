@@ -12,13 +12,13 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import suite_file
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.run.policy import load_policy
-from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import EnvConfig, observation_size
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.testing import check_decider
-from conftest import suite_file
 
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
@@ -38,8 +38,9 @@ def one_thread(one_torch_thread):
 
 
 def evaluate(capsys, suite, spec, out):
-    assert main(["eval", "--suite", str(suite), "--policy", str(spec), "--out", str(out), "--no-progress"]) == 0, \
+    assert main(["eval", "--suite", str(suite), "--policy", str(spec), "--out", str(out), "--no-progress"]) == 0, (
         capsys.readouterr().err
+    )
     capsys.readouterr()
     return json.loads(out.read_text())
 
@@ -69,8 +70,15 @@ def test_sb3_dqn_trained_on_the_gym_env_evaluates_through_the_cli(tmp_path, suit
 
     import overtakezoo.envs  # noqa: F401 (registers overtakezoo/Overtake-v1)
 
-    model = DQN("MlpPolicy", gymnasium.make("overtakezoo/Overtake-v1"), seed=0, learning_starts=100,
-                train_freq=8, verbose=0, device="cpu")
+    model = DQN(
+        "MlpPolicy",
+        gymnasium.make("overtakezoo/Overtake-v1"),
+        seed=0,
+        learning_starts=100,
+        train_freq=8,
+        verbose=0,
+        device="cpu",
+    )
     model.learn(600)  # a couple of seconds: the point is the route, not the skill
     model.save(tmp_path / "model.zip")
     doc = evaluate(capsys, suite, tmp_path / "model.zip", tmp_path / "r.json")
@@ -96,8 +104,22 @@ def test_torchscript_file_evaluates_and_draws_a_decision_map(tmp_path, suite, ca
     obs = np.random.default_rng(1).normal(size=(7, D)).astype(np.float32)
     np.testing.assert_array_equal(dec.act(obs), _modes(net, obs))
     check_decider(dec)
-    assert main(["decision-map", "--policy", str(tmp_path / "ts.pt"), "--suite", str(suite), "--resolution", "4",
-                 "--out", str(tmp_path / "map.png")]) == 0
+    assert (
+        main(
+            [
+                "decision-map",
+                "--policy",
+                str(tmp_path / "ts.pt"),
+                "--suite",
+                str(suite),
+                "--resolution",
+                "4",
+                "--out",
+                str(tmp_path / "map.png"),
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "map.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -107,8 +129,15 @@ def test_onnx_file_evaluates(tmp_path, suite, capsys):
     net = _mlp()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(net, (torch.zeros(1, D),), str(tmp_path / "m.onnx"), input_names=["obs"],
-                          output_names=["q"], dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}}, dynamo=False)
+        torch.onnx.export(
+            net,
+            (torch.zeros(1, D),),
+            str(tmp_path / "m.onnx"),
+            input_names=["obs"],
+            output_names=["q"],
+            dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}},
+            dynamo=False,
+        )
     doc = evaluate(capsys, suite, tmp_path / "m.onnx", tmp_path / "r.json")
     assert doc["decider"]["policy"]["kind"] == "onnx"
     dec = load_policy(str(tmp_path / "m.onnx"))
@@ -130,12 +159,13 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path, suite, capsys, monkeypa
     with zipfile.ZipFile(tmp_path / "model.zip", "w") as z:
         z.writestr("data", json.dumps({"policy_class": {"__module__": "stable_baselines3.dqn.policies"}}))
         z.writestr("policy.pth", b"")
-    assert "overtakezoo[sb3]" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy",
-                                                         str(tmp_path / "model.zip")])
+    assert "overtakezoo[sb3]" in one_line_error(
+        capsys, ["eval", "--suite", str(suite), "--policy", str(tmp_path / "model.zip")]
+    )
 
 
 # ----------------------------------------------------------------------------- module:factory
-FACTORY = '''
+FACTORY = """
 import numpy as np
 from overtakezoo.zoo import load
 
@@ -152,7 +182,7 @@ def plain(config):
 
 def broken(config):
     raise RuntimeError("no weights here")
-'''
+"""
 
 
 def test_module_factory(tmp_path, suite, capsys, monkeypatch):
@@ -166,16 +196,18 @@ def test_module_factory(tmp_path, suite, capsys, monkeypatch):
     plain = load_policy("my_policies:plain")
     assert plain.name == "lefty" and plain.act(np.zeros(D, np.float32)) == 1
     check_decider(plain)
-    assert "no weights here" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy",
-                                                        "my_policies:broken"])
+    assert "no weights here" in one_line_error(
+        capsys, ["eval", "--suite", str(suite), "--policy", "my_policies:broken"]
+    )
     assert "cannot import" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", "nope_mod:x"])
     assert "no callable" in one_line_error(capsys, ["eval", "--suite", str(suite), "--policy", "my_policies:zzz"])
 
 
 # ----------------------------------------------------------------------------- overtakezoo train output
 @pytest.mark.parametrize("name", ["dqn", "ppo"])
-def test_weights_in_the_train_format_evaluate_like_the_zoo_member(tmp_path, suite, capsys, learned_dir,
-                                                                    monkeypatch, name):
+def test_weights_in_the_train_format_evaluate_like_the_zoo_member(
+    tmp_path, suite, capsys, learned_dir, monkeypatch, name
+):
     from overtakezoo.zoo.members import learned
     from overtakezoo.zoo.members.learned import read_card
 
@@ -193,8 +225,24 @@ def test_weights_in_the_train_format_evaluate_like_the_zoo_member(tmp_path, suit
 
 def test_train_dqn_output_evaluates_with_one_command(tmp_path, suite, capsys):
     out = tmp_path / "runs" / "dqn"
-    assert main(["train", "dqn", "--steps", "1000", "--seed", "0", "--out", str(out), "--eval-suite", "none",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "dqn",
+                "--steps",
+                "1000",
+                "--seed",
+                "0",
+                "--out",
+                str(out),
+                "--eval-suite",
+                "none",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     doc = evaluate(capsys, suite, out / "dqn.pt", tmp_path / "r.json")  # torch weights, converted on load
     assert doc["decider"]["policy"]["kind"] == "overtakezoo-dqn"

@@ -20,8 +20,9 @@ from overtakezoo.benchmark.run.policy import load_policy
 from overtakezoo.envs import EnvConfig, observation_layout, observation_size, suites
 
 torch = pytest.importorskip("torch")
-pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning", "ignore::DeprecationWarning",
-                                        "ignore::UserWarning", "ignore::FutureWarning")
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:`torch.jit:DeprecationWarning", "ignore::DeprecationWarning", "ignore::UserWarning", "ignore::FutureWarning"
+)
 
 D = observation_size(EnvConfig())
 
@@ -45,8 +46,9 @@ def one_line_error(capsys, argv):
 
 
 def evaluate(capsys, suite, spec, out):
-    assert main(["eval", "--suite", suite, "--policy", str(spec), "--out", str(out), "--no-progress"]) == 0, \
+    assert main(["eval", "--suite", suite, "--policy", str(spec), "--out", str(out), "--no-progress"]) == 0, (
         capsys.readouterr().err
+    )
     capsys.readouterr()
     return Results.load(out)
 
@@ -67,23 +69,27 @@ def _sb3_zip(path):
 
 
 # ------------------------------------------------------------------ the card itself
-@pytest.mark.parametrize("raw, says", [
-    ('{"action_repeat": 10, "frame_skip": 2}', "unknown key 'frame_skip'"),
-    ('{"action_repeat": "10"}', "action_repeat: '10' is not of type 'integer'"),
-    ('{"action_repeat": 10.0}', "action_repeat: 10.0 is not an integer"),
-    ('{"action_repeat": 0}', "action_repeat: 0 is less than the minimum of 1"),
-    ('{"action_repeat": 1001}', "action_repeat: 1001 is greater than the maximum of 1000"),
-    ('{"action_repeat": true}', "action_repeat: True is not of type 'integer'"),
-    ('{"action_repeat": NaN}', "NaN is not a JSON number"),
-    ('{"action_repeat": 1, "action_repeat": 2}', "key 'action_repeat' given twice"),
-    ('{"observation_size": 34}', "'action_repeat' is a required property"),
-    ('[1]', "expected a JSON object"),
-    ('{"action_repeat": ', "not JSON"),
-    ('[' * 60000, "not JSON"),
-    ('{"action_repeat": 1, "name": "' + "x" * 70000 + '"}', "at most 65536"),
-    ('{"action_repeat": 1, "observation_layout": {"ego": [6, 0]}}', "observation_layout.ego"),
-    ('{"action_repeat": 1, "name": "../../etc"}', "name: "),
-], ids=lambda v: str(v)[:24] if isinstance(v, str) else None)
+@pytest.mark.parametrize(
+    "raw, says",
+    [
+        ('{"action_repeat": 10, "frame_skip": 2}', "unknown key 'frame_skip'"),
+        ('{"action_repeat": "10"}', "action_repeat: '10' is not of type 'integer'"),
+        ('{"action_repeat": 10.0}', "action_repeat: 10.0 is not an integer"),
+        ('{"action_repeat": 0}', "action_repeat: 0 is less than the minimum of 1"),
+        ('{"action_repeat": 1001}', "action_repeat: 1001 is greater than the maximum of 1000"),
+        ('{"action_repeat": true}', "action_repeat: True is not of type 'integer'"),
+        ('{"action_repeat": NaN}', "NaN is not a JSON number"),
+        ('{"action_repeat": 1, "action_repeat": 2}', "key 'action_repeat' given twice"),
+        ('{"observation_size": 34}', "'action_repeat' is a required property"),
+        ("[1]", "expected a JSON object"),
+        ('{"action_repeat": ', "not JSON"),
+        ("[" * 60000, "not JSON"),
+        ('{"action_repeat": 1, "name": "' + "x" * 70000 + '"}', "at most 65536"),
+        ('{"action_repeat": 1, "observation_layout": {"ego": [6, 0]}}', "observation_layout.ego"),
+        ('{"action_repeat": 1, "name": "../../etc"}', "name: "),
+    ],
+    ids=lambda v: str(v)[:24] if isinstance(v, str) else None,
+)
 def test_bad_cards_are_one_line(raw, says):
     with pytest.raises(CardError) as exc:
         parse_card(raw, "c.json")
@@ -94,18 +100,27 @@ def test_bad_cards_are_one_line(raw, says):
 def test_a_bad_card_beside_a_policy_is_one_error_line(tmp_path, tiny, capsys):
     ts = tmp_path / "ts.pt"
     torch.jit.save(torch.jit.script(_mlp()), ts)
-    for raw, says in (('{"action_repeat": 10, "code": "import os"}', "unknown key 'code'"),
-                      ('{"action_repeat": 2000}', "greater than the maximum"),
-                      (json.dumps({"action_repeat": 10, "observation_size": D + 4, "suite": "urban"}),
-                       f"observation_size is {D + 4} (trained on urban), this suite's observations have {D}"),
-                      (json.dumps({"action_repeat": 10, "observation_size": D, "observation_layout": {"ego": [0, 5]}}),
-                       "observation_layout.ego is [0, 5]")):
+    for raw, says in (
+        ('{"action_repeat": 10, "code": "import os"}', "unknown key 'code'"),
+        ('{"action_repeat": 2000}', "greater than the maximum"),
+        (
+            json.dumps({"action_repeat": 10, "observation_size": D + 4, "suite": "urban"}),
+            f"observation_size is {D + 4} (trained on urban), this suite's observations have {D}",
+        ),
+        (
+            json.dumps({"action_repeat": 10, "observation_size": D, "observation_layout": {"ego": [0, 5]}}),
+            "observation_layout.ego is [0, 5]",
+        ),
+    ):
         card_file(ts).write_text(raw)
-        for command in (["eval", "--suite", tiny, "--out", str(tmp_path / "r.json"), "--no-progress"],
-                        ["decision-map", "--suite", tiny, "--resolution", "3", "--out", str(tmp_path / "m.png")]):
+        for command in (
+            ["eval", "--suite", tiny, "--out", str(tmp_path / "r.json"), "--no-progress"],
+            ["decision-map", "--suite", tiny, "--resolution", "3", "--out", str(tmp_path / "m.png")],
+        ):
             assert says in one_line_error(capsys, command + ["--policy", str(ts)])
     assert one_line_error(capsys, ["card", str(ts), "--action-repeat", "0"]).endswith(
-        "action_repeat: 0 is less than the minimum of 1")
+        "action_repeat: 0 is less than the minimum of 1"
+    )
     assert "no such policy file" in one_line_error(capsys, ["card", str(tmp_path / "nope.zip"), "--action-repeat", "2"])
 
 
@@ -116,18 +131,39 @@ def test_sb3_zip_card_gives_the_hold_through_eval_submit_and_verify(tmp_path, ti
     # The helper (SB3's model.save("model") writes model.zip): the card goes beside, model.card.json.
     assert write_card(tmp_path / "model", action_repeat=10, suite=tiny) == tmp_path / "model.card.json"
     card = json.loads((tmp_path / "model.card.json").read_text())
-    assert card == {"card_version": 1, "action_repeat": 10, "suite": "tiny", "observation_size": D,
-                    "observation_layout": {k: [s.start, s.stop] for k, s in observation_layout(EnvConfig()).items()}}
+    assert card == {
+        "card_version": 1,
+        "action_repeat": 10,
+        "suite": "tiny",
+        "observation_size": D,
+        "observation_layout": {k: [s.start, s.stop] for k, s in observation_layout(EnvConfig()).items()},
+    }
     dec = load_policy(str(model), suites.load_suite(tiny).config)
     assert dec.action_repeat == 10
     dec.inner.close()
     r10 = evaluate(capsys, tiny, model, tmp_path / "r10.json")
-    assert main(["decision-map", "--policy", str(model), "--suite", tiny, "--resolution", "3",
-                 "--out", str(tmp_path / "map.png")]) == 0
+    assert (
+        main(
+            [
+                "decision-map",
+                "--policy",
+                str(model),
+                "--suite",
+                tiny,
+                "--resolution",
+                "3",
+                "--out",
+                str(tmp_path / "map.png"),
+            ]
+        )
+        == 0
+    )
     # submit stores the hold in the converted npz's card; verify re-runs with it.
     root = tmp_path / "lb"
-    assert main(["submit", str(tmp_path / "r10.json"), "--name", "my-sb3", "--policy", str(model),
-                 "--root", str(root)]) == 0
+    assert (
+        main(["submit", str(tmp_path / "r10.json"), "--name", "my-sb3", "--policy", str(model), "--root", str(root)])
+        == 0
+    )
     policy = Results.load(root / "submissions" / tiny / "my-sb3.json").meta["submission"]["policy"]
     stored = json.loads((root / "submissions" / "artifacts" / f"{policy['sha256']}.json").read_text())
     assert stored["action_repeat"] == 10 and stored["policy_card"] == card
@@ -147,8 +183,8 @@ def test_sb3_zip_card_gives_the_hold_through_eval_submit_and_verify(tmp_path, ti
     assert not all(np.array_equal(r1.per[k], r10.per[k], equal_nan=True) for k in r10.per)  # the hold matters
     write_card(model, action_repeat=10)
     assert "not produced by this policy" in one_line_error(
-        capsys, ["submit", str(tmp_path / "r1.json"), "--name", "other", "--policy", str(model),
-                 "--root", str(root)])
+        capsys, ["submit", str(tmp_path / "r1.json"), "--name", "other", "--policy", str(model), "--root", str(root)]
+    )
 
 
 def test_torchscript_card_beside_goes_into_the_stored_onnx(tmp_path, tiny, capsys):
@@ -181,8 +217,15 @@ def test_onnx_card_inside_with_external_data_from_another_cwd(tmp_path, tiny, ca
     net = _mlp(1)
     d = tmp_path / "export"
     d.mkdir()
-    torch.onnx.export(net, (torch.zeros(2, D),), str(d / "policy.onnx"), input_names=["obs"], output_names=["q"],
-                      dynamic_shapes=({0: torch.export.Dim("n")},), external_data=True)
+    torch.onnx.export(
+        net,
+        (torch.zeros(2, D),),
+        str(d / "policy.onnx"),
+        input_names=["obs"],
+        output_names=["q"],
+        dynamic_shapes=({0: torch.export.Dim("n")},),
+        external_data=True,
+    )
     assert (d / "policy.onnx.data").is_file()
     assert main(["card", str(d / "policy.onnx"), "--action-repeat", "10", "--suite", tiny]) == 0
     assert not card_file(d / "policy.onnx").exists() and (d / "policy.onnx.data").is_file()
@@ -212,8 +255,9 @@ def test_onnx_card_inside_with_external_data_from_another_cwd(tmp_path, tiny, ca
     # The data file outside the model's directory is never read: one line naming the fix.
     (d / "policy.onnx.data").unlink()
     capsys.readouterr()  # (submit's hold line on stderr)
-    assert "save_as_external_data=False" in one_line_error(capsys, ["eval", "--suite", tiny, "--policy", rel,
-                                                                    "--no-progress"])
+    assert "save_as_external_data=False" in one_line_error(
+        capsys, ["eval", "--suite", tiny, "--policy", rel, "--no-progress"]
+    )
 
 
 def test_onnx_card_beside_or_conflicting_is_one_line(tmp_path, tiny, capsys):
@@ -222,8 +266,15 @@ def test_onnx_card_beside_or_conflicting_is_one_line(tmp_path, tiny, capsys):
     path = tmp_path / "m.onnx"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(_mlp(), (torch.zeros(1, D),), str(path), input_names=["obs"], output_names=["q"],
-                          dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}}, dynamo=False)
+        torch.onnx.export(
+            _mlp(),
+            (torch.zeros(1, D),),
+            str(path),
+            input_names=["obs"],
+            output_names=["q"],
+            dynamic_axes={"obs": {0: "n"}, "q": {0: "n"}},
+            dynamo=False,
+        )
     card_file(path).write_text('{"action_repeat": 10}')
     assert "travels inside it" in one_line_error(capsys, ["eval", "--suite", tiny, "--policy", str(path)])
     card_file(path).unlink()
@@ -258,8 +309,10 @@ def _rsl_runner(distribution=True, seed=0):
     torch.manual_seed(seed)
     cfg = {"class_name": "MLPModel", "hidden_dims": [16], "activation": "elu"}
     if distribution:
-        cfg["distribution_cfg"] = {"class_name": "overtakezoo.zoo.train.categorical:CategoricalDistribution",
-                                   "num_categories": 3}
+        cfg["distribution_cfg"] = {
+            "class_name": "overtakezoo.zoo.train.categorical:CategoricalDistribution",
+            "num_categories": 3,
+        }
     actor = build_actor(D, cfg).eval()
     runner = OnPolicyRunner.__new__(OnPolicyRunner)
     runner.alg = types.SimpleNamespace(get_policy=lambda: actor)
@@ -288,8 +341,21 @@ def test_rsl_rl_exports_evaluate(tmp_path, tiny, capsys):
         np.testing.assert_array_equal(results[0].per[key], results[1].per[key])
     # The fixed-batch ONNX file is submitted as it is (self-contained) and verifies.
     root = tmp_path / "lb"
-    assert main(["submit", str(tmp_path / "policy.onnx.json"), "--name", "rsl", "--policy", str(out / "policy.onnx"),
-                 "--root", str(root)]) == 0
+    assert (
+        main(
+            [
+                "submit",
+                str(tmp_path / "policy.onnx.json"),
+                "--name",
+                "rsl",
+                "--policy",
+                str(out / "policy.onnx"),
+                "--root",
+                str(root),
+            ]
+        )
+        == 0
+    )
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
 
 

@@ -10,7 +10,7 @@ import sys
 
 from conftest import suite_file
 
-FACTORY = '''
+FACTORY = """
 import numpy as np
 
 class Lefty:
@@ -20,7 +20,7 @@ class Lefty:
 
 def make(config):
     return Lefty()
-'''
+"""
 
 
 def test_module_factory_resolves_from_the_current_directory(tmp_path):
@@ -28,12 +28,32 @@ def test_module_factory_resolves_from_the_current_directory(tmp_path):
     suite_file(tmp_path / "tiny.toml", 4)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     # -P: no script directory or cwd put on sys.path, as for the installed `overtakezoo` script
-    cmd = [sys.executable, "-P", "-c", "import sys; from overtakezoo.benchmark.cli import main; sys.exit(main())",
-           "eval", "--suite", "tiny.toml", "--policy", "mypolicy:make", "--out", "r.json", "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-P",
+        "-c",
+        "import sys; from overtakezoo.benchmark.cli import main; sys.exit(main())",
+        "eval",
+        "--suite",
+        "tiny.toml",
+        "--policy",
+        "mypolicy:make",
+        "--out",
+        "r.json",
+        "--no-progress",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["decider"]["name"] == "lefty" and doc["decider"]["policy"] == {"kind": "module", "spec": "mypolicy:make"}
-    missing = subprocess.run(cmd[:5] + ["--suite", "tiny.toml", "--policy", "nothere:make"], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=300)
-    assert missing.returncode == 2 and missing.stderr.startswith("error: ") and "cannot import nothere" in missing.stderr
+    missing = subprocess.run(
+        cmd[:5] + ["--suite", "tiny.toml", "--policy", "nothere:make"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert (
+        missing.returncode == 2 and missing.stderr.startswith("error: ") and "cannot import nothere" in missing.stderr
+    )

@@ -13,17 +13,15 @@ pytest.importorskip("rsl_rl")
 
 from tensordict import TensorDict  # noqa: E402
 
+from conftest import needs_shipped_weights, suite_file  # noqa: E402
 from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  # noqa: E402
 from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv  # noqa: E402
-from overtakezoo.zoo import load  # noqa: E402
-from overtakezoo.zoo.train.categorical import CategoricalDistribution  # noqa: E402
 from overtakezoo.envs.suites import load_training  # noqa: E402
-from overtakezoo.zoo.train import ppo  # noqa: E402
-from overtakezoo.zoo.train.contract import check_card, hyperparams_file, load_hyperparams  # noqa: E402
+from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.members.learned import PRETRAINED, MLPDecider, WeightsError, load_pretrained, sha256_bytes  # noqa: E402
-
-from conftest import needs_shipped_weights  # noqa: E402
-from conftest import suite_file
+from overtakezoo.zoo.train import ppo  # noqa: E402
+from overtakezoo.zoo.train.categorical import CategoricalDistribution  # noqa: E402
+from overtakezoo.zoo.train.contract import check_card, hyperparams_file, load_hyperparams  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -82,8 +80,9 @@ def test_categorical_matches_torch():
     assert dist.input_dim == 3 and dist.mean.shape == (16, 1) and dist.std.shape == (16, 1)
     other = torch.randn(16, 3)
     kl = dist.kl_divergence(dist.params, (other,))
-    assert torch.allclose(kl, torch.distributions.kl_divergence(ref, torch.distributions.Categorical(logits=other)),
-                          atol=1e-6)
+    assert torch.allclose(
+        kl, torch.distributions.kl_divergence(ref, torch.distributions.Categorical(logits=other)), atol=1e-6
+    )
     with pytest.raises(ValueError):
         CategoricalDistribution(2)
 
@@ -97,7 +96,7 @@ def test_tiny_runner_learns_exports_and_acts(pool, tmp_path):
     before = [p.detach().clone() for p in runner.alg.get_policy().parameters()]
     runner.learn(2)
     after = list(runner.alg.get_policy().parameters())
-    assert any(not torch.equal(b, a) for b, a in zip(before, after))
+    assert any(not torch.equal(b, a) for b, a in zip(before, after, strict=True))
     policy = runner.get_inference_policy("cpu")
     actions = policy(env.get_observations())
     assert actions.shape == (16, 1) and set(actions.unique().tolist()) <= {0.0, 1.0, 2.0}
@@ -147,9 +146,13 @@ def test_truncated_weights_are_refused(tmp_path):
 def _tiny_ppo_toml(tmp_path):
     """The real hyperparameter file, shrunk: 16 scenarios x 8 decisions per iteration."""
     text = hyperparams_file("ppo").read_text()
-    for old, new in (("num_envs = 256", "num_envs = 16"), ("num_steps_per_env = 32", "num_steps_per_env = 8"),
-                     ("select_every = 20", "select_every = 1"), ("select_scenarios = 500", "select_scenarios = 16"),
-                     ("checkpoint_every = 50", "checkpoint_every = 1")):
+    for old, new in (
+        ("num_envs = 256", "num_envs = 16"),
+        ("num_steps_per_env = 32", "num_steps_per_env = 8"),
+        ("select_every = 20", "select_every = 1"),
+        ("select_scenarios = 500", "select_scenarios = 16"),
+        ("checkpoint_every = 50", "checkpoint_every = 1"),
+    ):
         assert old in text
         text = text.replace(old, new)
     hp = tmp_path / "ppo.toml"
@@ -163,8 +166,15 @@ def test_train_writes_card_and_resumes(tmp_path):
     suites = load_training("table1-train")
     trained = ppo.train(suites, steps=2 * 16 * 8, seed=1, out=out, hyperparams=hp, progress=False)
     assert (out / "ppo.pt").read_bytes() == trained.weights and (out / "checkpoints" / "ppo_00002.pt").exists()
-    ppo.train(suites, steps=3 * 16 * 8, seed=1, out=out, hyperparams=hp, progress=False,
-                    resume=out / "checkpoints" / "ppo_00002.pt")
+    ppo.train(
+        suites,
+        steps=3 * 16 * 8,
+        seed=1,
+        out=out,
+        hyperparams=hp,
+        progress=False,
+        resume=out / "checkpoints" / "ppo_00002.pt",
+    )
     rows = (out / "train_log.csv").read_text().splitlines()
     assert rows[0].startswith("iteration,") and [r.split(",")[0] for r in rows[1:]] == ["1", "2", "3"]
     card = json.loads((out / "ppo.json").read_text())
@@ -184,8 +194,24 @@ def test_train_command_writes_a_results_file_for_ppo_as_for_every_trainer(tmp_pa
 
     suite = suite_file(tmp_path / "tiny.toml", 6, time_limit=20.0)  # table1's first scenarios, shortened
     out = tmp_path / "run"
-    assert main(["train", "ppo", "--hyperparams", str(_tiny_ppo_toml(tmp_path)), "--steps", str(16 * 8),
-                 "--out", str(out), "--eval-suite", str(suite), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "ppo",
+                "--hyperparams",
+                str(_tiny_ppo_toml(tmp_path)),
+                "--steps",
+                str(16 * 8),
+                "--out",
+                str(out),
+                "--eval-suite",
+                str(suite),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert "trained ppo" in capsys.readouterr().out
     card = json.loads((out / "ppo.json").read_text())
     results = Results.load(out / "ppo-tiny.results.json")  # the runner's file, ready for `overtakezoo submit`

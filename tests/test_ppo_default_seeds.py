@@ -48,14 +48,32 @@ def test_default_ppo_reaches_the_paper_on_table1_for_every_seed(seed, tmp_path, 
 
     out = tmp_path / f"ppo-s{seed}"
     # The command of the issue, as a user types it (default recipe, evaluation on table1 at the end).
-    assert main(["train", "ppo", "--suite", "table1-train", "--steps", "204800", "--seed", str(seed),
-                 "--out", str(out), "--no-progress"]) == 0, capsys.readouterr().err
+    assert (
+        main(
+            [
+                "train",
+                "ppo",
+                "--suite",
+                "table1-train",
+                "--steps",
+                "204800",
+                "--seed",
+                str(seed),
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    ), capsys.readouterr().err
     capsys.readouterr()
     card = json.loads((out / "ppo.json").read_text())
     res = card["results"]["table1"]
     with capsys.disabled():
-        print(f"\nppo seed {seed}: table1 success {res['success_rate']:.1%}, crash {res['crash_rate']:.1%}, "
-              f"timeout {res['timeout_rate']:.1%}; training {card['wall_time_s']:.0f} s, selected iteration "
-              f"{card['training']['selection']['iteration']} (greedy score {card['training']['selection']['score']})")
+        print(
+            f"\nppo seed {seed}: table1 success {res['success_rate']:.1%}, crash {res['crash_rate']:.1%}, "
+            f"timeout {res['timeout_rate']:.1%}; training {card['wall_time_s']:.0f} s, selected iteration "
+            f"{card['training']['selection']['iteration']} (greedy score {card['training']['selection']['score']})"
+        )
     assert res["count"] == 3000
     assert res["success_rate"] >= PAPER_SUCCESS, res

@@ -18,8 +18,9 @@ def test_each_member_is_what_its_kind_says(name):
     m = zoo.member(name)
     assert m.name == name and m.kind in zoo.KINDS
     d = zoo.load(name)
-    assert d.name == name and bool(d.privileged) == (m.kind == "privileged" or (
-        m.kind == "wrapper" and zoo.member(m.wraps).kind == "privileged"))
+    assert d.name == name and bool(d.privileged) == (
+        m.kind == "privileged" or (m.kind == "wrapper" and zoo.member(m.wraps).kind == "privileged")
+    )
     assert isinstance(d, MLPDecider) == (m.kind == "learned")
     assert isinstance(d, Shielded) == (m.kind == "wrapper")
     if m.kind == "wrapper":

@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from conftest import last_error_line
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
@@ -18,13 +19,10 @@ from overtakezoo.benchmark.leaderboard.rows import suite_mismatch
 from overtakezoo.benchmark.leaderboard.submission import submit
 from overtakezoo.benchmark.leaderboard.verify import verify
 from overtakezoo.benchmark.results.results import Results, summary_of
-
-from conftest import last_error_line
 from overtakezoo.benchmark.results.schema import SAFETY_PER_SCENARIO, recorded_keys
 from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs import SUCCESS
 from overtakezoo.envs.suites import load_suite
-
 
 NAME = "always-overtake"
 
@@ -60,11 +58,15 @@ def test_the_required_arrays_are_what_a_run_records(honest, tiny):
     assert suite_mismatch(honest, load_suite(tiny)) == []
 
 
-@pytest.mark.parametrize("forge, field, says", [
-    (lambda r: padded(r, 4), "suite.count", "a suite block with count 16 (the suite file gives 12)"),
-    (without_safety, "scenarios.rss_violation_share", "a run without scenarios.rss_violation_share"),
-    (lambda r: resuited(r, version=r.suite["version"] + 1), "suite.version", "the suite file gives"),
-], ids=["appended-scenarios", "dropped-safety-arrays", "other-suite-version"])
+@pytest.mark.parametrize(
+    "forge, field, says",
+    [
+        (lambda r: padded(r, 4), "suite.count", "a suite block with count 16 (the suite file gives 12)"),
+        (without_safety, "scenarios.rss_violation_share", "a run without scenarios.rss_violation_share"),
+        (lambda r: resuited(r, version=r.suite["version"] + 1), "suite.version", "the suite file gives"),
+    ],
+    ids=["appended-scenarios", "dropped-safety-arrays", "other-suite-version"],
+)
 def test_submit_refuses_a_row_without_the_suites_shape(honest, tiny, tmp_path, capsys, forge, field, says):
     forged = tmp_path / "forged.json"
     forge(honest).save(forged)
@@ -83,9 +85,11 @@ def test_submit_refuses_a_summary_that_is_not_its_arrays(honest, tmp_path):
     assert main(["submit", str(honest.save(tmp_path / "r.json")), "--root", str(tmp_path / "lb")]) == 0
 
 
-@pytest.mark.parametrize("forge, field", [(lambda r: padded(r, 4), "suite.count"),
-                                          (without_safety, "scenarios.rss_violation_share")],
-                         ids=["appended-scenarios", "dropped-safety-arrays"])
+@pytest.mark.parametrize(
+    "forge, field",
+    [(lambda r: padded(r, 4), "suite.count"), (without_safety, "scenarios.rss_violation_share")],
+    ids=["appended-scenarios", "dropped-safety-arrays"],
+)
 def test_a_planted_row_is_refused_by_verify_and_shows_no_numbers(honest, tiny, tmp_path, capsys, forge, field):
     root = tmp_path / "lb"
     row = submit(honest, root)

@@ -11,8 +11,16 @@ import time
 
 import pytest
 
-from overtakezoo.envs.io import (WriteError, atomic_directory, atomic_output, atomic_path, atomic_write_bytes,
-                                 atomic_write_json, check_writable, check_writable_dir)
+from overtakezoo.envs.io import (
+    WriteError,
+    atomic_directory,
+    atomic_output,
+    atomic_path,
+    atomic_write_bytes,
+    atomic_write_json,
+    check_writable,
+    check_writable_dir,
+)
 
 
 def leftovers(folder):
@@ -22,9 +30,11 @@ def leftovers(folder):
 
 def read_fifo(path, into):
     """Read a FIFO to its end in a thread (a FIFO's writer blocks until a reader opens it)."""
+
     def run():
         with open(path, "rb") as f:
             into.append(f.read())
+
     t = threading.Thread(target=run, daemon=True)
     t.start()
     return t
@@ -185,8 +195,9 @@ for _ in range(n):
 def test_two_writer_processes_never_mix(tmp_path):
     target = tmp_path / "shared.bin"
     size, rounds = 1 << 20, 30
-    procs = [subprocess.Popen([sys.executable, "-c", _WRITER, str(target), str(b), str(size), str(rounds)])
-             for b in (1, 2)]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _WRITER, str(target), str(b), str(size), str(rounds)]) for b in (1, 2)
+    ]
     seen = set()
     while any(p.poll() is None for p in procs):
         if target.exists():

@@ -8,18 +8,18 @@ import numpy as np
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.leaderboard import safety_board
-from overtakezoo.envs.suites import CORE
-from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
 from overtakezoo.benchmark.leaderboard.rows import Row
+from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
 from overtakezoo.benchmark.run.runner import run_suite
-
+from overtakezoo.envs.suites import CORE
 from test_benchmark_runner import small_suite
 
 
 def rows(tmp_path, names, count=40):
     suite = small_suite(tmp_path, count=count)
-    return [Row(f"submissions/small/{n}.json", run_suite(suite, zoo.load(n, suite.config), progress=False))
-            for n in names]
+    return [
+        Row(f"submissions/small/{n}.json", run_suite(suite, zoo.load(n, suite.config), progress=False)) for n in names
+    ]
 
 
 def without_safety(row: Row) -> Row:

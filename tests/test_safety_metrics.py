@@ -9,12 +9,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
 from overtakezoo.benchmark.run.runner import run_indices, run_suite
-from overtakezoo.benchmark.safety import (RSSParams, SafetyMonitor, safe_distance_opposite_direction,
-                                          safe_distance_same_direction)
+from overtakezoo.benchmark.safety import (
+    RSSParams,
+    SafetyMonitor,
+    safe_distance_opposite_direction,
+    safe_distance_same_direction,
+)
+from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.base import load
 
@@ -35,8 +39,9 @@ def test_rss_distances_match_the_paper_by_hand():
     assert safe_distance_same_direction(0.0, 10.0, 1.0, 2.0, 4.0, 8.0) == 0.0
     # Def. 2: (10 + 12) / 2 + 12^2 / 6 + (12 + 14) / 2 + 14^2 / 8 = 11 + 24 + 13 + 24.5 = 72.5 m.
     assert safe_distance_opposite_direction(12.0, 10.0, 1.0, 2.0, 4.0, 2.0, 3.0) == pytest.approx(72.5)
-    assert safe_distance_opposite_direction(V_E, V_O, P.response_time, P.ego_accel_max, P.ego_brake_min,
-                                            P.other_accel_max, P.other_brake_min_correct) == pytest.approx(D2)
+    assert safe_distance_opposite_direction(
+        V_E, V_O, P.response_time, P.ego_accel_max, P.ego_brake_min, P.other_accel_max, P.other_brake_min_correct
+    ) == pytest.approx(D2)
 
 
 def test_rss_distances_agree_with_ad_rss_on_a_grid():
@@ -50,7 +55,10 @@ def test_rss_distances_agree_with_ad_rss_on_a_grid():
         d.alpha_lon.accel_max, d.alpha_lon.brake_min = phys.Acceleration(accel), phys.Acceleration(-b_min)
         d.alpha_lon.brake_max, d.alpha_lon.brake_min_correct = phys.Acceleration(-b_max), phys.Acceleration(-b_correct)
         d.alpha_lat.accel_max, d.alpha_lat.brake_min = phys.Acceleration(0.2), phys.Acceleration(-0.8)
-        d.response_time, d.max_speed_on_acceleration = phys.Duration(rho), phys.Speed(100.0)  # (its largest valid value; above every speed here)
+        d.response_time, d.max_speed_on_acceleration = (
+            phys.Duration(rho),
+            phys.Speed(100.0),
+        )  # (its largest valid value; above every speed here)
         d.lateral_fluctuation_margin, d.min_longitudinal_safety_distance = phys.Distance(0.0), phys.Distance(0.0)
         u = d.unstructured_settings
         u.pedestrian_turning_radius, u.drive_away_max_angle = phys.Distance(2.0), phys.Angle(2.4)
@@ -80,11 +88,13 @@ def test_rss_distances_agree_with_ad_rss_on_a_grid():
             got, want = phys.Distance(0.0), phys.Distance(0.0)
             # The ego behind (rear) the other; then the ego in the wrong lane against the other in its own.
             assert rss.structured.calculateSafeLongitudinalDistanceSameDirection(
-                state(v_other, *other, True), state(v_ego, *ego, True), got)
+                state(v_other, *other, True), state(v_ego, *ego, True), got
+            )
             mine = safe_distance_same_direction(v_ego, v_other, ego[0], ego[1], ego[2], other[3])
             worst = max(worst, abs(float(got.mDistance) - mine))
             assert rss.structured.calculateSafeLongitudinalDistanceOppositeDirection(
-                state(v_other, *other, True), state(v_ego, *ego, False), want)
+                state(v_other, *other, True), state(v_ego, *ego, False), want
+            )
             mine = safe_distance_opposite_direction(v_ego, v_other, ego[0], ego[1], ego[2], other[1], other[4])
             worst = max(worst, abs(float(want.mDistance) - mine))
     assert worst < 1e-6  # ad-rss's Distance keeps 1e-3 m precision in checks; the value itself is a double
@@ -114,10 +124,15 @@ class StubCore:
         b, t = self.gap0.shape[0], self.t
         onc_dx = self.gap0 + HALF_LEN - (V_E + V_O) * t
         lead_dx = -(self.lead_gap + HALF_LEN) * np.ones(b)
-        return {"dx": np.stack([onc_dx, lead_dx]), "half_len": np.full((2, b), HALF_LEN),
-                "d": np.stack([np.full(b, W), np.zeros(b)]), "same_dir": np.stack([np.zeros(b, bool), np.ones(b, bool)]),
-                "v_along": np.stack([np.full(b, -V_O), np.full(b, V_L)]), "visible": np.ones((2, b), bool),
-                "present": np.ones((2, b), bool)}
+        return {
+            "dx": np.stack([onc_dx, lead_dx]),
+            "half_len": np.full((2, b), HALF_LEN),
+            "d": np.stack([np.full(b, W), np.zeros(b)]),
+            "same_dir": np.stack([np.zeros(b, bool), np.ones(b, bool)]),
+            "v_along": np.stack([np.full(b, -V_O), np.full(b, V_L)]),
+            "visible": np.ones((2, b), bool),
+            "present": np.ones((2, b), bool),
+        }
 
 
 def _monitor(core, steps):
@@ -185,7 +200,7 @@ def test_the_monitor_gives_each_row_the_value_it_gets_alone():
     for row in range(3):
         alone = _monitor(_hand_built([row])[0], n)
         for key, value in together.items():
-            np.testing.assert_array_equal(alone[key], value[row:row + 1], err_msg=key)
+            np.testing.assert_array_equal(alone[key], value[row : row + 1], err_msg=key)
 
 
 def test_safety_arrays_of_a_batch_equal_those_of_rows_run_alone_on_the_core():
@@ -198,7 +213,7 @@ def test_safety_arrays_of_a_batch_equal_those_of_rows_run_alone_on_the_core():
     for i, row in enumerate(rows):
         alone = run_indices(suite, decider, np.array([row]))
         for key in SAFETY_PER_SCENARIO:
-            np.testing.assert_array_equal(alone[key], batch[key][i:i + 1], err_msg=key)
+            np.testing.assert_array_equal(alone[key], batch[key][i : i + 1], err_msg=key)
 
 
 def test_multi_av_runs_give_one_safety_value_per_av():

@@ -38,8 +38,9 @@ def test_a_reactive_oncoming_npc_brakes_for_the_ego_in_its_lane():
 
 
 def test_scripted_is_a_distribution_setting_for_lead_and_oncoming():
-    dist = ScenarioDistribution.from_dict({"lead_behaviour": "scripted", "oncoming_behaviour": "scripted",
-                                           "oncoming_count": 2})
+    dist = ScenarioDistribution.from_dict(
+        {"lead_behaviour": "scripted", "oncoming_behaviour": "scripted", "oncoming_count": 2}
+    )
     scen = dist.sample(5, 0)
     assert (scen.npc_behaviour == 2).all()
     # The same draw as with reactive NPCs: only the behaviour column differs.

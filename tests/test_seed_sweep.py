@@ -12,8 +12,13 @@ ARGS = ["--steps", "3000", "--eval-suite", "none", "--no-progress", "--set", "le
 
 
 def _shas(base, seeds, name="dqn"):
-    return {s: {f: hashlib.sha256((base.with_name(f"{base.name}-s{s}") / f).read_bytes()).hexdigest()
-                for f in (f"{name}.npz", f"{name}.pt")} for s in seeds}
+    return {
+        s: {
+            f: hashlib.sha256((base.with_name(f"{base.name}-s{s}") / f).read_bytes()).hexdigest()
+            for f in (f"{name}.npz", f"{name}.pt")
+        }
+        for s in seeds
+    }
 
 
 @pytest.fixture(scope="module")
@@ -44,11 +49,14 @@ def test_a_ray_sweep_gives_the_same_files_as_the_sequential_one(sequential, tmp_
     assert _shas(sequential[0], (0, 1)) == _shas(par, (0, 1))
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--seeds", "0,x"], "expected integers"),
-    (["--seeds", "0,0"], "distinct seeds"),
-    (["--seeds", "0,1", "--seed", "3"], "without --seed"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--seeds", "0,x"], "expected integers"),
+        (["--seeds", "0,0"], "distinct seeds"),
+        (["--seeds", "0,1", "--seed", "3"], "without --seed"),
+    ],
+)
 def test_bad_sweeps_are_one_error_line(tmp_path, capsys, argv, message):
     assert main(["train", "dqn", "--out", str(tmp_path / "d"), *argv, *ARGS]) == 2
     err = capsys.readouterr().err

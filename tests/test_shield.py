@@ -8,18 +8,19 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
-from overtakezoo.envs.suites import load_suite
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, CRASH, SUCCESS, EnvConfig, observation_layout
+from overtakezoo.envs import ABORT, CRASH, FOLLOW, OVERTAKE, SUCCESS, EnvConfig, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.base import ConstantDecider
 from overtakezoo.zoo.members.shield import REQUIRED_GAP, Shielded
 
 CFG = EnvConfig()
 
 
-def observation(mode: int, v_e: float, lead_dx: float, v_lead: float, onc_dx: float | None, v_onc: float,
-                lateral: float = 0.0) -> np.ndarray:
+def observation(
+    mode: int, v_e: float, lead_dx: float, v_lead: float, onc_dx: float | None, v_onc: float, lateral: float = 0.0
+) -> np.ndarray:
     """One observation with the ego, its lead and (optionally) one oncoming vehicle, in SI units."""
     lay, oc = observation_layout(CFG), CFG.observation
     obs = np.zeros((1, lay["opposite_lane"].stop), np.float32)
@@ -42,8 +43,11 @@ def test_the_veto_threshold_is_the_rss_distance_left_at_the_end_of_the_pass():
     t_pass = need / (v - v_lead)
     t_out = t_pass + shield.p.lateral_return_time
     p = RSSParams()
-    rss = float(safe_distance_opposite_direction(v, v_onc, p.response_time, p.ego_accel_max, p.ego_brake_min,
-                                                 p.other_accel_max, p.other_brake_min_correct))
+    rss = float(
+        safe_distance_opposite_direction(
+            v, v_onc, p.response_time, p.ego_accel_max, p.ego_brake_min, p.other_accel_max, p.other_brake_min_correct
+        )
+    )
     threshold = v * t_out + v_onc * t_out + rss  # bumper gap to the oncoming car that just suffices
     for gap, allowed in ((threshold + 0.5, True), (threshold - 0.5, False)):
         obs = observation(FOLLOW, v, lead_dx, v_lead, gap + shield.half_lengths, v_onc)

@@ -13,19 +13,24 @@ import pytest
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import load_suite
 from overtakezoo.envs import SIM_VERSION
+from overtakezoo.envs.suites import load_suite
 
 # SIM_VERSION -> decider -> (per-scenario (outcome, steps), sha256 of the final states rounded to 1e-6).
 REFERENCE = {
     1: {
-        "rule-fsm": ([(1, 251), (1, 242), (1, 384), (1, 247), (1, 244), (1, 254)],
-                     "9bee66539b8fe8d2a83759ca0e97646590003e59c5bb548963a648e7a8fa371b"),
-        "always-overtake": ([(1, 248), (1, 242), (2, 134), (1, 245), (1, 242), (1, 250)],
-                            "ae569e52e41398326f8ef65b49648d523b46bd42ae64968b8b6ccf5e6e137067"),
+        "rule-fsm": (
+            [(1, 251), (1, 242), (1, 384), (1, 247), (1, 244), (1, 254)],
+            "9bee66539b8fe8d2a83759ca0e97646590003e59c5bb548963a648e7a8fa371b",
+        ),
+        "always-overtake": (
+            [(1, 248), (1, 242), (2, 134), (1, 245), (1, 242), (1, 250)],
+            "ae569e52e41398326f8ef65b49648d523b46bd42ae64968b8b6ccf5e6e137067",
+        ),
     },
 }
-# 2: the observation gained the speed limit and the sensor range; the rule deciders' trajectories are those of version 1.
+# 2: the observation gained the speed limit and the sensor range; the rule deciders' trajectories are
+# those of version 1.
 REFERENCE[2] = REFERENCE[1]
 SCENARIOS = 6  # table1-reactive scenarios 0..5
 
@@ -52,7 +57,7 @@ def trajectory(decider):
     rec = FinalState()
     run_suite(suite, zoo.load(decider, suite.config), progress=False, recorder=rec, limit=SCENARIOS)
     (state,) = rec.states
-    steps = [(int(o), int(n)) for o, n in zip(state["outcome"], state["episode_steps"])]
+    steps = [(int(o), int(n)) for o, n in zip(state["outcome"], state["episode_steps"], strict=True)]
     return steps, hashlib.sha256(json.dumps(state, sort_keys=True).encode()).hexdigest()
 
 
@@ -61,8 +66,10 @@ def test_reference_trajectories_match_sim_version(decider):
     assert SIM_VERSION in REFERENCE, f"no reference trajectories for SIM_VERSION {SIM_VERSION}: record them"
     want_steps, want_hash = REFERENCE[SIM_VERSION][decider]
     steps, digest = trajectory(decider)
-    hint = (f"{decider} on table1-reactive scenarios 0-{SCENARIOS - 1} no longer follows the SIM_VERSION {SIM_VERSION} "
-            "trajectories: the simulator's behaviour changed. Bump SIM_VERSION (envs/version.py) and re-measure "
-            "the leaderboard (scripts/reproduce-leaderboard.sh), then record the new reference here")
+    hint = (
+        f"{decider} on table1-reactive scenarios 0-{SCENARIOS - 1} no longer follows the SIM_VERSION {SIM_VERSION} "
+        "trajectories: the simulator's behaviour changed. Bump SIM_VERSION (envs/version.py) and re-measure "
+        "the leaderboard (scripts/reproduce-leaderboard.sh), then record the new reference here"
+    )
     assert steps == want_steps, f"{hint}; (outcome, steps) now {steps}"
     assert digest == want_hash, f"{hint}; final-state sha256 now {digest}"

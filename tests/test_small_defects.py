@@ -13,7 +13,6 @@ import pytest
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.envs import EnvConfig, observation_size
-
 from test_benchmark_cli import one_line_error, small_suite_file
 
 D = observation_size(EnvConfig())
@@ -23,8 +22,9 @@ D = observation_size(EnvConfig())
 def test_card_refuses_a_results_file(tmp_path, capsys):
     suite = small_suite_file(tmp_path, count=2)
     results = tmp_path / "r.json"
-    assert main(["eval", "--suite", str(suite), "--decider", "always-follow", "--out", str(results),
-                 "--no-progress"]) == 0
+    assert (
+        main(["eval", "--suite", str(suite), "--decider", "always-follow", "--out", str(results), "--no-progress"]) == 0
+    )
     capsys.readouterr()
     before = results.read_bytes()
     err = one_line_error(capsys, ["card", str(results), "--action-repeat", "10"])
@@ -39,8 +39,13 @@ def test_card_refuses_a_results_file(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ decision-map: the suffix's format
-MAGIC = {".png": b"\x89PNG\r\n\x1a\n", ".jpg": b"\xff\xd8\xff", ".jpeg": b"\xff\xd8\xff", ".svg": b"<?xml",
-         ".pdf": b"%PDF-"}
+MAGIC = {
+    ".png": b"\x89PNG\r\n\x1a\n",
+    ".jpg": b"\xff\xd8\xff",
+    ".jpeg": b"\xff\xd8\xff",
+    ".svg": b"<?xml",
+    ".pdf": b"%PDF-",
+}
 
 
 def test_decision_map_writes_the_format_its_suffix_names(tmp_path, capsys):
@@ -49,8 +54,10 @@ def test_decision_map_writes_the_format_its_suffix_names(tmp_path, capsys):
         assert main(["decision-map", "--decider", "always-overtake", "--resolution", "3", "--out", str(out)]) == 0
         assert out.read_bytes().startswith(magic), (suffix, out.read_bytes()[:8])
     capsys.readouterr()
-    err = one_line_error(capsys, ["decision-map", "--decider", "always-overtake", "--resolution", "3",
-                                  "--out", str(tmp_path / "map.gif")])
+    err = one_line_error(
+        capsys,
+        ["decision-map", "--decider", "always-overtake", "--resolution", "3", "--out", str(tmp_path / "map.gif")],
+    )
     assert "map.gif" in err and ".png, .jpg, .jpeg, .svg, .pdf" in err, err
     assert not (tmp_path / "map.gif").exists()
 
@@ -63,9 +70,13 @@ def _onnx_matmul(path, inputs: int, outputs: int):
     from onnx import TensorProto, helper, numpy_helper
 
     w = numpy_helper.from_array(np.linspace(-1, 1, inputs * outputs, dtype=np.float32).reshape(inputs, outputs), "w")
-    graph = helper.make_graph([helper.make_node("MatMul", ["obs", "w"], ["q"])], "policy",
-                              [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["n", inputs])],
-                              [helper.make_tensor_value_info("q", TensorProto.FLOAT, ["n", outputs])], [w])
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["obs", "w"], ["q"])],
+        "policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["n", inputs])],
+        [helper.make_tensor_value_info("q", TensorProto.FLOAT, ["n", outputs])],
+        [w],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8  # readable by every onnxruntime the [onnx] extra allows
     onnx.checker.check_model(model)
@@ -75,18 +86,48 @@ def _onnx_matmul(path, inputs: int, outputs: int):
 
 def test_onnx_policy_with_five_outputs_is_told_about_its_output(tmp_path, capsys):
     five = _onnx_matmul(tmp_path / "five.onnx", D, 5)
-    for command in (["decision-map", "--resolution", "3", "--out", str(tmp_path / "m.png")],
-                    ["eval", "--suite", str(small_suite_file(tmp_path, count=2)), "--out", str(tmp_path / "r.json"),
-                     "--no-progress"]):
+    for command in (
+        ["decision-map", "--resolution", "3", "--out", str(tmp_path / "m.png")],
+        [
+            "eval",
+            "--suite",
+            str(small_suite_file(tmp_path, count=2)),
+            "--out",
+            str(tmp_path / "r.json"),
+            "--no-progress",
+        ],
+    ):
         err = one_line_error(capsys, command + ["--policy", str(five)])
         assert "does not accept observations" not in err, err
         assert "output" in err and "returned shape (2, 5)" in err and "3 mode scores" in err, err
     # A model for other observations is still told so; three scores still act.
-    err = one_line_error(capsys, ["decision-map", "--resolution", "3", "--out", str(tmp_path / "m.png"),
-                                  "--policy", str(_onnx_matmul(tmp_path / "wide.onnx", D + 1, 3))])
+    err = one_line_error(
+        capsys,
+        [
+            "decision-map",
+            "--resolution",
+            "3",
+            "--out",
+            str(tmp_path / "m.png"),
+            "--policy",
+            str(_onnx_matmul(tmp_path / "wide.onnx", D + 1, 3)),
+        ],
+    )
     assert f"does not accept observations of shape (N, {D})" in err, err
-    assert main(["decision-map", "--resolution", "3", "--out", str(tmp_path / "m.png"),
-                 "--policy", str(_onnx_matmul(tmp_path / "three.onnx", D, 3))]) == 0
+    assert (
+        main(
+            [
+                "decision-map",
+                "--resolution",
+                "3",
+                "--out",
+                str(tmp_path / "m.png"),
+                "--policy",
+                str(_onnx_matmul(tmp_path / "three.onnx", D, 3)),
+            ]
+        )
+        == 0
+    )
 
 
 def test_modes_of_names_the_expected_output_shapes():
@@ -108,9 +149,11 @@ def test_gymnasium_make_of_a_multi_av_suite_points_at_pettingzoo(make):
 
     import overtakezoo.envs  # noqa: F401 (registers the ids)
 
-    call = {"make": lambda i: gymnasium.make(i),
-            "make_vec": lambda i: gymnasium.make_vec(i, num_envs=2),
-            "make_vec_sync": lambda i: gymnasium.make_vec(i, num_envs=2, vectorization_mode="sync")}[make]
+    call = {
+        "make": lambda i: gymnasium.make(i),
+        "make_vec": lambda i: gymnasium.make_vec(i, num_envs=2),
+        "make_vec_sync": lambda i: gymnasium.make_vec(i, num_envs=2, vectorization_mode="sync"),
+    }[make]
     with pytest.raises(gymnasium.error.NameNotFound) as exc:  # what it was before: code catching it still does
         call("overtakezoo/duel-v1")
     text = str(exc.value)
@@ -134,10 +177,22 @@ def test_dataset_download_without_minari_says_so_before_any_rebuild(tmp_path, ca
 
     name = "overtakezoo/table1/follow-v0"
     suite = load_suite("table1-train")  # a recipe this installation could rebuild (were minari there)
-    recipe = {"suite": suite.name, "suite_sha256": suite.hash, "suite_version": suite.version, "count": 2,
-              "chunk_size": 4096, "policies": [{"decider": "always-follow", "epsilon": 0.0, "seed": 0,
-                                                "decider_version": str(zoo.load("always-follow", suite.config).version),
-                                                "weights_sha256": None}]}
+    recipe = {
+        "suite": suite.name,
+        "suite_sha256": suite.hash,
+        "suite_version": suite.version,
+        "count": 2,
+        "chunk_size": 4096,
+        "policies": [
+            {
+                "decider": "always-follow",
+                "epsilon": 0.0,
+                "seed": 0,
+                "decider_version": str(zoo.load("always-follow", suite.config).version),
+                "weights_sha256": None,
+            }
+        ],
+    }
     registry = tmp_path / "registry.json"
     registry.write_text(json.dumps({"datasets": {name: {"mirrors": [], "recipe": recipe, "content_sha256": "0" * 64}}}))
     monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(registry))

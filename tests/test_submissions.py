@@ -8,20 +8,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtakezoo.envs.io import file_sha256
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard.changes import default_base
 from overtakezoo.benchmark.leaderboard.generate import generate
+from overtakezoo.benchmark.leaderboard.rows import load_submissions
+from overtakezoo.benchmark.leaderboard.submission import submit
+from overtakezoo.benchmark.leaderboard.verify import sample_indices
 from overtakezoo.benchmark.results.metrics import summarize
 from overtakezoo.benchmark.results.results import PER_SCENARIO, Results
 from overtakezoo.benchmark.run.runner import run_indices, run_suite
-from overtakezoo.benchmark.leaderboard.submission import submit
-from overtakezoo.benchmark.leaderboard.changes import default_base
-from overtakezoo.benchmark.leaderboard.rows import load_submissions
-from overtakezoo.benchmark.leaderboard.verify import sample_indices
 from overtakezoo.envs import FOLLOW, OVERTAKE, SIM_VERSION, EnvConfig, observation_size
-
+from overtakezoo.envs.io import file_sha256
 from test_benchmark_results import fake_results
 from test_benchmark_runner import small_suite
 
@@ -88,8 +87,10 @@ def test_every_shipped_row_reproduces_as_ci_runs(capsys):
     for matrix in sorted(REPO.glob("crossplay/*.json")):  # and the cross-play matrices, 12 pairs each
         assert f"verified crossplay/{matrix.name}: 12 of " in out
     with capsys.disabled():
-        print(f"\nverified {rows} rows ({'all in full: no base' if base is None else f'against {base[:12]}'}) "
-              f"in {time.perf_counter() - t0:.1f} s")
+        print(
+            f"\nverified {rows} rows ({'all in full: no base' if base is None else f'against {base[:12]}'}) "
+            f"in {time.perf_counter() - t0:.1f} s"
+        )
 
 
 def test_privileged_rows_are_upper_bounds_not_ranked():
@@ -130,8 +131,9 @@ def scripted_policy(path, seed, favour):
     """A TorchScript MLP (N, D) float32 -> 3 logits with seeded weights, leaning towards mode ``favour``."""
     torch = pytest.importorskip("torch")
     torch.manual_seed(seed)
-    net = torch.nn.Sequential(torch.nn.Linear(observation_size(EnvConfig()), 16), torch.nn.Tanh(),
-                              torch.nn.Linear(16, 3))
+    net = torch.nn.Sequential(
+        torch.nn.Linear(observation_size(EnvConfig()), 16), torch.nn.Tanh(), torch.nn.Linear(16, 3)
+    )
     with torch.no_grad():
         net[2].bias.copy_(torch.nn.functional.one_hot(torch.tensor(favour), 3) * 4.0)
     torch.jit.save(torch.jit.script(net.eval()), str(path))
@@ -144,17 +146,20 @@ def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_pat
     b = scripted_policy(tmp_path / "other.pt", 1, FOLLOW)  # same shapes, other weights, other outcomes
     root = tmp_path / "lb"
     for policy, out in ((a, "ra.json"), (b, "rb.json")):
-        assert main(["eval", "--policy", str(policy), "--suite", tiny, "--out", str(tmp_path / out),
-                     "--no-progress"]) == 0
+        assert (
+            main(["eval", "--policy", str(policy), "--suite", tiny, "--out", str(tmp_path / out), "--no-progress"]) == 0
+        )
     ra, rb = Results.load(tmp_path / "ra.json"), Results.load(tmp_path / "rb.json")
     assert not np.array_equal(ra.per["outcome"], rb.per["outcome"])
     capsys.readouterr()
 
     # Results of policy A filed with policy B: refused at submit time (the results record A's sha256).
     assert "submit the file that was evaluated" in one_line_error(
-        capsys, ["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(b), "--root", str(root)])
-    assert main(["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(a),
-                 "--root", str(root)]) == 0
+        capsys, ["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(b), "--root", str(root)]
+    )
+    assert (
+        main(["submit", str(tmp_path / "ra.json"), "--name", "my-policy", "--policy", str(a), "--root", str(root)]) == 0
+    )
     filed = Results.load(root / "submissions" / tiny / "my-policy.json")
     policy = filed.meta["submission"]["policy"]
     sha = policy["sha256"]
@@ -163,8 +168,13 @@ def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_pat
     artifact = root / "submissions" / "artifacts" / f"{sha}.onnx"
     assert policy["artifact"] == f"artifacts/{sha}.onnx" and artifact.read_bytes()[:1] == b"\x08"
     assert policy["source"] == {"kind": "torchscript", "sha256": file_sha256(a)}
-    assert filed.decider == {"name": "my-policy", "version": "1", "weights_sha256": sha, "privileged": False,
-                             "policy": {"kind": "onnx", "file": f"{sha}.onnx", "sha256": sha}}
+    assert filed.decider == {
+        "name": "my-policy",
+        "version": "1",
+        "weights_sha256": sha,
+        "privileged": False,
+        "policy": {"kind": "onnx", "file": f"{sha}.onnx", "sha256": sha},
+    }
     assert filed.per["outcome"].tolist() == ra.per["outcome"].tolist()
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 0
     assert "verified submissions/tiny/my-policy.json: 12 of 12 scenarios reproduce exactly" in capsys.readouterr().out
@@ -178,12 +188,17 @@ def test_artifact_row_reproduces_and_a_swapped_artifact_is_refused(tiny, tmp_pat
 
     # A consistent forgery: A's outcomes claimed for B (the results' weights sha256 edited to B's):
     # submit re-runs the stored form of B on every scenario and refuses, naming the first that differs.
-    forged = Results({**ra.meta, "decider": {**ra.decider, "weights_sha256": rb.decider["weights_sha256"]}},
-                     ra.per, ra.summary, ra.timing)
+    forged = Results(
+        {**ra.meta, "decider": {**ra.decider, "weights_sha256": rb.decider["weights_sha256"]}},
+        ra.per,
+        ra.summary,
+        ra.timing,
+    )
     forged.save(tmp_path / "forged.json")
     first = int(np.flatnonzero(ra.per["outcome"] != rb.per["outcome"])[0])
-    err = one_line_error(capsys, ["submit", str(tmp_path / "forged.json"), "--name", "forged", "--policy", str(b),
-                                  "--root", str(root)])
+    err = one_line_error(
+        capsys, ["submit", str(tmp_path / "forged.json"), "--name", "forged", "--policy", str(b), "--root", str(root)]
+    )
     assert "forged.json: scenario " in err and "not produced by this policy" in err
     assert int(err.split("scenario ")[1].split(":")[0]) <= first
     assert not (root / "submissions" / tiny / "forged.json").exists()
@@ -217,7 +232,8 @@ def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys, l
     shutil.copy(mine, noted)
     noted.with_suffix(".json").write_text(json.dumps({**json.loads(mine.with_suffix(".json").read_text()), "n": 1}))
     assert "another model card for these weights" in one_line_error(
-        capsys, ["submit", str(results), "--name", "noted", "--policy", str(noted), "--root", str(root)])
+        capsys, ["submit", str(results), "--name", "noted", "--policy", str(noted), "--root", str(root)]
+    )
 
     # The card is part of the policy (architecture, action repeat): an edited one is refused, named.
     card = json.loads((store / f"{sha}.json").read_text())
@@ -230,8 +246,10 @@ def test_train_output_is_submitted_with_its_model_card(tiny, tmp_path, capsys, l
     # Replaced by another policy: the pair is pruned together.
     other = scripted_policy(tmp_path / "other.pt", 1, FOLLOW)
     assert main(["eval", "--policy", str(other), "--suite", tiny, "--out", str(results), "--no-progress"]) == 0
-    assert main(["submit", str(results), "--name", "my-dqn", "--policy", str(other), "--replace",
-                 "--root", str(root)]) == 0
+    assert (
+        main(["submit", str(results), "--name", "my-dqn", "--policy", str(other), "--replace", "--root", str(root)])
+        == 0
+    )
     (onnx,) = store.iterdir()
     assert onnx.suffix == ".onnx" and onnx.stem == file_sha256(onnx)
 
@@ -252,21 +270,27 @@ def test_builtin_names_are_reserved(root, tmp_path, capsys):
     # A self-trained "ppo" is not the zoo's ppo: refused, with or without its file.
     assert "the zoo has v1" in one_line_error(capsys, ["submit", str(path), "--root", str(root)])
     assert "reserved" in one_line_error(capsys, ["submit", str(path), "--policy", str(mine), "--root", str(root)])
-    assert "reserved" in one_line_error(capsys, ["submit", str(path), "--policy", str(mine), "--name", "PPO",
-                                                 "--root", str(root)])
-    assert "not a file" in one_line_error(capsys, ["submit", str(path), "--policy", "pkg.mod:factory",
-                                                   "--name", "mine", "--root", str(root)])
+    assert "reserved" in one_line_error(
+        capsys, ["submit", str(path), "--policy", str(mine), "--name", "PPO", "--root", str(root)]
+    )
+    assert "not a file" in one_line_error(
+        capsys, ["submit", str(path), "--policy", "pkg.mod:factory", "--name", "mine", "--root", str(root)]
+    )
     # The weights the results recorded must be the file's.
     assert "submit the file that was evaluated" in one_line_error(
-        capsys, ["submit", str(path), "--policy", str(mine), "--name", "my-ppo", "--root", str(root)])
+        capsys, ["submit", str(path), "--policy", str(mine), "--name", "my-ppo", "--root", str(root)]
+    )
     # A decider that is not built in needs its policy file; a built-in keeps its own name.
     own.meta["decider"] = {**own.meta["decider"], "name": "stub", "weights_sha256": None}
     own.save(path)
     assert "--policy FILE" in one_line_error(capsys, ["submit", str(path), "--root", str(root)])
     assert "its own name" in one_line_error(
-        capsys, ["submit", str(_results_file(tmp_path, "rule-fsm")), "--name", "rules", "--root", str(root)])
-    assert sorted(p.name for p in (root / "submissions" / "table1").iterdir()) == ["always-overtake.json",
-                                                                                  "rule-fsm.json"]
+        capsys, ["submit", str(_results_file(tmp_path, "rule-fsm")), "--name", "rules", "--root", str(root)]
+    )
+    assert sorted(p.name for p in (root / "submissions" / "table1").iterdir()) == [
+        "always-overtake.json",
+        "rule-fsm.json",
+    ]
     assert not (root / "submissions" / "artifacts").exists()
 
 
@@ -307,8 +331,10 @@ def test_stale_rows_are_shown_apart_and_skipped_by_verify(root, capsys):
     md = generate(root)["table1.md"].decode()
     ranked, stale = md.split("## Stale submissions")
     assert "[rule-fsm]" not in ranked
-    assert f"[rule-fsm](submissions/table1/rule-fsm.json): measured on simulator v{SIM_VERSION + 1} " \
-           f"(now v{SIM_VERSION})" in stale
+    assert (
+        f"[rule-fsm](submissions/table1/rule-fsm.json): measured on simulator v{SIM_VERSION + 1} "
+        f"(now v{SIM_VERSION})" in stale
+    )
     index = json.loads(generate(root)["index.json"])
     assert index["suites"]["table1"]["stale"][0]["file"] == "submissions/table1/rule-fsm.json"
     assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0
@@ -324,8 +350,9 @@ def test_stale_rows_are_shown_apart_and_skipped_by_verify(root, capsys):
 
 def test_verify_flags_need_verify(capsys):
     assert "--verify" in one_line_error(capsys, ["leaderboard", "--sample", "3", "--root", str(REPO)])
-    assert "no current row" in one_line_error(capsys, ["leaderboard", "--verify", "--only", "nope/*",
-                                                       "--root", str(REPO)])
+    assert "no current row" in one_line_error(
+        capsys, ["leaderboard", "--verify", "--only", "nope/*", "--root", str(REPO)]
+    )
 
 
 # ------------------------------------------------------------------ the results loader (defect: "seed": 0.0)

@@ -12,12 +12,12 @@ import numpy as np
 import pettingzoo
 import pytest
 from gymnasium.utils.env_checker import check_env
-from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 
 import overtakezoo.envs  # noqa: F401  (registers the ids)
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
 from overtakezoo.envs import ConfigError, OvertakeEnv, OvertakeVectorEnv, make_vec, parallel_env
+from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 from overtakezoo.envs.faces.gym import ENV_ID, ENV_ID_V0
 from overtakezoo.envs.suites import MULTI, SuiteError, load_suite, suite_env_ids, suite_names
 
@@ -72,8 +72,11 @@ def test_overtake_v1_is_table1_train_v2_with_the_zoo_hold():
     # Issue 36: the id the submit guide trains on is the training world at the zoo's 1 s decision, the
     # kwargs of table1-train v2's id. A new table1-train version must come with a new Overtake version.
     assert ENV_ID == "overtakezoo/Overtake-v1" and ENV_ID_V0 == "overtakezoo/Overtake-v0"
-    assert gymnasium.spec(ENV_ID).kwargs == gymnasium.spec("overtakezoo/table1-train-v2").kwargs \
+    assert (
+        gymnasium.spec(ENV_ID).kwargs
+        == gymnasium.spec("overtakezoo/table1-train-v2").kwargs
         == {"suite": "table1-train", "hold_steps": 10}
+    )
     assert pettingzoo.parallel_registry[ENV_ID].kwargs == gymnasium.spec(ENV_ID).kwargs
     env = gymnasium.make(ENV_ID).unwrapped
     train = load_suite("table1-train")
@@ -137,8 +140,9 @@ def test_check_env_and_parallel_api_test_pass_on_suite_envs():
         warnings.simplefilter("always")
         check_env(gymnasium.make("overtakezoo/table1-train-v2").unwrapped)
         check_env(gymnasium.make("overtakezoo/dense-v1").unwrapped)
-    assert not [w for w in caught if "overtakezoo" in str(w.filename) or "env_checker" in str(w.filename)], \
-        [str(w.message) for w in caught]
+    assert not [w for w in caught if "overtakezoo" in str(w.filename) or "env_checker" in str(w.filename)], [
+        str(w.message) for w in caught
+    ]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         parallel_api_test(pettingzoo.make("parallel", "overtakezoo/duel-v1"), num_cycles=200)

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
+from conftest import suite_file
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
 from overtakezoo.envs.suites import SUITES_DIR
 from overtakezoo.zoo.train.contract import run_files
-from conftest import suite_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,11 +31,14 @@ def test_readme_first_command_is_the_base_install_and_ci_runs_the_second():
 
 
 def test_eval_never_imports_torch(tmp_path):
-    code = ("import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; "
-            "sys.exit(main(['eval', '--suite', sys.argv[1], '--decider', 'dqn', '--out', sys.argv[2], '--no-progress']))")
+    code = (
+        "import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; "
+        "sys.exit(main(['eval', '--suite', sys.argv[1], '--decider', 'dqn', '--out', sys.argv[2], '--no-progress']))"
+    )
     tiny = SUITES_DIR / "table1.toml"
-    done = subprocess.run([sys.executable, "-c", code, str(tiny), str(tmp_path / "dqn.json")], capture_output=True, text=True,
-                          timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(tiny), str(tmp_path / "dqn.json")], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "dqn.json").is_file()
 
@@ -45,8 +48,9 @@ def test_train_without_torch_is_one_error_line_naming_the_extra(tmp_path, member
     argv = ["train", member, "--out", str(tmp_path / "run"), "--no-progress"]
     if member in ("bc", "cql"):
         argv += ["--dataset", "overtakezoo/table1/rule-fsm-v0"]
-    code = ("import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; "
-            f"sys.exit(main({argv!r}))")
+    code = (
+        f"import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; sys.exit(main({argv!r}))"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr == f"error: training {member} needs torch (pip install -e '.[train]')\n"
@@ -69,8 +73,28 @@ def test_train_help_lists_exactly_the_files_a_dqn_run_writes(tmp_path, capsys):
     pytest.importorskip("torch")
     suite = suite_file(tmp_path / "tiny.toml", 4)
     out = tmp_path / "run"
-    assert main(["train", "dqn", "--steps", "600", "--seed", "0", "--out", str(out), "--eval-suite", str(suite),
-                 "--no-progress", "--set", "learning_starts=100", "--set", "num_envs=16"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "dqn",
+                "--steps",
+                "600",
+                "--seed",
+                "0",
+                "--out",
+                str(out),
+                "--eval-suite",
+                str(suite),
+                "--no-progress",
+                "--set",
+                "learning_starts=100",
+                "--set",
+                "num_envs=16",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     assert written == sorted([*run_files("dqn", "dqn"), "dqn-tiny.results.json"])

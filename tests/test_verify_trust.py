@@ -13,15 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results.results import Results
-from overtakezoo.benchmark.leaderboard.submission import submissions_lock, submit
-from overtakezoo.benchmark.leaderboard.changes import changed_rows
-from overtakezoo.benchmark.leaderboard.verify import sample_indices, verify
-
 from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard.changes import changed_rows
+from overtakezoo.benchmark.leaderboard.submission import submissions_lock, submit
+from overtakezoo.benchmark.leaderboard.verify import sample_indices, verify
+from overtakezoo.benchmark.results.results import Results
 from overtakezoo.envs.io import file_sha256
-
 from test_submissions import REPO, one_line_error, shipped
 
 ROWS = ("always-follow", "always-overtake", "oracle", "rule-fsm")
@@ -60,15 +58,18 @@ def test_a_row_under_a_reserved_name_is_refused(root, capsys):
 
     # Every label swapped to ppo's (its version and weights): the labels pass, the numbers do not.
     ppo = json.loads((REPO / "submissions" / "table1" / "ppo.json").read_text())
-    edit(forged, lambda d: (d["submission"].update(policy=ppo["submission"]["policy"]),
-                            d.update(decider=ppo["decider"])))
-    err = one_line_error(capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "20", "--only",
-                                  "table1/ppo"])
+    edit(
+        forged, lambda d: (d["submission"].update(policy=ppo["submission"]["policy"]), d.update(decider=ppo["decider"]))
+    )
+    err = one_line_error(
+        capsys, ["leaderboard", "--root", str(root), "--verify", "--sample", "20", "--only", "table1/ppo"]
+    )
     assert "ppo.json: scenario " in err and "not produced by this policy" in err
 
     # An artifact row may not take a built-in's name in any case.
-    art = dict(ppo, submission={"name": "PPO", "policy": {"artifact": "artifacts/" + "a" * 64 + ".onnx",
-                                                          "sha256": "a" * 64}})
+    art = dict(
+        ppo, submission={"name": "PPO", "policy": {"artifact": "artifacts/" + "a" * 64 + ".onnx", "sha256": "a" * 64}}
+    )
     forged.unlink()
     (root / "submissions" / "table1" / "PPO.json").write_text(json.dumps(art))
     (root / "submissions" / "artifacts").mkdir()
@@ -77,13 +78,16 @@ def test_a_row_under_a_reserved_name_is_refused(root, capsys):
     assert "PPO.json: submission.name 'PPO': reserved for the built-in zoo member 'ppo'" in err
 
 
-@pytest.mark.parametrize("field, value", [
-    (("package", "version"), "1 | ![t](https://x/t.png) | <b>x</b>"),
-    (("git_commit",), "deadbeef; rm -rf"),
-    (("timing", "started"), "<script>"),
-    (("timing", "note"), "anything"),
-    (("decider", "version"), "1 <b>"),
-])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        (("package", "version"), "1 | ![t](https://x/t.png) | <b>x</b>"),
+        (("git_commit",), "deadbeef; rm -rf"),
+        (("timing", "started"), "<script>"),
+        (("timing", "note"), "anything"),
+        (("decider", "version"), "1 <b>"),
+    ],
+)
 def test_provenance_fields_are_held_to_patterns(root, capsys, field, value):
     path = root / "submissions" / "table1" / "rule-fsm.json"
 
@@ -100,8 +104,12 @@ def test_provenance_fields_are_held_to_patterns(root, capsys, field, value):
 
 # ------------------------------------------------------------------ what CI verifies
 def git(root: Path, *args: str) -> str:
-    return subprocess.run(["git", "-C", str(root), "-c", "user.name=t", "-c", "user.email=t@t", *args],
-                          check=True, capture_output=True, text=True).stdout.strip()
+    return subprocess.run(
+        ["git", "-C", str(root), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
 
 
 def test_new_and_changed_rows_are_verified_in_full(root, capsys):
@@ -150,8 +158,10 @@ def test_a_new_stale_row_is_refused(root, capsys):
     git(root, "commit", "-qam", "stale row")  # once on the base it is listed by name, never re-run
     lines: list[str] = []
     verify(root, sample=1, changed=changed_rows(root, "HEAD"), log=lines.append)
-    assert "stale submissions/table1/rule-fsm.json: listed by name only, not re-run (measured on simulator v1" \
-           f" (now v{Results.load(REPO / 'submissions/table1/dqn.json').meta['sim_version']}))" in lines
+    assert (
+        "stale submissions/table1/rule-fsm.json: listed by name only, not re-run (measured on simulator v1"
+        f" (now v{Results.load(REPO / 'submissions/table1/dqn.json').meta['sim_version']}))" in lines
+    )
 
 
 @pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
@@ -161,8 +171,12 @@ def test_untracked_rows_are_new_and_counted_as_rows(tiny, tmp_path, capsys, lear
     monkeypatch.delenv("GITHUB_BASE_REF", raising=False)
     repo = tmp_path / "repo"
     root = repo / "leaderboards"
-    assert main(["eval", "--decider", "always-follow", "--suite", tiny, "--out", str(tmp_path / "af.json"),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            ["eval", "--decider", "always-follow", "--suite", tiny, "--out", str(tmp_path / "af.json"), "--no-progress"]
+        )
+        == 0
+    )
     assert main(["submit", str(tmp_path / "af.json"), "--root", str(root)]) == 0
     git(repo, "init", "-q")
     git(repo, "add", "-A")
@@ -175,9 +189,12 @@ def test_untracked_rows_are_new_and_counted_as_rows(tiny, tmp_path, capsys, lear
     mine.parent.mkdir()
     shutil.copy(learned_dir / "dqn.npz", mine)
     shutil.copy(learned_dir / "dqn.json", mine.with_suffix(".json"))
-    assert main(["eval", "--policy", str(mine), "--suite", tiny, "--out", str(tmp_path / "r.json"),
-                 "--no-progress"]) == 0
-    assert main(["submit", str(tmp_path / "r.json"), "--name", "my-dqn", "--policy", str(mine), "--root", str(root)]) == 0
+    assert (
+        main(["eval", "--policy", str(mine), "--suite", tiny, "--out", str(tmp_path / "r.json"), "--no-progress"]) == 0
+    )
+    assert (
+        main(["submit", str(tmp_path / "r.json"), "--name", "my-dqn", "--policy", str(mine), "--root", str(root)]) == 0
+    )
     assert len(git(repo, "ls-files", "--others").split()) == 3
     rel = f"submissions/{tiny}/my-dqn.json"
     for staged in (False, True):  # untracked, then added: the same one row, verified in full
@@ -185,13 +202,19 @@ def test_untracked_rows_are_new_and_counted_as_rows(tiny, tmp_path, capsys, lear
             git(repo, "add", "-A")
         assert changed_rows(root, base) == {rel}
         capsys.readouterr()
-        assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0  # base: the target, from the environment
+        assert (
+            main(["leaderboard", "--root", str(root), "--verify", "--sample", "1"]) == 0
+        )  # base: the target, from the environment
         out = capsys.readouterr().out
         assert f"rows new or changed against {base[:12]} (untracked rows are new): 1 row(s), verified in full" in out
-        assert (f"verified {rel}: 12 of 12 scenarios reproduce exactly; fresh draw: 12 of 12 reproduce, verify's own "
-                "draw of 12 agrees (new or changed: every scenario)") in out
-        assert (f"verified submissions/{tiny}/always-follow.json: 1 of 12 scenarios reproduce exactly; fresh draw: "
-                "1 of 12 reproduce\n") in out
+        assert (
+            f"verified {rel}: 12 of 12 scenarios reproduce exactly; fresh draw: 12 of 12 reproduce, verify's own "
+            "draw of 12 agrees (new or changed: every scenario)"
+        ) in out
+        assert (
+            f"verified submissions/{tiny}/always-follow.json: 1 of 12 scenarios reproduce exactly; fresh draw: "
+            "1 of 12 reproduce\n"
+        ) in out
     # --only counts the rows it selects; a deleted row is on no board: nothing to verify.
     assert main(["leaderboard", "--root", str(root), "--verify", "--sample", "1", "--only", "*/always-*"]) == 0
     assert "(untracked rows are new): 0 row(s)" in capsys.readouterr().out

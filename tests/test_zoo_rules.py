@@ -3,8 +3,19 @@
 import numpy as np
 import pytest
 
-from overtakezoo.envs import (ABORT, CRASH, FOLLOW, OVERTAKE, SUCCESS, EnvConfig, OvertakeCore,
-                              ScenarioDistribution, Scenarios, make_scenario, observation_size)
+from overtakezoo.envs import (
+    ABORT,
+    CRASH,
+    FOLLOW,
+    OVERTAKE,
+    SUCCESS,
+    EnvConfig,
+    OvertakeCore,
+    ScenarioDistribution,
+    Scenarios,
+    make_scenario,
+    observation_size,
+)
 from overtakezoo.zoo import load, names
 
 
@@ -80,10 +91,17 @@ def test_fuzzy_rule_base_is_checked():
     with pytest.raises(ValueError, match="lead_gap"):
         MamdaniRules(INPUTS, OUTPUT, [({"lead_gap": "tiny"}, "go")])
     engine = MamdaniRules()
-    go = engine.infer({"lead_gap": np.array([5.0, 50.0]), "oncoming_gap": np.array([np.inf, np.inf]),
-                       "closing_ttc": np.array([np.inf, np.inf]), "time_margin": np.array([np.inf, np.inf]),
-                       "complete_vs_abort": np.array([2.0, 2.0]), "progress": np.array([0.0, 0.0]),
-                       "passing": np.array([0.0, 0.0])})
+    go = engine.infer(
+        {
+            "lead_gap": np.array([5.0, 50.0]),
+            "oncoming_gap": np.array([np.inf, np.inf]),
+            "closing_ttc": np.array([np.inf, np.inf]),
+            "time_margin": np.array([np.inf, np.inf]),
+            "complete_vs_abort": np.array([2.0, 2.0]),
+            "progress": np.array([0.0, 0.0]),
+            "passing": np.array([0.0, 0.0]),
+        }
+    )
     assert go[0] > 0.6 > go[1]  # near lead + clear road -> go; far lead -> hold (approach)
     with pytest.raises(ValueError, match="missing: closing_ttc"):
         engine.infer({"lead_gap": np.array([5.0])})

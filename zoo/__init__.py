@@ -5,8 +5,30 @@ in :mod:`.members` (numpy only), their trainers in :mod:`.train` (torch), the co
 for your own decider in :mod:`.testing`.
 """
 
-from overtakezoo.zoo.base import (KINDS, ConstantDecider, Decider, Member, ObservationError, UnknownDecider, known_names, load,
-                   member, names, register)
+from overtakezoo.zoo.base import (
+    KINDS,
+    ConstantDecider,
+    Decider,
+    Member,
+    ObservationError,
+    UnknownDecider,
+    known_names,
+    load,
+    member,
+    names,
+    register,
+)
 
-__all__ = ["KINDS", "ConstantDecider", "Decider", "Member", "ObservationError", "UnknownDecider", "known_names",
-           "load", "member", "names", "register"]
+__all__ = [
+    "KINDS",
+    "ConstantDecider",
+    "Decider",
+    "Member",
+    "ObservationError",
+    "UnknownDecider",
+    "known_names",
+    "load",
+    "member",
+    "names",
+    "register",
+]

@@ -9,8 +9,9 @@ trainer. The leaderboard, the ``train`` command, the shield and the tests ask it
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -121,8 +122,10 @@ class Decider:
             self._agent_obs = np.zeros((len(rows), *first.shape), first.dtype)
         for agent, obs in observations.items():
             if agent not in rows:
-                raise KeyError(f"{self.name}: act_agents: agent {agent!r} is not one of this episode's agents "
-                               f"({', '.join(map(str, rows))}); call reset_agents() when a new episode starts")
+                raise KeyError(
+                    f"{self.name}: act_agents: agent {agent!r} is not one of this episode's agents "
+                    f"({', '.join(map(str, rows))}); call reset_agents() when a new episode starts"
+                )
             self._agent_obs[rows[agent]] = obs
         self._agents_present = set(observations)
         modes = self.act(self._agent_obs)
@@ -134,8 +137,9 @@ class Decider:
         self.reset()
 
 
-def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider",
-             config: EnvConfig | None = None) -> Any:
+def act_with(
+    act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decider", config: EnvConfig | None = None
+) -> Any:
     """The decider protocol around a batch function: (D,) -> int through a batch of one, (N, D) ->
     (N,) int64, (0, D) -> an empty (0,) int64 without calling it. Anything else, and with ``config``
     a width other than its observation's or a non-finite value, is an :class:`ObservationError`."""
@@ -149,8 +153,9 @@ def act_with(act_batch: Callable[[np.ndarray], Any], obs: Any, who: str = "decid
         return np.zeros(0, np.int64)
     modes = np.asarray(act_batch(batch))
     if modes.shape != (batch.shape[0],):
-        raise ValueError(f"{who}: act returned shape {modes.shape} for {batch.shape[0]} observation(s); "
-                         f"expected ({batch.shape[0]},)")
+        raise ValueError(
+            f"{who}: act returned shape {modes.shape} for {batch.shape[0]} observation(s); expected ({batch.shape[0]},)"
+        )
     modes = modes.astype(np.int64, copy=False)
     return int(modes[0]) if obs.ndim == 1 else modes
 
@@ -161,16 +166,20 @@ def check_observations(batch: np.ndarray, config: EnvConfig, who: str = "decider
     (or none), and a network's argmax over NaN scores is mode 0 or worse."""
     width = observation_size(config)
     if batch.shape[1] != width:
-        raise ObservationError(f"{who}: observations have {batch.shape[1]} features, expected {width} "
-                               "(observation_size of the decider's config)")
+        raise ObservationError(
+            f"{who}: observations have {batch.shape[1]} features, expected {width} "
+            "(observation_size of the decider's config)"
+        )
     try:
         finite = np.isfinite(batch)
     except TypeError:
         raise ObservationError(f"{who}: observations must be numbers, got dtype {batch.dtype}") from None
     if not finite.all():
         row, col = (int(i[0]) for i in np.nonzero(~finite))
-        raise ObservationError(f"{who}: observation feature {col} ({_feature(config, col)}) is "
-                               f"{batch[row, col]} in row {row}; observations must be finite")
+        raise ObservationError(
+            f"{who}: observation feature {col} ({_feature(config, col)}) is "
+            f"{batch[row, col]} in row {row}; observations must be finite"
+        )
 
 
 def _feature(config: EnvConfig, col: int) -> str:
@@ -230,13 +239,25 @@ class Member:
 
 
 def _builtin() -> dict[str, Member]:
-    learned = {"dqn": "dqn", "double-dqn": "dqn", "ps-dqn": "dqn", "ppo": "ppo", "bc": "bc", "cql": "cql",
-               "dagger": "dagger"}
-    own = [Member("always-follow", "rule"), Member("always-overtake", "rule"), Member("always-abort", "rule"),
-           Member("rule-fsm", "rule", "rule_fsm", shieldable=True), Member("fuzzy", "rule", "fuzzy", shieldable=True),
-           Member("oracle", "privileged", "oracle"),
-           # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
-           *(Member(n, "learned", "learned", trainer=t, shieldable=True) for n, t in learned.items())]
+    learned = {
+        "dqn": "dqn",
+        "double-dqn": "dqn",
+        "ps-dqn": "dqn",
+        "ppo": "ppo",
+        "bc": "bc",
+        "cql": "cql",
+        "dagger": "dagger",
+    }
+    own = [
+        Member("always-follow", "rule"),
+        Member("always-overtake", "rule"),
+        Member("always-abort", "rule"),
+        Member("rule-fsm", "rule", "rule_fsm", shieldable=True),
+        Member("fuzzy", "rule", "fuzzy", shieldable=True),
+        Member("oracle", "privileged", "oracle"),
+        # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
+        *(Member(n, "learned", "learned", trainer=t, shieldable=True) for n, t in learned.items()),
+    ]
     wrapped = [Member(f"{m.name}+shield", "wrapper", "shield", wraps=m.name) for m in own if m.shieldable]
     return {m.name: m for m in own + wrapped}
 

@@ -27,8 +27,9 @@ from overtakezoo.envs.hold import hold, hold_steps
 MODES = (0, 1, 2)
 
 
-def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, decisions: int = 12,
-                  seed: int = 0) -> None:
+def check_decider(
+    decider: Any, config: EnvConfig | None = None, num: int = 8, decisions: int = 12, seed: int = 0
+) -> None:
     """Raise ``AssertionError`` unless ``decider`` follows the decider protocol (module docstring)
     on ``num`` scenarios of ``config`` (default: the decider's own ``config``, else the default)
     for ``decisions`` decisions."""
@@ -36,21 +37,30 @@ def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, d
     who = f"check_decider({getattr(decider, 'name', type(decider).__name__)!r})"
     _expect(hasattr(decider, "act") and callable(decider.act), f"{who}: no act(obs) method")
     _expect(callable(getattr(decider, "reset", None)), f"{who}: no reset(mask=None) method")
-    _expect(isinstance(getattr(decider, "name", None), str) and decider.name,
-            f"{who}: name must be a non-empty str, got {getattr(decider, 'name', None)!r}")
-    _expect(isinstance(getattr(decider, "version", None), str),
-            f"{who}: version must be a str, got {getattr(decider, 'version', None)!r}")
+    _expect(
+        isinstance(getattr(decider, "name", None), str) and decider.name,
+        f"{who}: name must be a non-empty str, got {getattr(decider, 'name', None)!r}",
+    )
+    _expect(
+        isinstance(getattr(decider, "version", None), str),
+        f"{who}: version must be a str, got {getattr(decider, 'version', None)!r}",
+    )
     repeat = getattr(decider, "action_repeat", 1)
-    _expect(isinstance(repeat, (int, np.integer)) and not isinstance(repeat, bool) and repeat >= 1,
-            f"{who}: action_repeat must be an int >= 1 (its decision rate: core steps each decision is held), "
-            f"got {repeat!r}")
+    _expect(
+        isinstance(repeat, (int, np.integer)) and not isinstance(repeat, bool) and repeat >= 1,
+        f"{who}: action_repeat must be an int >= 1 (its decision rate: core steps each decision is held), "
+        f"got {repeat!r}",
+    )
     scenarios = ScenarioDistribution.from_dict(config.scenario).sample(num, seed)
 
     first = _rollout(decider, config, scenarios, decisions, who)
     again = _rollout(decider, config, scenarios, decisions, who)
-    for k, (a, b) in enumerate(zip(first, again)):
-        _expect(np.array_equal(a, b), f"{who}: not deterministic: after reset() the same scenarios gave "
-                                      f"different modes at decision {k} ({a.tolist()} vs {b.tolist()})")
+    for k, (a, b) in enumerate(zip(first, again, strict=True)):
+        _expect(
+            np.array_equal(a, b),
+            f"{who}: not deterministic: after reset() the same scenarios gave "
+            f"different modes at decision {k} ({a.tolist()} vs {b.tolist()})",
+        )
 
     # One observation (D,) -> a Python int, the same as row 0 of the batch at the first decision.
     _, obs = _start(decider, config, scenarios.take(slice(0, 1)))
@@ -59,14 +69,20 @@ def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, d
     try:
         single = decider.act(obs)
     except Exception as exc:
-        raise AssertionError(f"{who}: act(obs) with one observation of shape {obs.shape} raised "
-                             f"{type(exc).__name__}: {exc}") from exc
-    _expect(isinstance(single, int) and not isinstance(single, bool),
-            f"{who}: act(obs) with one observation of shape {obs.shape} must return a Python int, got "
-            f"{type(single).__name__} {np.shape(single)}")
+        raise AssertionError(
+            f"{who}: act(obs) with one observation of shape {obs.shape} raised {type(exc).__name__}: {exc}"
+        ) from exc
+    _expect(
+        isinstance(single, int) and not isinstance(single, bool),
+        f"{who}: act(obs) with one observation of shape {obs.shape} must return a Python int, got "
+        f"{type(single).__name__} {np.shape(single)}",
+    )
     _expect(single in MODES, f"{who}: act(obs) returned {single}, expected 0 (follow), 1 (overtake) or 2 (abort)")
-    _expect(single == int(first[0][0]), f"{who}: act(obs[0]) = {single} but act(obs)[0] = {int(first[0][0])}: "
-                                        "a row's decision must not depend on the other rows of the batch")
+    _expect(
+        single == int(first[0][0]),
+        f"{who}: act(obs[0]) = {single} but act(obs)[0] = {int(first[0][0])}: "
+        "a row's decision must not depend on the other rows of the batch",
+    )
 
     # An empty batch (0, D) -> an empty (0,) int array (a caller that passes only its live rows may have none).
     empty = _modes(decider, np.zeros((0, observation_size(config)), np.float32), who)
@@ -81,8 +97,9 @@ def check_decider(decider: Any, config: EnvConfig | None = None, num: int = 8, d
         try:
             decider.reset(arg)
         except Exception as exc:
-            raise AssertionError(f"{who}: reset({'mask' if arg is not None else ''}) raised "
-                                 f"{type(exc).__name__}: {exc}") from exc
+            raise AssertionError(
+                f"{who}: reset({'mask' if arg is not None else ''}) raised {type(exc).__name__}: {exc}"
+            ) from exc
         _modes(decider, obs, who)
 
 
@@ -105,17 +122,23 @@ def _modes(decider: Any, obs: np.ndarray, who: str) -> np.ndarray:
     try:
         modes = decider.act(obs)
     except Exception as exc:
-        raise AssertionError(f"{who}: act(obs) with a batch of shape {obs.shape} raised "
-                             f"{type(exc).__name__}: {exc}") from exc
-    _expect(isinstance(modes, np.ndarray), f"{who}: act(obs) with a batch of shape {obs.shape} must return a "
-                                           f"numpy array, got {type(modes).__name__}")
-    _expect(modes.shape == (obs.shape[0],), f"{who}: act(obs) with a batch of shape {obs.shape} returned shape "
-                                            f"{modes.shape}, expected ({obs.shape[0]},)")
-    _expect(np.issubdtype(modes.dtype, np.integer), f"{who}: act(obs) returned dtype {modes.dtype}, "
-                                                    "expected integers")
+        raise AssertionError(
+            f"{who}: act(obs) with a batch of shape {obs.shape} raised {type(exc).__name__}: {exc}"
+        ) from exc
+    _expect(
+        isinstance(modes, np.ndarray),
+        f"{who}: act(obs) with a batch of shape {obs.shape} must return a numpy array, got {type(modes).__name__}",
+    )
+    _expect(
+        modes.shape == (obs.shape[0],),
+        f"{who}: act(obs) with a batch of shape {obs.shape} returned shape {modes.shape}, expected ({obs.shape[0]},)",
+    )
+    _expect(np.issubdtype(modes.dtype, np.integer), f"{who}: act(obs) returned dtype {modes.dtype}, expected integers")
     bad = modes[~np.isin(modes, MODES)]
-    _expect(bad.size == 0, f"{who}: act(obs) returned mode {bad[:1].tolist()}, expected 0 (follow), "
-                           "1 (overtake) or 2 (abort)")
+    _expect(
+        bad.size == 0,
+        f"{who}: act(obs) returned mode {bad[:1].tolist()}, expected 0 (follow), 1 (overtake) or 2 (abort)",
+    )
     return modes
 
 

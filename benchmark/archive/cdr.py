@@ -17,7 +17,9 @@ import struct
 
 import numpy as np
 
-RECORD_HEAD = 31  # MCAP Message record: opcode u8, length u64, channel u16, sequence u32, log_time u64, publish_time u64
+RECORD_HEAD = (
+    31  # MCAP Message record: opcode u8, length u64, channel u16, sequence u32, log_time u64, publish_time u64
+)
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR little-endian
 _SIZES = {"u1": 1, "<u2": 2, "<u4": 4, "<i4": 4, "<u8": 8, "<f8": 8}
 
@@ -31,36 +33,39 @@ class Layout:
 
     def __init__(self, channel: int) -> None:
         self.buf = bytearray(struct.pack("<BQHIQQ", 0x05, 0, channel, 0, 0, 0)) + ENCAPSULATION
-        self.fields: dict[str, tuple[str, int, int]] = {"channel": ("<u2", 9, 1), "log_time": ("<u8", 15, 1),
-                                                        "publish_time": ("<u8", 23, 1)}
+        self.fields: dict[str, tuple[str, int, int]] = {
+            "channel": ("<u2", 9, 1),
+            "log_time": ("<u8", 15, 1),
+            "publish_time": ("<u8", 23, 1),
+        }
         self._dtype: np.dtype | None = None
 
     def _align(self, size: int) -> None:
         self.buf += b"\0" * (-(len(self.buf) - RECORD_HEAD - 4) % size)
 
-    def const(self, fmt: str, *values: float) -> "Layout":
+    def const(self, fmt: str, *values: float) -> Layout:
         size = _SIZES[fmt]
         if size > 1:
             self._align(size)
         self.buf += np.array(values, dtype=fmt).tobytes()
         return self
 
-    def f8(self, *values: float) -> "Layout":
+    def f8(self, *values: float) -> Layout:
         return self.const("<f8", *values)
 
-    def u4(self, *values: int) -> "Layout":
+    def u4(self, *values: int) -> Layout:
         return self.const("<u4", *values)
 
-    def u1(self, *values: int) -> "Layout":
+    def u1(self, *values: int) -> Layout:
         return self.const("u1", *values)
 
-    def string(self, text: str) -> "Layout":
+    def string(self, text: str) -> Layout:
         data = text.encode() + b"\0"
         self.u4(len(data))
         self.buf += data
         return self
 
-    def slot(self, name: str, fmt: str, count: int = 1) -> "Layout":
+    def slot(self, name: str, fmt: str, count: int = 1) -> Layout:
         size = _SIZES[fmt]
         if size > 1:
             self._align(size)
@@ -68,7 +73,7 @@ class Layout:
         self.buf += b"\0" * (size * count)
         return self
 
-    def text(self, name: str, width: int) -> "Layout":
+    def text(self, name: str, width: int) -> Layout:
         """A string slot of exactly ``width`` bytes (the writer pads with spaces) plus its NUL."""
         self.u4(width + 1)
         self.fields[name] = (f"S{width}", len(self.buf), 1)
@@ -85,8 +90,14 @@ class Layout:
             self.buf[1:9] = struct.pack("<Q", len(self.buf) - 9)  # the record's length field
             names = list(self.fields)
             formats = [f if c == 1 else (f, (c,)) for f, _, c in self.fields.values()]
-            self._dtype = np.dtype({"names": names, "formats": formats,
-                                    "offsets": [o for _, o, _ in self.fields.values()], "itemsize": len(self.buf)})
+            self._dtype = np.dtype(
+                {
+                    "names": names,
+                    "formats": formats,
+                    "offsets": [o for _, o, _ in self.fields.values()],
+                    "itemsize": len(self.buf),
+                }
+            )
         return self._dtype
 
     def fill(self, n: int, **values: object) -> np.ndarray:
@@ -104,11 +115,17 @@ class Layout:
 
     def payload(self) -> bytes:
         """The message data of the template (for tests and the schema check)."""
-        self.dtype
+        self.dtype  # noqa: B018 (the property fills in the record's length field on first use)
         return bytes(self.buf[RECORD_HEAD:])
 
 
 def _payload(dt: np.dtype) -> np.dtype:
     names = [k for k in dt.names if k not in ("channel", "log_time", "publish_time")]
-    return np.dtype({"names": names, "formats": [dt.fields[k][0] for k in names],
-                     "offsets": [dt.fields[k][1] - RECORD_HEAD for k in names], "itemsize": dt.itemsize - RECORD_HEAD})
+    return np.dtype(
+        {
+            "names": names,
+            "formats": [dt.fields[k][0] for k in names],
+            "offsets": [dt.fields[k][1] - RECORD_HEAD for k in names],
+            "itemsize": dt.itemsize - RECORD_HEAD,
+        }
+    )

@@ -22,8 +22,7 @@ import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, MetadataIndex, Schema,
-                          Statistics, SummaryOffset)
+from mcap.records import Channel, ChunkIndex, DataEnd, Footer, Header, MetadataIndex, Schema, Statistics, SummaryOffset
 from mcap.writer import MCAP0_MAGIC
 
 # zstd's fast levels on this format's chunks (docs/archive-overhead.md, scripts/archive_overhead.py
@@ -76,8 +75,9 @@ class McapFile:
             self.schemas.append(Schema(id=sid, name=schema_name, encoding=encoding, data=schema))
             self._record(self.schemas[-1])
         cid = len(self.channels) + 1
-        self.channels.append(Channel(id=cid, topic=topic, message_encoding=message_encoding, schema_id=sid,
-                                     metadata={}))
+        self.channels.append(
+            Channel(id=cid, topic=topic, message_encoding=message_encoding, schema_id=sid, metadata={})
+        )
         self._record(self.channels[-1])
         self._counts[cid] = 0
         return cid
@@ -122,11 +122,19 @@ class McapFile:
             self._counts[cid] += len(seg)
         blob = b"".join(parts)
         self._write(blob)
-        self._chunk_indexes.append(ChunkIndex(
-            message_start_time=lo, message_end_time=hi, chunk_start_offset=start, chunk_length=chunk_length,
-            message_index_offsets=index_offsets, message_index_length=len(blob), compression="zstd",
-            compressed_size=size_c,
-            uncompressed_size=total))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=lo,
+                message_end_time=hi,
+                chunk_start_offset=start,
+                chunk_length=chunk_length,
+                message_index_offsets=index_offsets,
+                message_index_length=len(blob),
+                compression="zstd",
+                compressed_size=size_c,
+                uncompressed_size=total,
+            )
+        )
         st = self._stats
         st[0] += len(size)
         st[1] = lo if st[1] is None else min(st[1], lo)
@@ -151,27 +159,44 @@ class McapFile:
         b = RecordBuilder()
         offsets = []
         st = self._stats
-        groups = [(Opcode.SCHEMA, self.schemas), (Opcode.CHANNEL, self.channels),
-                  (Opcode.STATISTICS, [Statistics(
-                      message_count=st[0], schema_count=len(self.schemas), channel_count=len(self.channels),
-                      attachment_count=0, metadata_count=len(self._metadata_indexes),
-                      chunk_count=len(self._chunk_indexes), message_start_time=st[1] or 0,
-                      message_end_time=st[2] or 0, channel_message_counts=dict(self._counts))]),
-                  (Opcode.CHUNK_INDEX, self._chunk_indexes), (Opcode.METADATA_INDEX, self._metadata_indexes)]
+        groups = [
+            (Opcode.SCHEMA, self.schemas),
+            (Opcode.CHANNEL, self.channels),
+            (
+                Opcode.STATISTICS,
+                [
+                    Statistics(
+                        message_count=st[0],
+                        schema_count=len(self.schemas),
+                        channel_count=len(self.channels),
+                        attachment_count=0,
+                        metadata_count=len(self._metadata_indexes),
+                        chunk_count=len(self._chunk_indexes),
+                        message_start_time=st[1] or 0,
+                        message_end_time=st[2] or 0,
+                        channel_message_counts=dict(self._counts),
+                    )
+                ],
+            ),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes),
+        ]
         for opcode, recs in groups:
             if not recs:
                 continue
             start = b.count
             for rec in recs:
                 rec.write(b)
-            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
-                                         group_length=b.count - start))
+            offsets.append(
+                SummaryOffset(group_opcode=opcode, group_start=summary_start + start, group_length=b.count - start)
+            )
         summary_offset_start = summary_start + b.count
         for off in offsets:
             off.write(b)
         summary = b.end()
-        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start),
-                         zlib.crc32(summary))
+        crc = zlib.crc32(
+            struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(summary)
+        )
         self._write(summary)
         self._record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
         self._write(MCAP0_MAGIC)

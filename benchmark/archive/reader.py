@@ -15,17 +15,18 @@ import json
 import math
 import os
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
 from overtakezoo.benchmark.archive.cdr import RECORD_HEAD
 from overtakezoo.benchmark.archive.format import FORMAT_VERSION, INF_FIELDS, STATE_TOPICS
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs import safe_json
 from overtakezoo.benchmark.memory_cap import memory_cap, out_of_memory
+from overtakezoo.envs import safe_json
 
 # A chunk's records are inflated at most this far: the recorder writes chunks of ~4 MiB of whole
 # episodes (one long episode's scene a few MiB more), so a chunk declaring or inflating past 256 MiB is a bomb.
@@ -129,9 +130,11 @@ class _Archive:
                 meta, entries = self._scan()
             else:  # its chunks are read here too (bounded, :func:`_inflate`), never by mcap's reader
                 self._topics = {cid: ch.topic for cid, ch in summary.channels.items()}
-                self._chunks = sorted((ci.chunk_start_offset, ci.message_start_time, ci.message_end_time)
-                                      for ci in summary.chunk_indexes
-                                      if any(self._topics.get(c) in STATE_TOPICS for c in ci.message_index_offsets))
+                self._chunks = sorted(
+                    (ci.chunk_start_offset, ci.message_start_time, ci.message_end_time)
+                    for ci in summary.chunk_indexes
+                    if any(self._topics.get(c) in STATE_TOPICS for c in ci.message_index_offsets)
+                )
                 meta, entries = {}, []
                 for rec in self.reader.iter_metadata():
                     if rec.name == "episode":
@@ -149,8 +152,10 @@ class _Archive:
             raise UserError(f"{self.path}: not an OvertakeZoo archive (no overtakezoo metadata record)")
         if meta["format_version"] != FORMAT_VERSION:  # 2 (JSON per step) is not read: re-record it
             self._f.close()
-            raise UserError(f"{self.path}: archive format {meta['format_version']} is not readable by this version "
-                            f"(it reads format {FORMAT_VERSION}; record the run again with eval --archive)")
+            raise UserError(
+                f"{self.path}: archive format {meta['format_version']} is not readable by this version "
+                f"(it reads format {FORMAT_VERSION}; record the run again with eval --archive)"
+            )
         self.meta = meta
         self.entries = sorted(entries, key=lambda e: e.index)
         self.by_index = {e.index: e for e in self.entries}
@@ -198,15 +203,17 @@ class _Archive:
         if not entries:
             raise UserError(f"{self.path}: archive cut before its first whole episode: nothing to read")
         last = entries[-1].index  # in file order: the last episode closed before the cut
-        self.note = (f"archive index damaged, rebuilt from the data: {len(entries)} whole episodes, none lost"
-                     if complete else
-                     f"archive cut after episode {last}: {len(entries)} whole episodes, the rest lost")
+        self.note = (
+            f"archive index damaged, rebuilt from the data: {len(entries)} whole episodes, none lost"
+            if complete
+            else f"archive cut after episode {last}: {len(entries)} whole episodes, the rest lost"
+        )
         return meta, entries
 
     def close(self) -> None:
         self._f.close()
 
-    def __enter__(self) -> "_Archive":
+    def __enter__(self) -> _Archive:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -263,8 +270,10 @@ def _inflate(path: Path, pos: int, chunk: Any) -> bytes:
     at most one byte further: a bomb never inflates whole)."""
     declared = int(chunk.uncompressed_size)
     if declared > MAX_CHUNK_BYTES:
-        raise UserError(f"{path}: the chunk at offset {pos} declares {declared} bytes uncompressed, at most "
-                        f"{MAX_CHUNK_BYTES} are read (a decompression bomb, not an OvertakeZoo archive)")
+        raise UserError(
+            f"{path}: the chunk at offset {pos} declares {declared} bytes uncompressed, at most "
+            f"{MAX_CHUNK_BYTES} are read (a decompression bomb, not an OvertakeZoo archive)"
+        )
     limit = declared + 1
     if chunk.compression == "zstd":
         import zstandard
@@ -284,12 +293,15 @@ def _inflate(path: Path, pos: int, chunk: Any) -> bytes:
     elif chunk.compression == "":
         data = chunk.data
     else:
-        raise UserError(f"{path}: the chunk at offset {pos} is compressed with {chunk.compression!r} "
-                        "(this reads zstd, lz4 or none)")
+        raise UserError(
+            f"{path}: the chunk at offset {pos} is compressed with {chunk.compression!r} (this reads zstd, lz4 or none)"
+        )
     if len(data) != declared:
         how = "past" if len(data) > declared else "short of"
-        raise UserError(f"{path}: the chunk at offset {pos} inflates {how} its declared {declared} bytes "
-                        "(a decompression bomb, or a corrupt archive)")
+        raise UserError(
+            f"{path}: the chunk at offset {pos} inflates {how} its declared {declared} bytes "
+            "(a decompression bomb, or a corrupt archive)"
+        )
     return data
 
 
@@ -319,11 +331,20 @@ class _Builder:
         if not (st["episode"] == self.index).all() or not np.array_equal(st["step"], np.arange(len(st))):
             raise UserError(f"{path}: episode {self.index} has misplaced state messages (corrupt archive)")
         return Episode(
-            index=self.index, scenario=scen, summary=summary, t=st["t"].copy(),
+            index=self.index,
+            scenario=scen,
+            summary=summary,
+            t=st["t"].copy(),
             ego={k: st[k].copy() for k in ("x", "y", "psi", "v", "a", "steer")},
-            npc_s=st["npc_s"].copy(), npc_v=st["npc_v"].copy(), npc_lane=np.array(scen["npc_lane"], dtype=np.int8),
-            mode=st["mode"][1:].astype(np.int64), rollout=st["rollout"][1:].astype(np.int64),
-            offsets=st["offsets"][1:].copy(), blocked=st["blocked"][1:].astype(bool), reward=st["reward"][1:].copy())
+            npc_s=st["npc_s"].copy(),
+            npc_v=st["npc_v"].copy(),
+            npc_lane=np.array(scen["npc_lane"], dtype=np.int8),
+            mode=st["mode"][1:].astype(np.int64),
+            rollout=st["rollout"][1:].astype(np.int64),
+            offsets=st["offsets"][1:].copy(),
+            blocked=st["blocked"][1:].astype(bool),
+            reward=st["reward"][1:].copy(),
+        )
 
 
 @functools.lru_cache(maxsize=16)
@@ -339,7 +360,7 @@ def _state_template(m: int, size: int) -> tuple[np.dtype, bytes, np.ndarray]:
             const = np.ones(size, bool)
             for name in dt.names:
                 fmt, off = dt.fields[name][:2]
-                const[off:off + fmt.itemsize] = False
+                const[off : off + fmt.itemsize] = False
             return dt, lay.payload(), const
     raise ValueError(f"no /state layout of {size} bytes for {m} NPC slots")
 
@@ -361,12 +382,19 @@ def _decode_state(path: Path, msgs: list[bytes], m: int) -> np.ndarray:
 
 
 def _entry(m: dict[str, str]) -> EpisodeEntry:
-    return EpisodeEntry(int(m["episode"]), int(m["start_ns"]), int(m["end_ns"]), int(m["steps"]), m["outcome"],
-                        float(m["episode_return"]))
+    return EpisodeEntry(
+        int(m["episode"]),
+        int(m["start_ns"]),
+        int(m["end_ns"]),
+        int(m["steps"]),
+        m["outcome"],
+        float(m["episode_return"]),
+    )
 
 
 def _capped(read: Any) -> Any:
     """``read(path, ...)`` under a memory cap (benchmark/memory_cap.py): an archive is an outside file."""
+
     @functools.wraps(read)
     def wrapper(path: str | os.PathLike, *args: Any) -> Any:
         with memory_cap(f"archive {path}"):
@@ -427,8 +455,6 @@ def read_archive(path: str | os.PathLike) -> list[Episode]:
         if missing:
             raise UserError(f"{ar.path}: episodes {sorted(missing)[:5]} listed but have no data (corrupt archive)")
         return [builders[k].build(ar.path) for k in sorted(builders)]
-
-
 
 
 def _episode_of(topic: str, data: bytes) -> int:

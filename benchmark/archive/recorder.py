@@ -63,16 +63,21 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import OUTCOME_NAMES
-
 from overtakezoo.benchmark.archive.cdr import Layout
-from overtakezoo.benchmark.archive.format import (EPISODE_GAP_NS, FORMAT_VERSION, ROS2_SCHEMAS, SCHEMAS, SUMMARY_FIELDS,
-                                                  json_number, json_ready)
+from overtakezoo.benchmark.archive.format import (
+    EPISODE_GAP_NS,
+    FORMAT_VERSION,
+    ROS2_SCHEMAS,
+    SCHEMAS,
+    SUMMARY_FIELDS,
+    json_number,
+    json_ready,
+)
 from overtakezoo.benchmark.archive.mcapfile import McapFile
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs.io import WriteError, atomic_output
 from overtakezoo.benchmark.archive.scene import SceneLayouts, scene_records
-
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import OUTCOME_NAMES
+from overtakezoo.envs.io import WriteError, atomic_output
 
 # ---------------------------------------------------------------------------- recorder
 BLOCK_STEPS = 32  # steps per capture block (one preallocated array per block)
@@ -114,10 +119,10 @@ class ArchiveRecorder:
     finished rows away mid-chunk. Per step the state of the rows still running is copied into
     preallocated numpy blocks (``BLOCK_STEPS`` steps each, no per-row Python); messages are
     encoded per group of ``GROUP`` episodes, one numpy pass per message kind, at :meth:`end_chunk` in
-    scenario order, in chunks of whole episodes (reading one episode decompresses only its chunk). A big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its
-    finished episodes early, in scenario order within each batch, and frees their captures: memory
-    is bounded by the history of the rows still running. ``scene_every`` thins the Foxglove scene
-    (0: none).
+    scenario order, in chunks of whole episodes (reading one episode decompresses only its chunk). A
+    big chunk (more than ``FLUSH_ROW_STEPS`` buffered row-steps) writes its finished episodes early,
+    in scenario order within each batch, and frees their captures: memory is bounded by the history
+    of the rows still running. ``scene_every`` thins the Foxglove scene (0: none).
 
     The file is written to a temp file beside ``path`` (``tmp_path``, by
     :func:`overtakezoo.envs.io.atomic_output`) and renamed to ``path`` by :meth:`close` (two runs
@@ -129,8 +134,14 @@ class ArchiveRecorder:
     finished (episodes are now written as they finish, so there is no separate writing phase to show).
     """
 
-    def __init__(self, path: str | os.PathLike, scene_every: int = 1, chunk_size: int = 4 << 20,
-                 metadata: dict[str, Any] | None = None, progress: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        scene_every: int = 1,
+        chunk_size: int = 4 << 20,
+        metadata: dict[str, Any] | None = None,
+        progress: bool = False,
+    ) -> None:
         self.path = Path(path)
         self.scene_every = int(scene_every)
         if self.scene_every < 0:
@@ -147,8 +158,9 @@ class ArchiveRecorder:
         self._chunk_size = int(chunk_size)
         self._channels: dict[str, int] = {}
         for topic, (name, schema) in SCHEMAS.items():
-            self._channels[topic] = self._file.register(topic, name, "jsonschema", json.dumps(
-                schema, separators=(",", ":")).encode(), "json")
+            self._channels[topic] = self._file.register(
+                topic, name, "jsonschema", json.dumps(schema, separators=(",", ":")).encode(), "json"
+            )
         for topic, (name, text) in ROS2_SCHEMAS.items():
             self._channels[topic] = self._file.register(topic, name, "ros2msg", text.encode(), "cdr")
         self._lay: tuple[Layout, SceneLayouts] | None = None
@@ -171,17 +183,28 @@ class ArchiveRecorder:
         if self._dt_ns == 0:
             self._dt_ns = int(round(core.cfg.dt * 1e9))
             self._meta.setdefault("config", json.dumps(_clean_tree(core.cfg.to_dict()), sort_keys=True))
-            self._meta.update({"format_version": FORMAT_VERSION, "episode_gap_ns": str(EPISODE_GAP_NS),
-                               "dt_ns": str(self._dt_ns), "scene_every": str(self.scene_every)})
+            self._meta.update(
+                {
+                    "format_version": FORMAT_VERSION,
+                    "episode_gap_ns": str(EPISODE_GAP_NS),
+                    "dt_ns": str(self._dt_ns),
+                    "scene_every": str(self.scene_every),
+                }
+            )
             self._file.add_metadata("overtakezoo", self._meta)
         if getattr(core, "auto_reset", False):
             raise ValueError("archives record evaluation cores (auto_reset=False): rows must not be replaced")
         self._core = core
         n = core.num
-        self._chunk = ch = _Chunk(index=np.asarray(scenario_index, dtype=np.int64).reshape(-1), ids=np.arange(n),
-                                  scen=core.scen.to_arrays(), lanes=core.scen.npc_lane.tolist(),
-                                  m_r=core.cfg.planner.num_rollouts + 1, last=np.full(n, -1),
-                                  written=np.zeros(n, bool))
+        self._chunk = ch = _Chunk(
+            index=np.asarray(scenario_index, dtype=np.int64).reshape(-1),
+            ids=np.arange(n),
+            scen=core.scen.to_arrays(),
+            lanes=core.scen.npc_lane.tolist(),
+            m_r=core.cfg.planner.num_rollouts + 1,
+            last=np.full(n, -1),
+            written=np.zeros(n, bool),
+        )
         ch.prev_done = core.done.copy()
         self._capture(core, ch, np.ones(n, bool))
         self._finished(core, ch, np.flatnonzero(ch.prev_done))
@@ -242,8 +265,11 @@ class ArchiveRecorder:
                 todo = np.flatnonzero((ch.last >= 0) & ~ch.written)
                 if self.progress and not self._told:
                     self._told = True
-                    print(f"finishing {self.path}: writing the {len(todo)} finished episodes of "
-                          "the open chunk", file=sys.stderr, flush=True)
+                    print(
+                        f"finishing {self.path}: writing the {len(todo)} finished episodes of the open chunk",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 self._write_episodes(ch, todo)
                 self._chunk = None
             self._file.finish()
@@ -284,7 +310,7 @@ class ArchiveRecorder:
         elif previous != signal.SIG_IGN:
             raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    def __enter__(self) -> "ArchiveRecorder":
+    def __enter__(self) -> ArchiveRecorder:
         if threading.current_thread() is threading.main_thread():
             for signum in (signal.SIGTERM, signal.SIGINT):
                 self._signals[signum] = signal.signal(signum, self._on_signal)
@@ -317,16 +343,16 @@ class ArchiveRecorder:
         iv = blk.i[j] if full else np.empty((len(r), blk.i.shape[2]), np.int8)
         for c, x in enumerate((core.t, core.x, core.y, core.psi, core.v, core.a, core.steer)):
             fv[:, c] = x[r]  # column by column into the block (no stacked temporaries)
-        fv[:, 7:7 + m] = core.npc_s[r]
-        fv[:, 7 + m:7 + 2 * m] = core.npc_v[r]
+        fv[:, 7 : 7 + m] = core.npc_s[r]
+        fv[:, 7 + m : 7 + 2 * m] = core.npc_v[r]
         iv[:, 0], iv[:, 1] = core.mode[r], core.rollout[r]
         plan = core.last_plan
         if plan is None:  # step 0: no decision, plan or reward yet (padded with zeros, as before)
-            fv[:, 7 + 2 * m:] = 0.0
+            fv[:, 7 + 2 * m :] = 0.0
             iv[:, 2:] = 0
         else:
             fv[:, 7 + 2 * m] = np.asarray(reward)[r]
-            fv[:, 8 + 2 * m:] = plan.offsets[r]
+            fv[:, 8 + 2 * m :] = plan.offsets[r]
             iv[:, 2] = plan.rollout[r]
             iv[:, 3:] = plan.blocked[r]
         if not full:
@@ -366,11 +392,14 @@ class ArchiveRecorder:
         each chunk followed by its episodes' metadata records; then free their captures."""
         ids = ids[np.argsort(ch.index[ids], kind="stable")]
         for g in range(0, len(ids), GROUP):  # gather a group's captures at once (bounded copies)
-            group = ids[g:g + GROUP]
+            group = ids[g : g + GROUP]
             if self._pending is not None and self.progress and not self._told:  # a held signal: say why
                 self._told = True
-                print(f"finishing {self.path}: writing the {len(ids) - g} remaining episodes of this "
-                      "chunk first", file=sys.stderr, flush=True)
+                print(
+                    f"finishing {self.path}: writing the {len(ids) - g} remaining episodes of this chunk first",
+                    file=sys.stderr,
+                    flush=True,
+                )
             f_parts, i_parts = [], []
             for blk in ch.blocks:
                 if blk.start > ch.last[group].max():
@@ -404,41 +433,104 @@ class ArchiveRecorder:
         ns = base[ep] + k * dt
         state_lay, scene_lay = self._layouts(m, r)
         mode = np.where(k == 0, 0, ir[:, 0])  # step 0 has no decision (padding)
-        st = state_lay.fill(len(ep), log_time=ns, publish_time=ns, episode=ch.index[group][ep], step=k,
-                            t=fr[:, 0], x=fr[:, 1], y=fr[:, 2], psi=fr[:, 3], v=fr[:, 4], a=fr[:, 5],
-                            steer=fr[:, 6], npc_s=fr[:, 7:7 + m], npc_v=fr[:, 7 + m:7 + 2 * m],
-                            reward=fr[:, 7 + 2 * m], offsets=fr[:, 8 + 2 * m:], mode=mode, rollout=ir[:, 2],
-                            blocked=ir[:, 3:])
+        st = state_lay.fill(
+            len(ep),
+            log_time=ns,
+            publish_time=ns,
+            episode=ch.index[group][ep],
+            step=k,
+            t=fr[:, 0],
+            x=fr[:, 1],
+            y=fr[:, 2],
+            psi=fr[:, 3],
+            v=fr[:, 4],
+            a=fr[:, 5],
+            steer=fr[:, 6],
+            npc_s=fr[:, 7 : 7 + m],
+            npc_v=fr[:, 7 + m : 7 + 2 * m],
+            reward=fr[:, 7 + 2 * m],
+            offsets=fr[:, 8 + 2 * m :],
+            mode=mode,
+            rollout=ir[:, 2],
+            blocked=ir[:, 3:],
+        )
         kinds = [(st, ep)]
         if self.scene_every:  # every K-th step, and the final step
             sel = np.flatnonzero((k % self.scene_every == 0) | (k == last[ep]))
-            s = {"ep": ep[sel], "ns": ns[sel], "k": k[sel], "first": k[sel] == 0, "final": k[sel] == last[ep[sel]],
-                 "x": fr[sel, 1], "y": fr[sel, 2], "psi": fr[sel, 3], "v": fr[sel, 4], "npc_s": fr[sel, 7:7 + m],
-                 "mode": ir[sel, 0], "chosen": ir[sel, 1], "blocked": ir[sel, 3:].astype(bool)}
+            s = {
+                "ep": ep[sel],
+                "ns": ns[sel],
+                "k": k[sel],
+                "first": k[sel] == 0,
+                "final": k[sel] == last[ep[sel]],
+                "x": fr[sel, 1],
+                "y": fr[sel, 2],
+                "psi": fr[sel, 3],
+                "v": fr[sel, 4],
+                "npc_s": fr[sel, 7 : 7 + m],
+                "mode": ir[sel, 0],
+                "chosen": ir[sel, 1],
+                "blocked": ir[sel, 3:].astype(bool),
+            }
             sc = ch.scen
-            e = {key: sc[key][group] for key in ("lane_width", "road_length", "goal_s", "ego_length", "ego_width",
-                                                 "npc_lane", "npc_length", "npc_width", "npc_present",
-                                                 "sensor_range", "npc_reveal")}
-            e.update(npc_s0=sc["npc_s"][group], outcome=ch.info["outcome"][group],
-                     crash_npc=ch.info["crash_npc"][group], index=ch.index[group])
-            kinds += [(recs, s["ep"][rows]) for recs, rows in
-                      scene_records(scene_lay, self._core.cfg.planner, s, e)]
+            e = {
+                key: sc[key][group]
+                for key in (
+                    "lane_width",
+                    "road_length",
+                    "goal_s",
+                    "ego_length",
+                    "ego_width",
+                    "npc_lane",
+                    "npc_length",
+                    "npc_width",
+                    "npc_present",
+                    "sensor_range",
+                    "npc_reveal",
+                )
+            }
+            e.update(
+                npc_s0=sc["npc_s"][group],
+                outcome=ch.info["outcome"][group],
+                crash_npc=ch.info["crash_npc"][group],
+                index=ch.index[group],
+            )
+            kinds += [(recs, s["ep"][rows]) for recs, rows in scene_records(scene_lay, self._core.cfg.planner, s, e)]
         # Per kind: its records' bytes, and where each episode's records start.
         blobs = [memoryview(recs.view(np.uint8)) for recs, _ in kinds]  # sliced per chunk without copies
         starts = [np.concatenate([[0], np.cumsum(np.bincount(eps, minlength=n_ep))]) for _, eps in kinds]
         sizes = np.array([recs.dtype.itemsize for recs, _ in kinds])
-        ep_bytes = sum(np.diff(st_) * size for st_, size in zip(starts, sizes))
+        ep_bytes = sum(np.diff(st_) * size for st_, size in zip(starts, sizes, strict=True))
         a = 0
         while a < n_ep:  # chunks of whole episodes, about chunk_size bytes each
             b = a + max(1, int(np.searchsorted(np.cumsum(ep_bytes[a:]), self._chunk_size, side="right")))
             b = min(b, n_ep)
-            self._write_chunk(ch, group[a:b], base[a:b], last[a:b], fr[row0[a:b] + last[a:b], 0], kinds, blobs,
-                              [(int(st_[a]), int(st_[b])) for st_ in starts], sizes)
+            self._write_chunk(
+                ch,
+                group[a:b],
+                base[a:b],
+                last[a:b],
+                fr[row0[a:b] + last[a:b], 0],
+                kinds,
+                blobs,
+                [(int(st_[a]), int(st_[b])) for st_ in starts],
+                sizes,
+            )
             a = b
         self._clock_ns = int(base[-1] + last[-1] * dt + EPISODE_GAP_NS)
 
-    def _write_chunk(self, ch: _Chunk, rows: np.ndarray, base: np.ndarray, last: np.ndarray, t_end: np.ndarray,
-                     kinds: list, blobs: list[memoryview], spans: list[tuple[int, int]], sizes: np.ndarray) -> None:
+    def _write_chunk(
+        self,
+        ch: _Chunk,
+        rows: np.ndarray,
+        base: np.ndarray,
+        last: np.ndarray,
+        t_end: np.ndarray,
+        kinds: list,
+        blobs: list[memoryview],
+        spans: list[tuple[int, int]],
+        sizes: np.ndarray,
+    ) -> None:
         """One MCAP chunk: the episodes' JSON heads, each kind's records for them (by topic, each in
         time order), the summaries; then one metadata record per episode."""
         info = ch.info
@@ -447,27 +539,48 @@ class ArchiveRecorder:
         # The specs through one template: each field's JSON for all episodes from one dumps call.
         spec_t = '{"episode":%d,"step":0,"t":0.0,"scenario":{' + ",".join(f'"{name}":%s' for name in ch.scen) + "}}"
         cols = [_json_texts(arr[rows]) for arr in ch.scen.values()]
-        for r, start, end, steps, texts in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), zip(*cols)):
+        for r, start, end, steps, texts in zip(
+            rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), zip(*cols, strict=True), strict=True
+        ):
             ep = int(ch.index[r])
             self._add("/episode/spec", start, spec_t % (ep, *texts))
-            self._add("/episode/index", start, json.dumps({
-                "episode": ep, "step": 0, "start_ns": start, "end_ns": end, "steps": steps,
-                "outcome_name": OUTCOME_NAMES[int(info["outcome"][r])]}, separators=(",", ":")))
+            self._add(
+                "/episode/index",
+                start,
+                json.dumps(
+                    {
+                        "episode": ep,
+                        "step": 0,
+                        "start_ns": start,
+                        "end_ns": end,
+                        "steps": steps,
+                        "outcome_name": OUTCOME_NAMES[int(info["outcome"][r])],
+                    },
+                    separators=(",", ":"),
+                ),
+            )
         heads = self._json
         self._json = []
         stats = {key: _json_rows(info[key][rows]) for key in SUMMARY_FIELDS}
-        for j, (r, start, end, steps, t) in enumerate(zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(),
-                                                          _json_rows(t_end))):
+        for j, (r, start, end, steps, t) in enumerate(
+            zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), _json_rows(t_end), strict=True)
+        ):
             summary = {key: col[j] for key, col in stats.items()}
-            summary.update(episode=int(ch.index[r]), step=steps, t=t,
-                           outcome_name=OUTCOME_NAMES[int(info["outcome"][r])], start_ns=start, end_ns=end)
+            summary.update(
+                episode=int(ch.index[r]),
+                step=steps,
+                t=t,
+                outcome_name=OUTCOME_NAMES[int(info["outcome"][r])],
+                start_ns=start,
+                end_ns=end,
+            )
             self._add("/episode/summary", end, json.dumps(summary, separators=(",", ":")))
         tails, self._json = self._json, []
         parts = [rec for _, _, rec in heads]
         chans, times, lens = [[c for c, _, _ in heads]], [[t_ for _, t_, _ in heads]], [[len(x) for *_, x in heads]]
-        for (recs, _), blob, (lo, hi), size in zip(kinds, blobs, spans, sizes):  # the per-step kinds
+        for (recs, _), blob, (lo, hi), size in zip(kinds, blobs, spans, sizes, strict=True):  # the per-step kinds
             if hi > lo:
-                parts.append(blob[lo * size:hi * size])
+                parts.append(blob[lo * size : hi * size])
                 chans.append(np.full(hi - lo, recs["channel"][0]))
                 times.append(recs["log_time"][lo:hi])
                 lens.append(np.full(hi - lo, size))
@@ -477,11 +590,18 @@ class ArchiveRecorder:
         lens.append([len(x) for *_, x in tails])
         cat = lambda xs: np.concatenate([np.asarray(x, np.int64) for x in xs])  # noqa: E731
         self._file.write_chunk(parts, cat(chans), cat(times), cat(lens))
-        for r, start, end, steps in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist()):
-            self._file.add_metadata("episode", {
-                "episode": str(int(ch.index[r])), "start_ns": str(start), "end_ns": str(end), "steps": str(steps),
-                "outcome": OUTCOME_NAMES[int(info["outcome"][r])],
-                "episode_return": json_number(float(info["episode_return"][r]))})
+        for r, start, end, steps in zip(rows.tolist(), base.tolist(), ends.tolist(), last.tolist(), strict=True):
+            self._file.add_metadata(
+                "episode",
+                {
+                    "episode": str(int(ch.index[r])),
+                    "start_ns": str(start),
+                    "end_ns": str(end),
+                    "steps": str(steps),
+                    "outcome": OUTCOME_NAMES[int(info["outcome"][r])],
+                    "episode_return": json_number(float(info["episode_return"][r])),
+                },
+            )
         self._file.flush()  # the episodes are whole on disk (a killed writer keeps them)
         self.episodes += len(rows)
 
@@ -489,8 +609,9 @@ class ArchiveRecorder:
         """A JSON message of this chunk, as a whole Message record."""
         data = text.encode()
         chan = self._channels[topic]
-        self._json.append((chan, log_time, struct.pack("<BQHIQQ", 0x05, 22 + len(data), chan, 0, log_time, log_time)
-                           + data))
+        self._json.append(
+            (chan, log_time, struct.pack("<BQHIQQ", 0x05, 22 + len(data), chan, 0, log_time, log_time) + data)
+        )
 
 
 def _json_rows(arr: np.ndarray) -> list:
@@ -541,13 +662,23 @@ class _Offsets:
         self._stream.flush()
 
 
-def recorder_for_run(path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1,
-                     progress: bool = False) -> ArchiveRecorder:
+def recorder_for_run(
+    path: str | os.PathLike, suite: Any, decider: Any, scene_every: int = 1, progress: bool = False
+) -> ArchiveRecorder:
     """An :class:`ArchiveRecorder` for ``run_suite(suite, decider, recorder=...)``; the file's
     ``overtakezoo`` metadata names the suite (with its hash) and the decider."""
-    return ArchiveRecorder(path, scene_every=scene_every, progress=progress, metadata={
-        "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.hash,
-        "decider": decider.name, "decider_version": decider.version})
+    return ArchiveRecorder(
+        path,
+        scene_every=scene_every,
+        progress=progress,
+        metadata={
+            "suite": suite.name,
+            "suite_version": suite.version,
+            "suite_hash": suite.hash,
+            "decider": decider.name,
+            "decider_version": decider.version,
+        },
+    )
 
 
 def _clean_tree(obj: Any) -> Any:

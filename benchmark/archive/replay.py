@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import shutil
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig, safe_json
-
 from overtakezoo.benchmark.archive.reader import Episode, read_archive_meta, read_episode
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import OUTCOME_NAMES, PlannerConfig, safe_json
 from overtakezoo.envs.io import atomic_path
 
 RUNNING = 0
@@ -45,21 +45,35 @@ def episode_frames(ep: Episode, meta: dict[str, str], every: int = 1) -> list[di
     for k in steps:
         v = float(ep.ego["v"][k])
         frame = {
-            "t": float(ep.t[k]), "mode": int(ep.mode[k - 1]) if k else 0,
-            "outcome": outcome if k == last else RUNNING, "crash_npc": crash_npc if k == last else -1,
-            "ego_x": float(ep.ego["x"][k]), "ego_y": float(ep.ego["y"][k]), "ego_psi": float(ep.ego["psi"][k]),
-            "ego_v": v, "ego_length": float(sc["ego_length"]), "ego_width": float(sc["ego_width"]),
-            "lane_width": float(sc["lane_width"]), "goal_s": float(sc["goal_s"]),
-            "road_length": float(sc["road_length"]), "sensor_range": float(sc["sensor_range"]),
-            "npc_present": arr("npc_present", bool), "npc_lane": arr("npc_lane", np.int8),
-            "npc_s": ep.npc_s[k], "npc_v": ep.npc_v[k], "npc_length": arr("npc_length"),
-            "npc_width": arr("npc_width"), "npc_reveal": arr("npc_reveal"),
+            "t": float(ep.t[k]),
+            "mode": int(ep.mode[k - 1]) if k else 0,
+            "outcome": outcome if k == last else RUNNING,
+            "crash_npc": crash_npc if k == last else -1,
+            "ego_x": float(ep.ego["x"][k]),
+            "ego_y": float(ep.ego["y"][k]),
+            "ego_psi": float(ep.ego["psi"][k]),
+            "ego_v": v,
+            "ego_length": float(sc["ego_length"]),
+            "ego_width": float(sc["ego_width"]),
+            "lane_width": float(sc["lane_width"]),
+            "goal_s": float(sc["goal_s"]),
+            "road_length": float(sc["road_length"]),
+            "sensor_range": float(sc["sensor_range"]),
+            "npc_present": arr("npc_present", bool),
+            "npc_lane": arr("npc_lane", np.int8),
+            "npc_s": ep.npc_s[k],
+            "npc_v": ep.npc_v[k],
+            "npc_length": arr("npc_length"),
+            "npc_width": arr("npc_width"),
+            "npc_reveal": arr("npc_reveal"),
             "roll_in": pc["roll_in_speed_factor"] * v + pc["roll_in_margin"],
-            "tip_margin": pc["car_tip_margin"], "horizon_time": pc["horizon_time"],
+            "tip_margin": pc["car_tip_margin"],
+            "horizon_time": pc["horizon_time"],
         }
         if k:
-            frame.update(plan_offsets=ep.offsets[k - 1], plan_blocked=ep.blocked[k - 1],
-                         plan_rollout=int(ep.rollout[k - 1]))
+            frame.update(
+                plan_offsets=ep.offsets[k - 1], plan_blocked=ep.blocked[k - 1], plan_rollout=int(ep.rollout[k - 1])
+            )
         frames.append(frame)
     return frames
 
@@ -75,14 +89,21 @@ def road_extent(ep: Episode) -> tuple[float, float]:
     return lo - pad, hi + pad
 
 
-def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, every: int = 1,
-           progress: bool = False) -> Path:
+def replay(
+    path: str | Path, episode: int, out: str | Path, fps: float = 10.0, every: int = 1, progress: bool = False
+) -> Path:
     """Render episode ``episode`` of archive ``path`` to ``out`` (.gif, .mp4 or .png): an overview of
-    the whole road above the view that follows the ego. One figure; its artists move per frame."""
+    the whole road above the view that follows the ego. One figure; its artists move per frame.
+    A ``.json`` ``out`` is the episode for the browser viewer instead (:mod:`.web`; ``fps`` and
+    ``every`` do not apply: it holds every step)."""
     out = Path(out)
     suffix = out.suffix.lower()
+    if suffix == ".json":  # the browser viewer's file (docs/viewer/), not a drawing
+        from overtakezoo.benchmark.archive.web import export_episode
+
+        return export_episode(path, episode, out)
     if suffix not in (".gif", ".mp4", ".png"):
-        raise UserError(f"--out must end in .gif, .mp4 or .png, got {out.name!r}")
+        raise UserError(f"--out must end in .gif, .mp4, .png or .json, got {out.name!r}")
     if suffix == ".mp4" and shutil.which("ffmpeg") is None:
         raise UserError("writing .mp4 needs ffmpeg on PATH (not found); use --out ep.gif instead")
     ep = read_episode(path, episode)
@@ -114,8 +135,13 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
                 draw(len(frames) - 1)
                 fig.savefig(tmp)
                 return out
-            bar = tqdm(total=len(frames), unit="frame", desc=out.name, leave=False,
-                       disable=not progress or not sys.stderr.isatty())
+            bar = tqdm(
+                total=len(frames),
+                unit="frame",
+                desc=out.name,
+                leave=False,
+                disable=not progress or not sys.stderr.isatty(),
+            )
             images = _blit_frames(fig, views, draw, len(frames))
             if suffix == ".gif":
                 _write_gif(images, tmp, fps, bar)
@@ -128,8 +154,9 @@ def replay(path: str | Path, episode: int, out: str | Path, fps: float = 10.0, e
 
 
 def _blit_frames(fig: Any, views: list[Any], draw: Any, n: int) -> Iterator[memoryview]:
-    """RGBA frames (the canvas buffer, valid until the next frame): the still parts of the figure drawn once, the moving artists drawn over a copy
-    of it per frame (matplotlib's blitting), so a frame costs the vehicles and lines, not the axes."""
+    """RGBA frames (the canvas buffer, valid until the next frame): the still parts of the figure drawn
+    once, the moving artists drawn over a copy of it per frame (matplotlib's blitting), so a frame
+    costs the vehicles and lines, not the axes."""
     draw(0)
     for view in views:
         for artist in view.moving():
@@ -168,9 +195,29 @@ def _write_mp4(images: Iterator[memoryview], out: Path, fps: float, bar: Any) ->
         if proc is None:
             h, w = rgb.shape[:2]
             proc = subprocess.Popen(
-                ["ffmpeg", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-                 "-r", str(fps), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p",
-                 str(out)], stdin=subprocess.PIPE)
+                [
+                    "ffmpeg",
+                    "-loglevel",
+                    "error",
+                    "-y",
+                    "-f",
+                    "rawvideo",
+                    "-pix_fmt",
+                    "rgb24",
+                    "-s",
+                    f"{w}x{h}",
+                    "-r",
+                    str(fps),
+                    "-i",
+                    "-",
+                    "-vf",
+                    "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                    "-pix_fmt",
+                    "yuv420p",
+                    str(out),
+                ],
+                stdin=subprocess.PIPE,
+            )
         proc.stdin.write(np.ascontiguousarray(rgb).tobytes())
         bar.update()
     if proc is not None:

@@ -21,9 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, MODE_NAMES, OUTCOME_NAMES
-
 from overtakezoo.benchmark.archive.cdr import Layout
+from overtakezoo.envs import CRASH, MODE_NAMES, OUTCOME_NAMES
 
 ROLLOUT_DRAW_M = 30.0  # rollouts are drawn this far ahead of the ego
 ROLLOUT_EVERY = 10  # steps between rollout redraws when neither the choice nor a blocked flag changes
@@ -31,7 +30,9 @@ LABEL_WIDTH = 28  # the label text is padded to this many bytes (fixed-size mess
 OUTCOME_WIDTH = 24
 
 
-def rollout_geometry(pc: Any, x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def rollout_geometry(
+    pc: Any, x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(n, R, 4) x and y of each rollout's drawn corners for states (x, y, v) on lanes of width w.
 
     Recomputed from the recorded state at write time (elementwise, so the same numbers as at the
@@ -44,10 +45,10 @@ def rollout_geometry(pc: Any, x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np
     # Each rollout's lateral profile is piecewise linear (hold, ramp, end offset): its corners
     # within the first ROLLOUT_DRAW_M metres draw it exactly with four points.
     ramp_end = np.minimum(pc.car_tip_margin + np.abs(targets - y) * roll_in / w, ROLLOUT_DRAW_M)
-    ahead = np.stack(np.broadcast_arrays(0.0, min(pc.car_tip_margin, ROLLOUT_DRAW_M), ramp_end,
-                                         ROLLOUT_DRAW_M), axis=-1)  # (n, R, 4)
-    lat = lateral_profile(y[..., None], targets[..., None], ahead, w[..., None], roll_in[..., None],
-                          pc.car_tip_margin)
+    ahead = np.stack(
+        np.broadcast_arrays(0.0, min(pc.car_tip_margin, ROLLOUT_DRAW_M), ramp_end, ROLLOUT_DRAW_M), axis=-1
+    )  # (n, R, 4)
+    lat = lateral_profile(y[..., None], targets[..., None], ahead, w[..., None], roll_in[..., None], pc.car_tip_margin)
     return x[:, None, None] + ahead, lat
 
 
@@ -68,8 +69,9 @@ def _color(lay: Layout, name: str | None, rgba: tuple[float, ...] = ()) -> None:
     lay.slot(f"{name}_rgba", "<f8", 4) if name else lay.f8(*rgba)
 
 
-def _entity(lay: Layout, k: int, frame: str, eid: str, cubes: int = 0, lines: int = 0, texts: int = 0,
-            locked: bool = False) -> None:
+def _entity(
+    lay: Layout, k: int, frame: str, eid: str, cubes: int = 0, lines: int = 0, texts: int = 0, locked: bool = False
+) -> None:
     """A SceneEntity's head (its primitives follow in the caller, in schema order)."""
     _time(lay, f"e{k}")
     lay.string(frame).string(eid).u4(0, 0).u1(int(locked))
@@ -97,7 +99,7 @@ def road_layout(ch: int) -> Layout:
     for j in range(4):  # lane, opposite lane, centre line, goal line
         _pose(lay, f"c{j}", z=[-0.05, -0.05, 0.0, 0.01][j])
         lay.slot(f"c{j}_size", "<f8", 3)
-        _color(lay, None, [(.25, .25, .25, 1), (.3, .3, .3, 1), (1, 1, 1, 1), (.1, .8, .1, 1)][j])
+        _color(lay, None, [(0.25, 0.25, 0.25, 1), (0.3, 0.3, 0.3, 1), (1, 1, 1, 1), (0.1, 0.8, 0.1, 1)][j])
     _after_cubes(lay, 0)
     _after_lines(lay, 0)
     _end_entity(lay)
@@ -184,10 +186,16 @@ class SceneLayouts:
 
 
 # ---------------------------------------------------------------------------- colours
-_ORANGE, _RED_CAR, _UNSEEN, _HIT, _NONE = (1, .6, .1, 1), (.9, .1, .1, 1), (.6, .6, .6, .3), (1, 0, 1, 1), (0, 0, 0, 0)
-_BLUE = (.1, .4, 1, 1)
-_LINE = np.array([(.1, .9, .1, 1), (.9, .2, .2, .6), (.8, .8, .8, .5)])  # chosen, blocked, free
-_OUTCOME_COLOUR = {"crash": _HIT, "success": (.1, .9, .1, 1)}
+_ORANGE, _RED_CAR, _UNSEEN, _HIT, _NONE = (
+    (1, 0.6, 0.1, 1),
+    (0.9, 0.1, 0.1, 1),
+    (0.6, 0.6, 0.6, 0.3),
+    (1, 0, 1, 1),
+    (0, 0, 0, 0),
+)
+_BLUE = (0.1, 0.4, 1, 1)
+_LINE = np.array([(0.1, 0.9, 0.1, 1), (0.9, 0.2, 0.2, 0.6), (0.8, 0.8, 0.8, 0.5)])  # chosen, blocked, free
+_OUTCOME_COLOUR = {"crash": _HIT, "success": (0.1, 0.9, 0.1, 1)}
 
 
 def _times(lay: Layout, recs: np.ndarray, ns: np.ndarray, prefixes: list[str]) -> None:
@@ -197,7 +205,9 @@ def _times(lay: Layout, recs: np.ndarray, ns: np.ndarray, prefixes: list[str]) -
         recs[f"{p}_sec"], recs[f"{p}_nsec"] = sec, nsec
 
 
-def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+def scene_records(
+    lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[str, np.ndarray]
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Every scene record of a group of episodes, as (records, scene-row index) per kind.
 
     ``s``: per scene row (episode-major, steps increasing): ``ep`` (group-local episode), ``ns``,
@@ -228,8 +238,14 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     mid, span = (lo + length) / 2, length - lo
     road = lay.road.fill(len(rows))
     _times(lay.road, road, s["ns"][rows], ["e0"])
-    for j, (cx, cy, sx, sy) in enumerate([(mid, 0 * wr, span, wr), (mid, wr, span, wr), (mid, wr / 2, span, 0.15 + 0 * wr),
-                                          (e["goal_s"][ee], 0 * wr, 0.3 + 0 * wr, wr)]):
+    for j, (cx, cy, sx, sy) in enumerate(
+        [
+            (mid, 0 * wr, span, wr),
+            (mid, wr, span, wr),
+            (mid, wr / 2, span, 0.15 + 0 * wr),
+            (e["goal_s"][ee], 0 * wr, 0.3 + 0 * wr, wr),
+        ]
+    ):
         road[f"c{j}_xy"] = np.stack([cx, cy], 1)
         road[f"c{j}_size"] = np.stack([sx, sy, np.full(len(rows), 0.1 if j < 2 else 0.02)], 1)
     out.append((road, rows))
@@ -257,8 +273,11 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     out.append((veh, rows))
 
     chosen, blocked = s["chosen"], s["blocked"]
-    redraw = (s["k"] // ROLLOUT_EVERY != s["k"][prev] // ROLLOUT_EVERY) | (chosen != chosen[prev]) | \
-        (blocked != blocked[prev]).any(axis=1)
+    redraw = (
+        (s["k"] // ROLLOUT_EVERY != s["k"][prev] // ROLLOUT_EVERY)
+        | (chosen != chosen[prev])
+        | (blocked != blocked[prev]).any(axis=1)
+    )
     rows = np.flatnonzero(first | final | redraw)
     rx, ry = rollout_geometry(pc, x[rows], y[rows], s["v"][rows], w[rows])
     ro = lay.rollouts.fill(len(rows))
@@ -280,8 +299,9 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     lab = lay.label.fill(len(rows))
     _times(lay.label, lab, s["ns"][rows], ["e0"])
     names = np.array([n_.ljust(8).encode() for n_ in MODE_NAMES])
-    lab["text"] = np.char.add(np.char.add(b"episode ", np.char.ljust(e["index"][ep[rows]].astype("S12"), 10)),
-                              names[mode[rows]])
+    lab["text"] = np.char.add(
+        np.char.add(b"episode ", np.char.ljust(e["index"][ep[rows]].astype("S12"), 10)), names[mode[rows]]
+    )
     lab["text"] = np.char.ljust(lab["text"], LABEL_WIDTH)  # numpy pads with NUL: pad with spaces
     out.append((lab, rows))
 
@@ -294,7 +314,7 @@ def scene_records(lay: SceneLayouts, pc: Any, s: dict[str, np.ndarray], e: dict[
     oc = lay.outcome.fill(len(rows))
     _times(lay.outcome, oc, s["ns"][rows], ["e0"])
     words, colours = [], []
-    for o, h in zip(e["outcome"][ee].tolist(), e["crash_npc"][ee].tolist()):  # one per episode
+    for o, h in zip(e["outcome"][ee].tolist(), e["crash_npc"][ee].tolist(), strict=True):  # one per episode
         name = OUTCOME_NAMES[o]
         words.append((name.upper() + (f" with NPC{h + 1}" if o == CRASH and h >= 0 else "")).encode())
         colours.append(_OUTCOME_COLOUR.get(name, _ORANGE))

@@ -10,14 +10,19 @@ from typing import Any
 # The checkout this package runs from (an editable install): benchmark/commands/ -> the repository root.
 CHECKOUT_LEADERBOARDS = Path(__file__).resolve().parents[2] / "leaderboards"
 
-DEFAULT_ROOT_RULE = ("without --root: ./leaderboards where it has a submissions/ folder, else the leaderboards/ "
-                     "of the checkout this package runs from, else an error (the default never creates a folder)")
+DEFAULT_ROOT_RULE = (
+    "without --root: ./leaderboards where it has a submissions/ folder, else the leaderboards/ "
+    "of the checkout this package runs from, else an error (the default never creates a folder)"
+)
 
 
 def root_help(new_ok: bool = False) -> str:
     """The ``--root`` help of every leaderboard command (submit, leaderboard): one rule, said the same way."""
-    given = ("PATH, created when nothing is there yet (a new leaderboard)" if new_ok
-             else "PATH, which must exist (else: no such folder: PATH)")
+    given = (
+        "PATH, created when nothing is there yet (a new leaderboard)"
+        if new_ok
+        else "PATH, which must exist (else: no such folder: PATH)"
+    )
     return f"the leaderboard folder, found by one rule for submit and leaderboard: {given}; {DEFAULT_ROOT_RULE}"
 
 
@@ -44,31 +49,43 @@ def leaderboard_root(root: str | None, new_ok: bool = False) -> str:
     for candidate in (Path("leaderboards"), CHECKOUT_LEADERBOARDS):
         if (candidate / "submissions").is_dir():
             return str(candidate)
-    raise UserError("no leaderboard here: neither ./leaderboards nor this package's checkout has a "
-                    "leaderboards/submissions/ folder; run from the repository root or pass --root")
+    raise UserError(
+        "no leaderboard here: neither ./leaderboards nor this package's checkout has a "
+        "leaderboards/submissions/ folder; run from the repository root or pass --root"
+    )
 
 
 def add_parser(subparsers: Any, name: str, help: str, description: str, examples: list[str]) -> argparse.ArgumentParser:
     return subparsers.add_parser(
-        name, help=help, description=description,
+        name,
+        help=help,
+        description=description,
         epilog="examples:\n" + "\n".join(f"  {e}" for e in examples),
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
 
 
 def add_decider_options(p: argparse.ArgumentParser) -> None:
     """``--decider NAME`` or ``--policy SPEC`` (one of them)."""
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--decider", help="a decider name from the zoo registry (see `overtakezoo zoo`)")
-    g.add_argument("--policy", metavar="SPEC",
-                   help="any policy: a zoo name, package.module:factory (your code, run in this process), or a "
-                        "file, read as data and run in a sandboxed child process: weights written by `overtakezoo "
-                        "train` (<algo>.npz or .pt beside <algo>.json), an ONNX file ([onnx] extra; external data "
-                        "inlined from beside it), a Stable-Baselines3 .zip (DQN/PPO/A2C MlpPolicy; its state dict "
-                        "is read with weights_only and its pickled entries are never unpickled) or a TorchScript "
-                        "file (deprecated by torch)")
-    p.add_argument("--shield", action="store_true", help="put the decider behind the RSS shield (zoo/members/shield.py): "
-                   "an overtake that cannot keep the RSS distance to the oncoming traffic it sees is vetoed or "
-                   "aborted (as --decider shielded:NAME)")
+    g.add_argument(
+        "--policy",
+        metavar="SPEC",
+        help="any policy: a zoo name, package.module:factory (your code, run in this process), or a "
+        "file, read as data and run in a sandboxed child process: weights written by `overtakezoo "
+        "train` (<algo>.npz or .pt beside <algo>.json), an ONNX file ([onnx] extra; external data "
+        "inlined from beside it), a Stable-Baselines3 .zip (DQN/PPO/A2C MlpPolicy; its state dict "
+        "is read with weights_only and its pickled entries are never unpickled) or a TorchScript "
+        "file (deprecated by torch)",
+    )
+    p.add_argument(
+        "--shield",
+        action="store_true",
+        help="put the decider behind the RSS shield (zoo/members/shield.py): "
+        "an overtake that cannot keep the RSS distance to the oncoming traffic it sees is vetoed or "
+        "aborted (as --decider shielded:NAME)",
+    )
 
 
 def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:

@@ -11,37 +11,60 @@ from overtakezoo.envs.io import check_writable
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "eval", "evaluate a decider on a suite",
-                   "Run a decider on every scenario of a suite (one batch, in chunks), print a Table I-style\n"
-                   "summary with 95 % CIs and write a results file (JSON). On stderr it says the hold (core steps\n"
-                   "per decision) and where it came from: a model card, a policy card, ONNX metadata or the\n"
-                   "default; a policy file without a card is warned about.",
-                   ["overtakezoo eval --suite table1 --decider always-follow",
-                    "overtakezoo eval --suite table1 --decider dqn --ray --shards 8   # local Ray instance",
-                    "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
-                    "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
-                    "overtakezoo eval --suite table1 --decider rule-fsm --archive run.mcap  # + MCAP archive",
-                    "overtakezoo eval --suite table1 --policy runs/dqn/dqn.pt      # weights from `overtakezoo train`",
-                    "overtakezoo eval --suite table1 --policy model.zip            # Stable-Baselines3 ([sb3] extra)",
-                    "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
-                    "overtakezoo eval --suite table1 --decider shielded:dqn         # dqn behind the RSS shield",
-                    "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards"])
+    p = add_parser(
+        subparsers,
+        "eval",
+        "evaluate a decider on a suite",
+        "Run a decider on every scenario of a suite (one batch, in chunks), print a Table I-style\n"
+        "summary with 95 % CIs and write a results file (JSON). On stderr it says the hold (core steps\n"
+        "per decision) and where it came from: a model card, a policy card, ONNX metadata or the\n"
+        "default; a policy file without a card is warned about.",
+        [
+            "overtakezoo eval --suite table1 --decider always-follow",
+            "overtakezoo eval --suite table1 --decider dqn --ray --shards 8   # local Ray instance",
+            "overtakezoo eval --suite table1 --decider rule-fsm --out results/rule.json",
+            "overtakezoo eval --suite my-suite.toml --decider dqn --shard 0/4   # first of 4 slices",
+            "overtakezoo eval --suite table1 --decider rule-fsm --archive run.mcap  # + MCAP archive",
+            "overtakezoo eval --suite table1 --policy runs/dqn/dqn.pt      # weights from `overtakezoo train`",
+            "overtakezoo eval --suite table1 --policy model.zip            # Stable-Baselines3 ([sb3] extra)",
+            "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
+            "overtakezoo eval --suite table1 --decider shielded:dqn         # dqn behind the RSS shield",
+            "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards",
+        ],
+    )
     p.add_argument("--suite", required=True, help="a suite name (see `overtakezoo suites`) or a .toml path")
     add_decider_options(p)
     p.add_argument("--out", help="results file (default: results/<suite>/<decider>[.shard-i-of-k].json)")
     p.add_argument("--shard", metavar="I/K", help="run only the I-th (0-based) of K contiguous slices")
     p.add_argument("--chunk-size", type=int, default=4096, help="scenarios stepped at once (bounds memory)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--archive", metavar="RUN.mcap", help="also record every episode to an MCAP archive "
-                   "(Foxglove-ready; see `overtakezoo replay`)")
-    p.add_argument("--scene-every", type=int, default=1, metavar="K",
-                   help="with --archive: the Foxglove scene every K-th step and at each episode's end "
-                        "(default 1: every step; 0: no scene)")
-    p.add_argument("--no-safety", action="store_true", help="do not record the safety metrics (RSS, head-on "
-                   "TTC, abort timing: docs/metrics.md); the results file then has only Table I's arrays")
-    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
-                   help="fan shards over Ray (a local instance, or ADDRESS such as ray://head:10001 or auto) "
-                        "and merge them into one results file; needs the [ray] extra")
+    p.add_argument(
+        "--archive",
+        metavar="RUN.mcap",
+        help="also record every episode to an MCAP archive (Foxglove-ready; see `overtakezoo replay`)",
+    )
+    p.add_argument(
+        "--scene-every",
+        type=int,
+        default=1,
+        metavar="K",
+        help="with --archive: the Foxglove scene every K-th step and at each episode's end "
+        "(default 1: every step; 0: no scene)",
+    )
+    p.add_argument(
+        "--no-safety",
+        action="store_true",
+        help="do not record the safety metrics (RSS, head-on "
+        "TTC, abort timing: docs/metrics.md); the results file then has only Table I's arrays",
+    )
+    p.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        metavar="ADDRESS",
+        help="fan shards over Ray (a local instance, or ADDRESS such as ray://head:10001 or auto) "
+        "and merge them into one results file; needs the [ray] extra",
+    )
     p.add_argument("--shards", type=int, default=4, help="with --ray: number of shards (default 4)")
     p.set_defaults(handler=run)
 
@@ -62,8 +85,9 @@ def run(args: Any) -> int:
     check_writable(out)
     if args.ray is not None:
         if shard or args.archive or args.no_safety:
-            raise UserError("--ray runs every shard itself: it cannot be combined with --shard, --archive or "
-                            "--no-safety")
+            raise UserError(
+                "--ray runs every shard itself: it cannot be combined with --shard, --archive or --no-safety"
+            )
         from overtakezoo.benchmark.run.distributed import parse_address, run_suite_ray
 
         # Each worker loads the decider itself: by registry name, or the policy spec (a file by absolute path).
@@ -75,22 +99,39 @@ def run(args: Any) -> int:
         results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
         return _report(results, suite, decider, out)
     if not args.archive:
-        results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size, progress=not args.no_progress,
-                            safety=not args.no_safety)
+        results = run_suite(
+            suite,
+            decider,
+            shard=shard,
+            chunk_size=args.chunk_size,
+            progress=not args.no_progress,
+            safety=not args.no_safety,
+        )
         return _report(results, suite, decider, out)
-    from overtakezoo.benchmark.archive.recorder import recorder_for_run  # MCAP archive of every episode (benchmark/archive/recorder.py)
+    # the MCAP archive of every episode (benchmark/archive/recorder.py)
+    from overtakezoo.benchmark.archive.recorder import recorder_for_run
 
     if args.scene_every < 0:
         raise UserError(f"--scene-every {args.scene_every}: must be >= 0")
     if suite.num_avs > 1:  # refused before the archive file is created
-        raise UserError(f"suite {suite.name!r} has {suite.num_avs} automated vehicles per scenario: archives "
-                        "record single-ego suites only")
-    recorder = recorder_for_run(check_writable(args.archive), suite, decider, scene_every=args.scene_every,
-                                progress=not args.no_progress)
+        raise UserError(
+            f"suite {suite.name!r} has {suite.num_avs} automated vehicles per scenario: archives "
+            "record single-ego suites only"
+        )
+    recorder = recorder_for_run(
+        check_writable(args.archive), suite, decider, scene_every=args.scene_every, progress=not args.no_progress
+    )
     try:
         with recorder:  # on Ctrl-C / SIGTERM the archive is finished with its whole episodes
-            results = run_suite(suite, decider, shard=shard, chunk_size=args.chunk_size,
-                                progress=not args.no_progress, recorder=recorder, safety=not args.no_safety)
+            results = run_suite(
+                suite,
+                decider,
+                shard=shard,
+                chunk_size=args.chunk_size,
+                progress=not args.no_progress,
+                recorder=recorder,
+                safety=not args.no_safety,
+            )
     except KeyboardInterrupt:
         print(f"interrupted: {args.archive} holds the {recorder.episodes} whole episodes", file=sys.stderr)
         raise
@@ -107,15 +148,21 @@ def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:
     for line in hold_lines(decider, suite.config, suite.name):
         print(line, file=sys.stderr)
     lo, hi = results.meta["range"]
-    print(f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
-          f"decider {decider.name} v{decider.version}")
+    print(
+        f"suite {suite.name} v{suite.version} ({suite.hash[:12]}), scenarios {lo}-{hi - 1} of {suite.count}; "
+        f"decider {decider.name} v{decider.version}"
+    )
     if results.num_avs > 1:  # a multi-AV suite: per-agent Table I (pooled over AVs) and the joint outcomes
         from overtakezoo.benchmark.results.metrics import format_metric
         from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
 
         print(render_table([(f"{decider.name} (per AV)", results.summary)], table=MULTI_TABLE), end="")
-        print("joint (per road): " + "; ".join(f"{label} {format_metric(results.summary['joint'][k], kind, unit)}"
-                                               for k, label, kind, unit in JOINT))
+        print(
+            "joint (per road): "
+            + "; ".join(
+                f"{label} {format_metric(results.summary['joint'][k], kind, unit)}" for k, label, kind, unit in JOINT
+            )
+        )
     else:
         print(render_table([(decider.name, results.summary)]), end="")
     print(f"wall time {results.timing['wall_time_s']:.2f} s; wrote {out}")

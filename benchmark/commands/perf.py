@@ -8,22 +8,33 @@ from overtakezoo.benchmark.commands._options import add_parser
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "perf", help="measure throughput, suite and eval times, memory and highway-env side by side",
-                   description="Measure env-steps/s of the batched core, one PettingZoo env, one Gymnasium env and a "
-                               "make_vec batch of ours and of highway-env's two-way-v0 (with the [compare] extra), "
-                               "table1 wall times in the runner and as an `overtakezoo eval` process, and peak "
-                               "memory on this machine; each figure as median and range of --repeats runs.",
-                   examples=["overtakezoo perf", "overtakezoo perf --sizes 1 4096 --seconds 0.5 --no-suites",
-                             "overtakezoo perf --out docs/perf",
-                             "overtakezoo perf --only-training --out docs/perf-training"])
+    p = add_parser(
+        subparsers,
+        "perf",
+        help="measure throughput, suite and eval times, memory and highway-env side by side",
+        description="Measure env-steps/s of the batched core, one PettingZoo env, one Gymnasium env and a "
+        "make_vec batch of ours and of highway-env's two-way-v0 (with the [compare] extra), "
+        "table1 wall times in the runner and as an `overtakezoo eval` process, and peak "
+        "memory on this machine; each figure as median and range of --repeats runs.",
+        examples=[
+            "overtakezoo perf",
+            "overtakezoo perf --sizes 1 4096 --seconds 0.5 --no-suites",
+            "overtakezoo perf --out docs/perf",
+            "overtakezoo perf --only-training --out docs/perf-training",
+        ],
+    )
     p.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 256, 4096, 16384], help="core batch sizes N")
     p.add_argument("--batch", type=int, default=8, help="N of the make_vec batches compared with highway-env")
     p.add_argument("--seconds", type=float, default=1.0, help="measuring window per run")
     p.add_argument("--repeats", type=int, default=3, help="runs per figure (median and range reported)")
     p.add_argument("--eval-runs", type=int, default=5, help="`overtakezoo eval` processes timed")
     p.add_argument("--no-suites", action="store_true", help="skip the table1 runs, the eval processes and memory")
-    p.add_argument("--no-training", action="store_true", help="skip the training rows (train-throughput-core-train, "
-                   "time-to-paper-level: several minutes; need the [train] extra)")
+    p.add_argument(
+        "--no-training",
+        action="store_true",
+        help="skip the training rows (train-throughput-core-train, "
+        "time-to-paper-level: several minutes; need the [train] extra)",
+    )
     p.add_argument("--only-training", action="store_true", help="only the training rows")
     p.add_argument("--out", default=None, help="write OUT.json and OUT.md (e.g. docs/perf)")
     p.set_defaults(handler=run)
@@ -42,8 +53,16 @@ def run(args: Any) -> int:
 
         check_writable(args.out + ".json")
         check_writable(args.out + ".md")
-    report = measure(args.sizes, args.seconds, repeats=args.repeats, batch=args.batch, eval_runs=args.eval_runs,
-                     suites=not args.no_suites, training=not args.no_training, only_training=args.only_training)
+    report = measure(
+        args.sizes,
+        args.seconds,
+        repeats=args.repeats,
+        batch=args.batch,
+        eval_runs=args.eval_runs,
+        suites=not args.no_suites,
+        training=not args.no_training,
+        only_training=args.only_training,
+    )
     if args.out:
         write_report(report, args.out)
         print(f"wrote {args.out}.json and {args.out}.md")

@@ -11,40 +11,63 @@ from overtakezoo.envs.io import check_writable
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "search", "search a suite's parameter ranges for scenarios a decider fails",
-                   "Search the suite's scenario parameters (its distribution's ranges: speeds, gaps, distances,\n"
-                   "reaction times, ...) for scenarios the decider fails, with CMA-ES (the cma package): each\n"
-                   "generation of every CMA-ES instance is one batch on the vectorised core. Crashes are the target;\n"
-                   "until one is found the RSS margin and head-on TTC of each episode guide the search. Distinct\n"
-                   "failures are written as an explicit suite (TOML), which `eval --suite FILE`, `crossplay` and\n"
-                   "`export-xosc --failures FILE` read like any suite. The same --seed gives the same file, byte for\n"
-                   "byte. Exit status 1 (and no file) when nothing failed. See docs/failures.md.",
-                   ["overtakezoo search --decider fuzzy --suite table1 --budget 2000 --out failures.toml",
-                    "overtakezoo search --decider ppo --suite oncoming-4 --budget 1000 --seed 3 --out f.toml",
-                    "overtakezoo search --decider dqn --suite table1 --budget 500 --param lead_speed --param "
-                    "oncoming_gap=20:80 --out f.toml",
-                    "overtakezoo search --decider fuzzy --suite table1 --budget 2000 --compare-random 3 --out f.toml",
-                    "overtakezoo eval --suite failures.toml --decider fuzzy   # the failures, re-run"])
+    p = add_parser(
+        subparsers,
+        "search",
+        "search a suite's parameter ranges for scenarios a decider fails",
+        "Search the suite's scenario parameters (its distribution's ranges: speeds, gaps, distances,\n"
+        "reaction times, ...) for scenarios the decider fails, with CMA-ES (the cma package): each\n"
+        "generation of every CMA-ES instance is one batch on the vectorised core. Crashes are the target;\n"
+        "until one is found the RSS margin and head-on TTC of each episode guide the search. Distinct\n"
+        "failures are written as an explicit suite (TOML), which `eval --suite FILE`, `crossplay` and\n"
+        "`export-xosc --failures FILE` read like any suite. The same --seed gives the same file, byte for\n"
+        "byte. Exit status 1 (and no file) when nothing failed. See docs/failures.md.",
+        [
+            "overtakezoo search --decider fuzzy --suite table1 --budget 2000 --out failures.toml",
+            "overtakezoo search --decider ppo --suite oncoming-4 --budget 1000 --seed 3 --out f.toml",
+            "overtakezoo search --decider dqn --suite table1 --budget 500 --param lead_speed --param "
+            "oncoming_gap=20:80 --out f.toml",
+            "overtakezoo search --decider fuzzy --suite table1 --budget 2000 --compare-random 3 --out f.toml",
+            "overtakezoo eval --suite failures.toml --decider fuzzy   # the failures, re-run",
+        ],
+    )
     add_decider_options(p)
     p.add_argument("--suite", required=True, help="a suite name or a .toml path (its [scenario] ranges are the box)")
     p.add_argument("--budget", required=True, metavar="N", help="simulated episodes to spend (> 0)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="the failure suite to write")
     p.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
-    p.add_argument("--param", action="append", metavar="NAME[=LO:HI]",
-                   help="search only these parameters (repeatable); a range replaces the suite's (within the "
-                        "setting's physical range); sensor_range, oncoming_count and follower_count need one")
-    p.add_argument("--target", default="crash", choices=("crash", "rss", "ttc"),
-                   help="what counts as a failure: crash (or off-road; default), rss (also an RSS Definition 2 "
-                        "violation in the opposite lane), ttc (also a head-on TTC below --ttc)")
+    p.add_argument(
+        "--param",
+        action="append",
+        metavar="NAME[=LO:HI]",
+        help="search only these parameters (repeatable); a range replaces the suite's (within the "
+        "setting's physical range); sensor_range, oncoming_count and follower_count need one",
+    )
+    p.add_argument(
+        "--target",
+        default="crash",
+        choices=("crash", "rss", "ttc"),
+        help="what counts as a failure: crash (or off-road; default), rss (also an RSS Definition 2 "
+        "violation in the opposite lane), ttc (also a head-on TTC below --ttc)",
+    )
     p.add_argument("--ttc", type=float, default=1.0, metavar="S", help="with --target ttc: the TTC limit (s)")
-    p.add_argument("--distinct", type=float, default=0.05, metavar="F",
-                   help="failures closer than F (a share of each range, in every parameter) count once "
-                        "(default 0.05)")
+    p.add_argument(
+        "--distinct",
+        type=float,
+        default=0.05,
+        metavar="F",
+        help="failures closer than F (a share of each range, in every parameter) count once (default 0.05)",
+    )
     p.add_argument("--batch", type=int, default=128, help="episodes per generation (all CMA-ES populations)")
     p.add_argument("--name", help="the failure suite's name (default <suite>-<decider>-failures)")
-    p.add_argument("--compare-random", type=int, default=0, metavar="R",
-                   help="also run random sampling of the suite R times at the same budget and print the ratio of "
-                        "distinct failures per episode (not written to the file)")
+    p.add_argument(
+        "--compare-random",
+        type=int,
+        default=0,
+        metavar="R",
+        help="also run random sampling of the suite R times at the same budget and print the ratio of "
+        "distinct failures per episode (not written to the file)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run)
 
@@ -69,10 +92,16 @@ def run(args: Any) -> int:
     import math
 
     from overtakezoo.benchmark.errors import UserError
-    from overtakezoo.envs.explicit import base_distribution
-    from overtakezoo.benchmark.failures.search import (check_distinct, cma_search, default_name, failure_suite, random_search,
-                                   check_budget)
+    from overtakezoo.benchmark.failures.search import (
+        check_budget,
+        check_distinct,
+        cma_search,
+        default_name,
+        failure_suite,
+        random_search,
+    )
     from overtakezoo.envs.draws import space_for
+    from overtakezoo.envs.explicit import base_distribution
     from overtakezoo.envs.io import atomic_write_bytes
     from overtakezoo.envs.suites import NAME_RE, load_suite
 
@@ -93,29 +122,62 @@ def run(args: Any) -> int:
     decider = decider_from_args(args, suite.config)
     out = check_writable(Path(args.out))
     command = command_line(args)
-    found = cma_search(suite, decider, args.budget, args.seed, target=args.target, batch=args.batch,
-                       distinct=args.distinct, ttc_limit=args.ttc, progress=not args.no_progress, space=space)
+    found = cma_search(
+        suite,
+        decider,
+        args.budget,
+        args.seed,
+        target=args.target,
+        batch=args.batch,
+        distinct=args.distinct,
+        ttc_limit=args.ttc,
+        progress=not args.no_progress,
+        space=space,
+    )
     per100 = 100.0 * found.rate
-    print(f"{suite.name} / {decider.name}: {found.distinct} distinct {args.target} failures in {found.episodes} "
-          f"episodes ({per100:.2f} per 100; {found.failures} failing episodes; {found.restarts} restarts; "
-          f"{found.wall_s:.1f} s)")
+    print(
+        f"{suite.name} / {decider.name}: {found.distinct} distinct {args.target} failures in {found.episodes} "
+        f"episodes ({per100:.2f} per 100; {found.failures} failing episodes; {found.restarts} restarts; "
+        f"{found.wall_s:.1f} s)"
+    )
     if args.compare_random:
-        randoms = [random_search(suite, decider, args.budget, 10_000 + k, target=args.target, distinct=args.distinct,
-                                 ttc_limit=args.ttc, progress=not args.no_progress, space=space)
-                   for k in range(args.compare_random)]
+        randoms = [
+            random_search(
+                suite,
+                decider,
+                args.budget,
+                10_000 + k,
+                target=args.target,
+                distinct=args.distinct,
+                ttc_limit=args.ttc,
+                progress=not args.no_progress,
+                space=space,
+            )
+            for k in range(args.compare_random)
+        ]
         r_found, r_eps = sum(r.distinct for r in randoms), sum(r.episodes for r in randoms)
         counts = ", ".join(str(r.distinct) for r in randoms)
         if r_found:
             ratio = f"ratio {found.rate / (r_found / r_eps):.1f}x"
         else:
             ratio = f"ratio at least {found.rate / (3.0 / r_eps):.1f}x (random found none; 95 % bound 3/{r_eps})"
-        print(f"random sampling, {args.compare_random} x {args.budget} episodes: {counts} distinct failures "
-              f"({100.0 * r_found / r_eps:.2f} per 100); {ratio}")
+        print(
+            f"random sampling, {args.compare_random} x {args.budget} episodes: {counts} distinct failures "
+            f"({100.0 * r_found / r_eps:.2f} per 100); {ratio}"
+        )
     if not found.distinct:
         print(f"no failure found in {found.episodes} episodes: nothing written", file=sys.stderr)
         return 1
-    data = failure_suite(suite, decider, found, name=args.name or default_name(suite, decider), seed=args.seed,
-                         budget=args.budget, target=args.target, command=command)
+    data = failure_suite(
+        suite,
+        decider,
+        found,
+        name=args.name or default_name(suite, decider),
+        seed=args.seed,
+        budget=args.budget,
+        target=args.target,
+        command=command,
+    )
     atomic_write_bytes(out, data)
     import hashlib
 

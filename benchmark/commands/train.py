@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from overtakezoo import zoo
-
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir
 
@@ -59,54 +58,102 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
         suite = ((card or {}).get("train_suite") or {}).get("name")
         if suite:
             trained_on.setdefault(suite, []).append(name)
-    zoo_suites = "; ".join(f"{', '.join(names)} on {suite}" for suite, names in
-                           sorted(trained_on.items(), key=lambda kv: -len(kv[1])))
-    summary = (f"train a learned member ({', '.join(name for name, *_ in learned)}) on --suite (default "
-               f"{DEFAULT_SUITE}; the zoo trained {zoo_suites}) or --dataset, then evaluate it on --eval-suite "
-               f"(default {DEFAULT_EVAL})")
+    zoo_suites = "; ".join(
+        f"{', '.join(names)} on {suite}" for suite, names in sorted(trained_on.items(), key=lambda kv: -len(kv[1]))
+    )
+    summary = (
+        f"train a learned member ({', '.join(name for name, *_ in learned)}) on --suite (default "
+        f"{DEFAULT_SUITE}; the zoo trained {zoo_suites}) or --dataset, then evaluate it on --eval-suite "
+        f"(default {DEFAULT_EVAL})"
+    )
     by_trainer: dict[str, list[str]] = {}
     for name, trainer, _ in learned:
         by_trainer.setdefault(trainer, []).append(name)
-    lines = [f"  {', '.join(names)}: {', '.join(run_files(trainer, '<member>'))}"
-             for trainer, names in by_trainer.items()]
-    epilog = (EXAMPLES + "\nWrites into --out (<member> is the name trained, e.g. dqn.npz):\n" + "\n".join(lines) +
-              "\n  and, unless --eval-suite none, the runner's results file <member>-<eval suite>.results.json\n"
-              "  (the card <member>.json then holds those results too; schema: zoo/train/card.schema.json).\n"
-              "The .npz is what the zoo and `eval --policy` load (no torch needed); --resume continues from a\n"
-              "checkpoint (bc and cql keep none). `python scripts/seed_results.py ALGO RUN... --ship` publishes\n"
-              "a run into zoo/pretrained/. Hyperparameter files and --set values are checked: an unknown key or\n"
-              "an out-of-range value is one error naming the key. Training needs torch: pip install -e '.[train]'.")
+    lines = [
+        f"  {', '.join(names)}: {', '.join(run_files(trainer, '<member>'))}" for trainer, names in by_trainer.items()
+    ]
+    epilog = (
+        EXAMPLES
+        + "\nWrites into --out (<member> is the name trained, e.g. dqn.npz):\n"
+        + "\n".join(lines)
+        + "\n  and, unless --eval-suite none, the runner's results file <member>-<eval suite>.results.json\n"
+        "  (the card <member>.json then holds those results too; schema: zoo/train/card.schema.json).\n"
+        "The .npz is what the zoo and `eval --policy` load (no torch needed); --resume continues from a\n"
+        "checkpoint (bc and cql keep none). `python scripts/seed_results.py ALGO RUN... --ship` publishes\n"
+        "a run into zoo/pretrained/. Hyperparameter files and --set values are checked: an unknown key or\n"
+        "an out-of-range value is one error naming the key. Training needs torch: pip install -e '.[train]'."
+    )
     return summary, epilog
 
 
 def register(subparsers: Any) -> None:
     summary, epilog = _summary(_learned())
-    description = textwrap.fill(summary[0].upper() + summary[1:] + ".", width=100, break_on_hyphens=False)  # (suite names whole)
-    p = subparsers.add_parser("train", help=summary, description=description,
-                              epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
+    description = textwrap.fill(
+        summary[0].upper() + summary[1:] + ".", width=100, break_on_hyphens=False
+    )  # (suite names whole)
+    p = subparsers.add_parser(
+        "train",
+        help=summary,
+        description=description,
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")
-    p.add_argument("--suite", default=DEFAULT_SUITE,
-                   help=f"training suite, suites joined by + or a mixture such as core-train (default: {DEFAULT_SUITE})")
-    p.add_argument("--dataset", default=None, metavar="NAME",
-                   help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)")
-    p.add_argument("--steps", type=int, default=None,
-                   help="total training length, also when resuming (dqn: decision transitions summed over "
-                        "all parallel rows; bc / cql: gradient steps; default: the hyperparameter file)")
+    p.add_argument(
+        "--suite",
+        default=DEFAULT_SUITE,
+        help=f"training suite, suites joined by + or a mixture such as core-train (default: {DEFAULT_SUITE})",
+    )
+    p.add_argument(
+        "--dataset",
+        default=None,
+        metavar="NAME",
+        help="bc / cql: the dataset to learn from (a name of `overtakezoo dataset list`)",
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="total training length, also when resuming (dqn: decision transitions summed over "
+        "all parallel rows; bc / cql: gradient steps; default: the hyperparameter file)",
+    )
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the hyperparameter file)")
-    p.add_argument("--seeds", default=None, metavar="S,S,...",
-                   help="a seed sweep: one run per seed into <out>-s<seed>, in parallel on Ray when it is "
-                        "installed (see --engine); the same files either way")
-    p.add_argument("--engine", choices=("auto", "ray", "sequential"), default="auto",
-                   help="--seeds: ray (parallel tasks on a local Ray), sequential, or auto (ray when installed)")
+    p.add_argument(
+        "--seeds",
+        default=None,
+        metavar="S,S,...",
+        help="a seed sweep: one run per seed into <out>-s<seed>, in parallel on Ray when it is "
+        "installed (see --engine); the same files either way",
+    )
+    p.add_argument(
+        "--engine",
+        choices=("auto", "ray", "sequential"),
+        default="auto",
+        help="--seeds: ray (parallel tasks on a local Ray), sequential, or auto (ray when installed)",
+    )
     p.add_argument("--out", default=None, help="output directory (default: runs/<algorithm>)")
-    p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a checkpoint the trainer wrote (see below)")
-    p.add_argument("--hyperparams", default=None, metavar="TOML",
-                   help="hyperparameter file (default: zoo/hyperparams/<algorithm>.toml)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-                   help="override a hyperparameter (a TOML value; ppo: SECTION.KEY, e.g. train.steps=1000); "
-                        "repeatable")
-    p.add_argument("--eval-suite", default=DEFAULT_EVAL, help=f"suite evaluated at the end ('none' to skip; "
-                                                              f"default: {DEFAULT_EVAL})")
+    p.add_argument(
+        "--resume", default=None, metavar="CKPT", help="continue from a checkpoint the trainer wrote (see below)"
+    )
+    p.add_argument(
+        "--hyperparams",
+        default=None,
+        metavar="TOML",
+        help="hyperparameter file (default: zoo/hyperparams/<algorithm>.toml)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="overrides",
+        help="override a hyperparameter (a TOML value; ppo: SECTION.KEY, e.g. train.steps=1000); repeatable",
+    )
+    p.add_argument(
+        "--eval-suite",
+        default=DEFAULT_EVAL,
+        help=f"suite evaluated at the end ('none' to skip; default: {DEFAULT_EVAL})",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run)
 
@@ -117,9 +164,8 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and not Path(args.resume).is_file():
         raise UserError(f"--resume: no checkpoint at {args.resume}")
     out = Path(args.out or f"runs/{args.algorithm}")
-    from overtakezoo.zoo.train.contract import parse_overrides
-
     from overtakezoo.benchmark.run.training import seed_dirs, train, train_seeds
+    from overtakezoo.zoo.train.contract import parse_overrides
 
     if args.seeds is not None:
         if args.seed is not None or args.resume:
@@ -130,31 +176,50 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--seeds {args.seeds}: expected integers joined by commas, e.g. 0,1,2") from None
         for where in seed_dirs(out, seeds):
             check_writable_dir(where)  # an unwritable folder fails now, not after training
-        cards = train_seeds(args.algorithm, seeds, out, engine=args.engine, suite=args.suite, dataset=args.dataset,
-                            steps=args.steps, hyperparams=args.hyperparams,
-                            overrides=parse_overrides(args.overrides),
-                            eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
-                            progress=not args.no_progress)
-        for card, where in zip(cards, seed_dirs(out, seeds)):
+        cards = train_seeds(
+            args.algorithm,
+            seeds,
+            out,
+            engine=args.engine,
+            suite=args.suite,
+            dataset=args.dataset,
+            steps=args.steps,
+            hyperparams=args.hyperparams,
+            overrides=parse_overrides(args.overrides),
+            eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
+            progress=not args.no_progress,
+        )
+        for card, where in zip(cards, seed_dirs(out, seeds), strict=True):
             _report(card, where)
         return 0
     check_writable_dir(out)  # an unwritable --out fails now, not after training
     # Bad hyperparameters, checkpoints or datasets are ConfigErrors: the CLI prints them in one line.
-    trained = train(args.algorithm, suite=args.suite, dataset=args.dataset, steps=args.steps, seed=args.seed,
-                    out=out, resume=args.resume, hyperparams=args.hyperparams,
-                    overrides=parse_overrides(args.overrides),
-                    eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
-                    progress=not args.no_progress)
+    trained = train(
+        args.algorithm,
+        suite=args.suite,
+        dataset=args.dataset,
+        steps=args.steps,
+        seed=args.seed,
+        out=out,
+        resume=args.resume,
+        hyperparams=args.hyperparams,
+        overrides=parse_overrides(args.overrides),
+        eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
+        progress=not args.no_progress,
+    )
     _report(trained.card, out)
     return 0
 
 
 def _report(card: dict[str, Any], out: Path) -> None:
-    print(f"trained {card['name']}: {card['steps']} {card['steps_unit']} in {card['wall_time_s']:.0f} s; "
-          f"files in {out}")
+    print(
+        f"trained {card['name']}: {card['steps']} {card['steps_unit']} in {card['wall_time_s']:.0f} s; files in {out}"
+    )
     res = (card.get("results") or {}).get("table1")
     if res:
-        print(f"table1: success {100 * res['success_rate']:.1f} % "
-              f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], "
-              f"crash {100 * res['crash_rate']:.1f} % (lead lane {res['crash_lead_lane']}, "
-              f"opposite lane {res['crash_opposite_lane']}), timeout {100 * res['timeout_rate']:.1f} %")
+        print(
+            f"table1: success {100 * res['success_rate']:.1f} % "
+            f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], "
+            f"crash {100 * res['crash_rate']:.1f} % (lead lane {res['crash_lead_lane']}, "
+            f"opposite lane {res['crash_opposite_lane']}), timeout {100 * res['timeout_rate']:.1f} %"
+        )

@@ -10,13 +10,19 @@ from overtakezoo.benchmark.errors import UserError
 
 
 def register(subparsers: Any) -> None:
-    p = add_parser(subparsers, "zoo", "list the deciders of the zoo",
-                   "Work with the decider zoo. 'list' prints every registered decider (or the named ones) "
-                   "with its model card.",
-                   ["overtakezoo zoo list", "overtakezoo zoo list rule-fsm oracle", "overtakezoo zoo list --names"])
+    p = add_parser(
+        subparsers,
+        "zoo",
+        "list the deciders of the zoo",
+        "Work with the decider zoo. 'list' prints every registered decider (or the named ones) with its model card.",
+        ["overtakezoo zoo list", "overtakezoo zoo list rule-fsm oracle", "overtakezoo zoo list --names"],
+    )
     sub = p.add_subparsers(dest="zoo_command", metavar="ACTION")
-    ls = sub.add_parser("list", help="print each decider with its model card",
-                        description="Print each registered decider: name, version, privileged flag and model card.")
+    ls = sub.add_parser(
+        "list",
+        help="print each decider with its model card",
+        description="Print each registered decider: name, version, privileged flag and model card.",
+    )
     ls.add_argument("names", nargs="*", metavar="NAME", help="only these deciders (default: all)")
     ls.add_argument("--names", dest="names_only", action="store_true", help="print the names only, one a line")
     ls.set_defaults(handler=run_list)

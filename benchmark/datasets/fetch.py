@@ -10,18 +10,31 @@ import tarfile
 import urllib.error
 import urllib.parse
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path, PurePosixPath
-from typing import Callable
 
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs.io import check_writable_dir, file_sha256
-from overtakezoo.benchmark.memory_cap import memory_cap
 from overtakezoo.benchmark.datasets.registry import load_registry, registry_path
-from overtakezoo.benchmark.datasets.store import cache_dir, check_name, datasets_dir, install, minari_module, staging_root
+from overtakezoo.benchmark.datasets.store import (
+    cache_dir,
+    check_name,
+    datasets_dir,
+    install,
+    minari_module,
+    staging_root,
+)
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.memory_cap import memory_cap
+from overtakezoo.envs.io import check_writable_dir, file_sha256
 
 
-def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: float = 30.0,
-             build: bool = True, say: Callable[[str], None] = lambda line: None) -> Path:
+def download(
+    name: str,
+    progress: bool = True,
+    chunk: int = 1 << 16,
+    timeout: float = 30.0,
+    build: bool = True,
+    say: Callable[[str], None] = lambda line: None,
+) -> Path:
     """Fetch, verify and unpack dataset ``name`` from the registry's mirrors (in order); returns its
     local folder. With ``build``, a dataset no mirror delivers is rebuilt from its recipe instead.
     Without minari (a base install) a :class:`UserError` naming the extra comes first, before any
@@ -46,7 +59,7 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
         ok = final.exists() and file_sha256(final) == sha
         if ok:
             say(f"{final}: already downloaded (sha256 {sha[:16]}... matches)")
-        for url in ([] if ok else entry["mirrors"]):
+        for url in [] if ok else entry["mirrors"]:
             say(f"trying {url}")
             try:  # each mirror resumes the same .part: the sha256 proves the pieces belong together
                 _fetch(url, part, size, progress, chunk, timeout)
@@ -61,8 +74,9 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
                 ok = True
                 break
             part.unlink(missing_ok=True)
-            failures.append(f"{url}: checksum mismatch (expected sha256 {sha[:16]}..., got {got[:16]}...; "
-                            "deleted the partial file)")
+            failures.append(
+                f"{url}: checksum mismatch (expected sha256 {sha[:16]}..., got {got[:16]}...; deleted the partial file)"
+            )
             say(f"  failed: {failures[-1].split(': ', 1)[1]}")
         if ok:
             _extract(final, root, name)
@@ -71,16 +85,21 @@ def download(name: str, progress: bool = True, chunk: int = 1 << 16, timeout: fl
         from overtakezoo.benchmark.datasets.recipes import build_entry
 
         recipe = entry["recipe"]
-        say(f"no mirror delivered {name}; rebuilding it from the registry's recipe (suite {recipe['suite']}, "
-            f"{recipe['count']} scenarios, {', '.join(p['decider'] for p in recipe['policies'])})")
+        say(
+            f"no mirror delivered {name}; rebuilding it from the registry's recipe (suite {recipe['suite']}, "
+            f"{recipe['count']} scenarios, {', '.join(p['decider'] for p in recipe['policies'])})"
+        )
         build_entry(name, entry, progress=progress)  # installed only if the content hash matches
         say(f"  rebuilt; its content hash matches the registry's ({entry['content_sha256'][:16]}...)")
         return root / name
     where = "; ".join(failures) if failures else f"the registry lists no mirror for {name}"
     kept = part.stat().st_size if entry["mirrors"] and part.exists() else 0
     hint = f"run the command again to resume ({kept} of {size} bytes kept), or " if kept else ""
-    how = ("drop --no-build to rebuild it locally from its recipe" if entry.get("recipe")
-           else "the registry has no recipe to rebuild it from")
+    how = (
+        "drop --no-build to rebuild it locally from its recipe"
+        if entry.get("recipe")
+        else "the registry has no recipe to rebuild it from"
+    )
     raise UserError(f"could not download {name} ({where}); {hint}{how}")
 
 
@@ -111,9 +130,17 @@ def _fetch(url: str, part: Path, size: int, progress: bool, chunk: int, timeout:
             if declared.strip().isdigit() and int(declared) > size - have:  # refused before a byte is read
                 raise _Oversized(f"announced {have + int(declared)} bytes, the registry's archive has {size}")
             mode = "ab" if have else "wb"
-            with open(part, mode) as f, tqdm(total=size, initial=have, unit="B", unit_scale=True,
-                                             desc=part.name.removesuffix(".tar.gz.part"),
-                                             disable=not progress) as bar:
+            with (
+                open(part, mode) as f,
+                tqdm(
+                    total=size,
+                    initial=have,
+                    unit="B",
+                    unit_scale=True,
+                    desc=part.name.removesuffix(".tar.gz.part"),
+                    disable=not progress,
+                ) as bar,
+            ):
                 got = have
                 while True:  # at most the registry's size (+1 byte, to tell a longer body): never more
                     block = resp.read(min(chunk, size - got + 1))
@@ -132,8 +159,9 @@ def _fetch(url: str, part: Path, size: int, progress: bool, chunk: int, timeout:
     except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
         got = part.stat().st_size if part.exists() else 0
         reason = getattr(exc, "reason", None) or exc
-        raise _MirrorFailed(f"interrupted at {got} of {size} bytes ({reason})" if got else f"unreachable ({reason})") \
-            from None
+        raise _MirrorFailed(
+            f"interrupted at {got} of {size} bytes ({reason})" if got else f"unreachable ({reason})"
+        ) from None
     got = part.stat().st_size
     if got < size:
         raise _MirrorFailed(f"stopped at {got} of {size} bytes")
@@ -148,8 +176,13 @@ def _extract(archive: Path, root: Path, name: str) -> None:
             members = tar.getmembers()
             for m in members:
                 p = PurePosixPath(m.name)
-                if (not p.parts or p.is_absolute() or ".." in p.parts or m.name.startswith(("/", "\\"))
-                        or ":" in p.parts[0]):
+                if (
+                    not p.parts
+                    or p.is_absolute()
+                    or ".." in p.parts
+                    or m.name.startswith(("/", "\\"))
+                    or ":" in p.parts[0]
+                ):
                     raise UserError(f"refusing {archive.name}: member {m.name!r} would land outside {root}")
                 if not (m.isfile() or m.isdir()):
                     raise UserError(f"refusing {archive.name}: member {m.name!r} is a link or special file")

@@ -30,11 +30,13 @@ from overtakezoo.envs.io import atomic_write_json
 from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
 
 RECIPES_FILE = Path(__file__).with_name("registry") / "recipes.toml"
-REGISTRY_FORMAT = ("name -> {level, description, recipe {suite, suite_version, suite_sha256, count, chunk_size, "
-                   "policies [{decider, decider_version, weights_sha256, epsilon, seed}]; episode i comes from policy "
-                   "i mod len(policies)}, content_sha256 (canonical arrays, see overtakezoo.benchmark.datasets.store), "
-                   "episodes, steps, mirrors (URLs of the .tar.gz, tried in order), size and sha256 of that archive}; "
-                   "regenerate with `overtakezoo dataset regenerate`")
+REGISTRY_FORMAT = (
+    "name -> {level, description, recipe {suite, suite_version, suite_sha256, count, chunk_size, "
+    "policies [{decider, decider_version, weights_sha256, epsilon, seed}]; episode i comes from policy "
+    "i mod len(policies)}, content_sha256 (canonical arrays, see overtakezoo.benchmark.datasets.store), "
+    "episodes, steps, mirrors (URLs of the .tar.gz, tried in order), size and sha256 of that archive}; "
+    "regenerate with `overtakezoo dataset regenerate`"
+)
 LEVEL_KEYS = {"name", "decider", "epsilon", "seed", "interleave"}
 
 
@@ -50,8 +52,12 @@ def read_recipes(path: Path = RECIPES_FILE) -> dict[str, Any]:
     bad = set(data) - {"version", "chunk_size", "mirrors", "suites", "levels"}
     if bad:
         raise UserError(f"recipes {path}: unknown key(s) {sorted(bad)}")
-    if not (isinstance(data.get("version"), int) and isinstance(data.get("chunk_size"), int)
-            and data["chunk_size"] >= 1 and isinstance(data.get("mirrors", []), list)):
+    if not (
+        isinstance(data.get("version"), int)
+        and isinstance(data.get("chunk_size"), int)
+        and data["chunk_size"] >= 1
+        and isinstance(data.get("mirrors", []), list)
+    ):
         raise UserError(f"recipes {path}: needs version (int), chunk_size (int >= 1), mirrors (list of URL patterns)")
     levels = data.get("levels", {})
     for level, spec in levels.items():
@@ -61,14 +67,23 @@ def read_recipes(path: Path = RECIPES_FILE) -> dict[str, Any]:
         if "interleave" in spec:
             missing = [x for x in spec["interleave"] if x not in levels or "interleave" in levels[x]]
             if missing or not spec["interleave"]:
-                raise UserError(f"recipes {path}: levels.{level}.interleave: {missing or '[]'} are not "
-                                "single-policy levels")
-        elif not (isinstance(spec.get("decider"), str) and isinstance(spec.get("epsilon"), (int, float))
-                  and 0.0 <= spec["epsilon"] <= 1.0 and isinstance(spec.get("seed", 0), int)):
+                raise UserError(
+                    f"recipes {path}: levels.{level}.interleave: {missing or '[]'} are not single-policy levels"
+                )
+        elif not (
+            isinstance(spec.get("decider"), str)
+            and isinstance(spec.get("epsilon"), (int, float))
+            and 0.0 <= spec["epsilon"] <= 1.0
+            and isinstance(spec.get("seed", 0), int)
+        ):
             raise UserError(f"recipes {path}: levels.{level} needs decider (str), epsilon in [0, 1], seed (int)")
     for s in data.get("suites", []):
-        if not (isinstance(s, dict) and isinstance(s.get("suite"), str) and isinstance(s.get("env"), str)
-                and set(s) <= {"suite", "env", "count"}):
+        if not (
+            isinstance(s, dict)
+            and isinstance(s.get("suite"), str)
+            and isinstance(s.get("env"), str)
+            and set(s) <= {"suite", "env", "count"}
+        ):
             raise UserError(f"recipes {path}: each suites entry is {{suite = NAME, env = SHORT, count = N (optional)}}")
     return data
 
@@ -91,10 +106,16 @@ def plan(data: dict[str, Any]) -> dict[str, dict[str, Any]]:
             parts = spec.get("interleave", [level])
             name = f"overtakezoo/{s['env']}/{level_name(level)}"
             check_name(name)
-            out[name] = {"level": level, "env": s["env"], "suite": suite, "count": count,
-                         "policies": [levels[p] for p in parts],
-                         "components": [f"overtakezoo/{s['env']}/{level_name(p)}" for p in parts]
-                         if "interleave" in spec else []}
+            out[name] = {
+                "level": level,
+                "env": s["env"],
+                "suite": suite,
+                "count": count,
+                "policies": [levels[p] for p in parts],
+                "components": [f"overtakezoo/{s['env']}/{level_name(p)}" for p in parts]
+                if "interleave" in spec
+                else [],
+            }
     return out
 
 
@@ -106,15 +127,28 @@ def resolve_recipe(suite: Any, count: int, chunk_size: int, policies: list[dict[
     resolved = []
     for p in policies:
         d = load_zoo(p["decider"], suite.config)
-        resolved.append({"decider": d.name, "decider_version": str(d.version),
-                         "weights_sha256": getattr(d, "weights_sha256", None),
-                         "epsilon": float(p["epsilon"]), "seed": int(p.get("seed", 0))})
-    return {"suite": suite.name, "suite_version": suite.version, "suite_sha256": suite.hash, "count": count,
-            "chunk_size": chunk_size, "policies": resolved}
+        resolved.append(
+            {
+                "decider": d.name,
+                "decider_version": str(d.version),
+                "weights_sha256": getattr(d, "weights_sha256", None),
+                "epsilon": float(p["epsilon"]),
+                "seed": int(p.get("seed", 0)),
+            }
+        )
+    return {
+        "suite": suite.name,
+        "suite_version": suite.version,
+        "suite_sha256": suite.hash,
+        "count": count,
+        "chunk_size": chunk_size,
+        "policies": resolved,
+    }
 
 
-def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True,
-                   memo: dict[str, Any] | None = None) -> tuple[Any, list[dict[str, Any]]]:
+def collect_recipe(
+    recipe: dict[str, Any], name: str = "", progress: bool = True, memo: dict[str, Any] | None = None
+) -> tuple[Any, list[dict[str, Any]]]:
     """(suite, episodes) for a registry recipe, after checking that this installation has the suite
     file and decider versions it names (else the rebuild could not match; said with the reason)."""
     from overtakezoo.benchmark.run.policy import load_zoo
@@ -123,13 +157,17 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
     try:
         suite = load_suite(recipe["suite"])
         count, chunk = int(recipe["count"]), int(recipe.get("chunk_size", 4096))
-        policies = [{**p, "decider": str(p["decider"]), "epsilon": float(p["epsilon"]), "seed": int(p["seed"])}
-                    for p in recipe["policies"]]
+        policies = [
+            {**p, "decider": str(p["decider"]), "epsilon": float(p["epsilon"]), "seed": int(p["seed"])}
+            for p in recipe["policies"]
+        ]
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"dataset {name}: the registry's recipe is incomplete ({exc})") from None
     if suite.hash != recipe.get("suite_sha256"):
-        raise UserError(f"dataset {name}: suite {suite.name} here has sha256 {suite.hash[:16]}..., the recipe used "
-                        f"{str(recipe.get('suite_sha256'))[:16]}... (another version): a rebuild cannot match")
+        raise UserError(
+            f"dataset {name}: suite {suite.name} here has sha256 {suite.hash[:16]}..., the recipe used "
+            f"{str(recipe.get('suite_sha256'))[:16]}... (another version): a rebuild cannot match"
+        )
     if not 1 <= count <= suite.count:
         raise UserError(f"dataset {name}: the recipe's count {count} is outside suite {suite.name}'s 1..{suite.count}")
     parts = []
@@ -138,12 +176,21 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
         have = (str(decider.version), getattr(decider, "weights_sha256", None))
         want = (str(p.get("decider_version")), p.get("weights_sha256"))
         if have != want:
-            raise UserError(f"dataset {name}: decider {p['decider']} here is v{have[0]} (weights {str(have[1])[:16]}), "
-                            f"the recipe used v{want[0]} (weights {str(want[1])[:16]}): a rebuild cannot match")
+            raise UserError(
+                f"dataset {name}: decider {p['decider']} here is v{have[0]} (weights {str(have[1])[:16]}), "
+                f"the recipe used v{want[0]} (weights {str(want[1])[:16]}): a rebuild cannot match"
+            )
         key = json.dumps([suite.hash, count, chunk, p], sort_keys=True)
         if memo is None or key not in memo:
-            episodes = collect(suite, decider, epsilon=float(p["epsilon"]), seed=int(p["seed"]), count=count,
-                               chunk_size=chunk, progress=progress)
+            episodes = collect(
+                suite,
+                decider,
+                epsilon=float(p["epsilon"]),
+                seed=int(p["seed"]),
+                count=count,
+                chunk_size=chunk,
+                progress=progress,
+            )
             if memo is not None:
                 memo[key] = episodes
         parts.append(episodes if memo is None else memo[key])
@@ -151,12 +198,16 @@ def collect_recipe(recipe: dict[str, Any], name: str = "", progress: bool = True
 
 
 def describe(level: str, recipe: dict[str, Any], components: list[str]) -> str:
-    who = "; ".join(f"{p['decider']} v{p['decider_version']} epsilon {p['epsilon']} seed {p['seed']}"
-                    for p in recipe["policies"])
-    mix = (f"; episode i is episode i of the (i mod {len(components)})-th of {', '.join(components)}"
-           if components else "")
-    return (f"{level}: {who} on suite {recipe['suite']} v{recipe['suite_version']} ({recipe['suite_sha256'][:12]}), "
-            f"its first {recipe['count']} scenarios{mix}. One transition per simulator step.")
+    who = "; ".join(
+        f"{p['decider']} v{p['decider_version']} epsilon {p['epsilon']} seed {p['seed']}" for p in recipe["policies"]
+    )
+    mix = (
+        f"; episode i is episode i of the (i mod {len(components)})-th of {', '.join(components)}" if components else ""
+    )
+    return (
+        f"{level}: {who} on suite {recipe['suite']} v{recipe['suite_version']} ({recipe['suite_sha256'][:12]}), "
+        f"its first {recipe['count']} scenarios{mix}. One transition per simulator step."
+    )
 
 
 def _algorithm(recipe: dict[str, Any]) -> str:
@@ -180,11 +231,12 @@ def outcome_shares(episodes: list[dict[str, Any]]) -> dict[str, float]:
     """How the episodes ended (each episode's last outcome), as shares that sum to 1, for `dataset list`."""
     last = np.array([int(e["infos"]["outcome"][-1]) for e in episodes], np.int64)
     counts = np.bincount(last, minlength=len(OUTCOME_NAMES))
-    return {name: round(float(c) / max(1, last.size), 4) for name, c in zip(OUTCOME_NAMES, counts) if c}
+    return {name: round(float(c) / max(1, last.size), 4) for name, c in zip(OUTCOME_NAMES, counts, strict=False) if c}
 
 
-def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archives: Path | None = None,
-               progress: bool = True) -> tuple[dict[str, dict[str, Any]], Path]:
+def regenerate(
+    recipes: Path = RECIPES_FILE, registry: Path | None = None, archives: Path | None = None, progress: bool = True
+) -> tuple[dict[str, dict[str, Any]], Path]:
     """Build every dataset of the recipe table into the datasets folder, pack each into ``archives``,
     and write the registry (atomically, once everything is built); returns (its entries, the archives' folder)."""
     from tqdm import tqdm
@@ -208,11 +260,17 @@ def regenerate(recipes: Path = RECIPES_FILE, registry: Path | None = None, archi
         archive = name.replace("/", "__") + ".tar.gz"
         _, size, sha = pack(name, archives / archive)
         entries[name] = {
-            "level": p["level"], "description": description, "recipe": recipe, "content_sha256": digest,
-            "episodes": len(episodes), "steps": int(sum(len(e["actions"]) for e in episodes)),
+            "level": p["level"],
+            "description": description,
+            "recipe": recipe,
+            "content_sha256": digest,
+            "episodes": len(episodes),
+            "steps": int(sum(len(e["actions"]) for e in episodes)),
             "outcomes": outcome_shares(episodes),
             "mirrors": [m.format(version=data["version"], archive=archive) for m in data.get("mirrors", [])],
-            "size": size, "sha256": sha}
+            "size": size,
+            "sha256": sha,
+        }
     atomic_write_json(registry, {"format": REGISTRY_FORMAT, "datasets": entries})
     load_registry(registry)  # what was written reads back
     return entries, archives

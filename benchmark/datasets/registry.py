@@ -1,4 +1,5 @@
-"""The registry of published datasets: the shipped ``registry/datasets.json`` (or ``$OVERTAKEZOO_REGISTRY``), validated."""
+"""The registry of published datasets: the shipped ``registry/datasets.json`` (or
+``$OVERTAKEZOO_REGISTRY``), validated."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import safe_json
-
 
 REGISTRY_FILE = Path(__file__).with_name("registry") / "datasets.json"
 
@@ -30,7 +30,7 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
         raise UserError(str(exc)) from None
     entries = data.get("datasets", {}) if isinstance(data, dict) else None
     if not isinstance(entries, dict):
-        raise UserError(f"dataset registry {path}: expected {{\"datasets\": {{name: {{mirrors, size, sha256}}}}}}")
+        raise UserError(f'dataset registry {path}: expected {{"datasets": {{name: {{mirrors, size, sha256}}}}}}')
     out = {}
     for name, e in entries.items():
         if not isinstance(e, dict):
@@ -39,14 +39,22 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
         mirrors = e.pop("url", None)
         mirrors = [mirrors] if isinstance(mirrors, str) else e.get("mirrors", [])
         archive_ok = (e.get("size") is None and e.get("sha256") is None) or (
-            isinstance(e.get("size"), int) and _is_sha(e.get("sha256")))
-        if not (isinstance(mirrors, list) and all(isinstance(u, str) for u in mirrors) and archive_ok
-                and (mirrors == [] or e.get("sha256") is not None)
-                and (e.get("content_sha256") is None or _is_sha(e["content_sha256"]))
-                and isinstance(e.get("recipe", {}), dict) and _is_shares(e.get("outcomes", {}))):
-            raise UserError(f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the "
-                            "archive's size (int) and sha256 (64 hex), and optionally recipe (object) and "
-                            "content_sha256 (64 hex), outcomes ({name: share in [0, 1]})")
+            isinstance(e.get("size"), int) and _is_sha(e.get("sha256"))
+        )
+        if not (
+            isinstance(mirrors, list)
+            and all(isinstance(u, str) for u in mirrors)
+            and archive_ok
+            and (mirrors == [] or e.get("sha256") is not None)
+            and (e.get("content_sha256") is None or _is_sha(e["content_sha256"]))
+            and isinstance(e.get("recipe", {}), dict)
+            and _is_shares(e.get("outcomes", {}))
+        ):
+            raise UserError(
+                f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the "
+                "archive's size (int) and sha256 (64 hex), and optionally recipe (object) and "
+                "content_sha256 (64 hex), outcomes ({name: share in [0, 1]})"
+            )
         e["mirrors"] = mirrors
         out[name] = e
     return out
@@ -55,7 +63,8 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
 def _is_shares(value: Any) -> bool:
     return isinstance(value, dict) and all(
         isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1
-        for k, v in value.items())
+        for k, v in value.items()
+    )
 
 
 def _is_sha(value: Any) -> bool:

@@ -38,12 +38,13 @@ import dataclasses
 import hashlib
 import json
 import os
-import sys
 import shutil
+import sys
 import tarfile
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -116,8 +117,14 @@ def check_name(name: str) -> None:
         raise UserError(f"bad dataset name {name!r}: it must end in -vN (e.g. rule-fsm-v0)")
 
 
-def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any, algorithm: str,
-                  description: str, expect_content: str | None = None) -> str:
+def write_dataset(
+    name: str,
+    episodes: list[dict[str, np.ndarray]],
+    config: Any,
+    algorithm: str,
+    description: str,
+    expect_content: str | None = None,
+) -> str:
     """Store ``episodes`` (as :func:`collect` returns them) as Minari dataset ``name``; returns its
     content hash. With ``expect_content`` the dataset is installed only if its hash equals it."""
     check_name(name)
@@ -130,25 +137,47 @@ def write_dataset(name: str, episodes: list[dict[str, np.ndarray]], config: Any,
     obs_dim = observation_size(config)
     if episodes and episodes[0]["observations"].shape[1] != obs_dim:
         raise ValueError(f"observations have {episodes[0]['observations'].shape[1]} features, config says {obs_dim}")
-    buffers = [EpisodeBuffer(id=i, observations=e["observations"], actions=e["actions"], rewards=e["rewards"],
-                             terminations=e["terminations"], truncations=e["truncations"], infos=e["infos"])
-               for i, e in enumerate(episodes)]
+    buffers = [
+        EpisodeBuffer(
+            id=i,
+            observations=e["observations"],
+            actions=e["actions"],
+            rewards=e["rewards"],
+            terminations=e["terminations"],
+            truncations=e["truncations"],
+            infos=e["infos"],
+        )
+        for i, e in enumerate(episodes)
+    ]
     spec = _env_spec(config)
     target = datasets_dir() / name
     with staging_root(target) as staging:  # Minari writes a scratch root; the finished folder is swapped in
         _check_space(name, staging, episodes)
         with _minari_path(staging), warnings.catch_warnings():  # Minari nags about optional metadata
             warnings.simplefilter("ignore", UserWarning)
-            _in_child(lambda: minari.create_dataset_from_buffers(
-                dataset_id=name, buffer=buffers, env=spec, eval_env=spec,
-                observation_space=spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
-                action_space=spaces.Discrete(3), algorithm_name=algorithm,
-                author="OvertakeZoo", description=description, data_format="hdf5", requirements=["overtakezoo"]),
-                f"cannot write dataset {name} in {target.parent}", staging)
+            _in_child(
+                lambda: minari.create_dataset_from_buffers(
+                    dataset_id=name,
+                    buffer=buffers,
+                    env=spec,
+                    eval_env=spec,
+                    observation_space=spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
+                    action_space=spaces.Discrete(3),
+                    algorithm_name=algorithm,
+                    author="OvertakeZoo",
+                    description=description,
+                    data_format="hdf5",
+                    requirements=["overtakezoo"],
+                ),
+                f"cannot write dataset {name} in {target.parent}",
+                staging,
+            )
             digest = content_sha256(minari.load_dataset(name))
         if expect_content is not None and digest != expect_content:
-            raise UserError(f"rebuilt {name} has content sha256 {digest[:16]}..., the registry says "
-                            f"{expect_content[:16]}...: this installation does not reproduce it; nothing was installed")
+            raise UserError(
+                f"rebuilt {name} has content sha256 {digest[:16]}..., the registry says "
+                f"{expect_content[:16]}...: this installation does not reproduce it; nothing was installed"
+            )
         install(staging, name, target)
     return digest
 
@@ -159,8 +188,10 @@ def _check_space(name: str, where: Path, episodes: list[dict[str, Any]]) -> None
     need = sum(a.nbytes for e in episodes for a in (*e.values(), *e["infos"].values()) if isinstance(a, np.ndarray))
     free = shutil.disk_usage(where).free
     if free < need:
-        raise UserError(f"cannot write dataset {name}: it needs at least {need / 1e6:.1f} MB, "
-                        f"{where.parent} has {free / 1e6:.1f} MB free; nothing was changed")
+        raise UserError(
+            f"cannot write dataset {name}: it needs at least {need / 1e6:.1f} MB, "
+            f"{where.parent} has {free / 1e6:.1f} MB free; nothing was changed"
+        )
 
 
 def _in_child(write: Any, what: str, where: Path) -> None:
@@ -204,8 +235,11 @@ def _in_child(write: Any, what: str, where: Path) -> None:
         recv.close()
     if proc.exitcode == 0:
         return
-    full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) \
+    full = (
+        getattr(exc, "errno", None) == errno.ENOSPC
+        or "No space left" in str(exc)
         or shutil.disk_usage(where).free < (1 << 20)
+    )
     if full:
         raise UserError(f"{what}: no space left on device; nothing was changed") from None
     if exc is None:
@@ -231,9 +265,13 @@ def content_sha256(dataset: Any) -> str:
             put(prefix, tree)
 
     obs, act = dataset.observation_space, dataset.action_space
-    head = {"dataset_id": dataset.spec.dataset_id, "episodes": int(dataset.total_episodes),
-            "steps": int(dataset.total_steps), "observation": [np.dtype(obs.dtype).str, list(obs.shape)],
-            "action": [np.dtype(act.dtype).str, int(act.n)]}
+    head = {
+        "dataset_id": dataset.spec.dataset_id,
+        "episodes": int(dataset.total_episodes),
+        "steps": int(dataset.total_steps),
+        "observation": [np.dtype(obs.dtype).str, list(obs.shape)],
+        "action": [np.dtype(act.dtype).str, int(act.n)],
+    }
     h.update(json.dumps(head, sort_keys=True).encode())
     for e in dataset.iterate_episodes():
         h.update(f"episode {int(e.id)}\n".encode())
@@ -314,8 +352,11 @@ def pack(name: str, out: str | Path) -> tuple[Path, int, str]:
 
     out = Path(out)
     with atomic_path(out) as tmp:
-        with open(tmp, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as gz, \
-                tarfile.open(fileobj=gz, mode="w", format=tarfile.PAX_FORMAT) as tar:
+        with (
+            open(tmp, "wb") as raw,
+            gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as gz,
+            tarfile.open(fileobj=gz, mode="w", format=tarfile.PAX_FORMAT) as tar,
+        ):
             tar.add(root / name, arcname=name, filter=normalize)  # tarfile adds a folder's entries sorted
         size, sha = tmp.stat().st_size, file_sha256(tmp)
     return out, size, sha

@@ -65,9 +65,8 @@ def suite_file_name(suite: str, decider: str) -> str:
 # ------------------------------------------------------------------ jobs (module level: run in worker processes)
 def _search_job(args: tuple[str, str, int, int]) -> dict[str, Any]:
     from overtakezoo import zoo
-
-    from overtakezoo.envs.suites import load_suite
     from overtakezoo.benchmark.failures.search import cma_search, default_name, failure_suite, random_search
+    from overtakezoo.envs.suites import load_suite
 
     suite_name, decider_name, budget, seed = args
     suite = load_suite(suite_name)
@@ -79,20 +78,38 @@ def _search_job(args: tuple[str, str, int, int]) -> dict[str, Any]:
     kept = found.first(CAP)
     data = None
     if kept.distinct:
-        data = failure_suite(suite, decider, kept, name=default_name(suite, decider), seed=seed, budget=budget,
-                             target="crash", command=f"overtakezoo failure-board (search --decider {decider_name} "
-                                                     f"--suite {suite_name} --budget {budget} --seed {seed})")
-    return {"suite": suite_name, "decider": decider_name, "distinct": found.distinct, "failing": found.failures,
-            "episodes": found.episodes, "random_distinct": rand.distinct, "random_failing": rand.failures,
-            "random_episodes": rand.episodes, "kept": kept.distinct, "cpu_s": cpu, "file": data,
-            "values": {k: v.tolist() for k, v in kept.values.items()},
-            "version": str(decider.version), "weights_sha256": decider.weights_sha256}
+        data = failure_suite(
+            suite,
+            decider,
+            kept,
+            name=default_name(suite, decider),
+            seed=seed,
+            budget=budget,
+            target="crash",
+            command=f"overtakezoo failure-board (search --decider {decider_name} "
+            f"--suite {suite_name} --budget {budget} --seed {seed})",
+        )
+    return {
+        "suite": suite_name,
+        "decider": decider_name,
+        "distinct": found.distinct,
+        "failing": found.failures,
+        "episodes": found.episodes,
+        "random_distinct": rand.distinct,
+        "random_failing": rand.failures,
+        "random_episodes": rand.episodes,
+        "kept": kept.distinct,
+        "cpu_s": cpu,
+        "file": data,
+        "values": {k: v.tolist() for k, v in kept.values.items()},
+        "version": str(decider.version),
+        "weights_sha256": decider.weights_sha256,
+    }
 
 
 def _drive_job(args: tuple[str, bytes, str, list[str]]) -> dict[str, Any]:
     """Every column decider on one row's failure suite: counts of crash, success, timeout."""
     from overtakezoo import zoo
-
     from overtakezoo.benchmark.run.runner import run_suite
     from overtakezoo.envs.suites import parse_suite
 
@@ -102,16 +119,21 @@ def _drive_job(args: tuple[str, bytes, str, list[str]]) -> dict[str, Any]:
     for col in columns:
         outcome = run_suite(suite, zoo.load(col, suite.config), progress=False).per_scenario_array("outcome")
         outcome = np.asarray(outcome, np.int64)
-        cells[col] = {"n": int(outcome.size), "crash": int(np.isin(outcome, (2, 4)).sum()),
-                      "success": int((outcome == 1).sum()), "timeout": int((outcome == 3).sum())}
+        cells[col] = {
+            "n": int(outcome.size),
+            "crash": int(np.isin(outcome, (2, 4)).sum()),
+            "success": int((outcome == 1).sum()),
+            "timeout": int((outcome == 3).sum()),
+        }
     return {"row": row, "cells": cells}
 
 
-def map_points(suite: Any, seed: int = 0, resolution: int = MAP_RESOLUTION,
-               draws: int = MAP_DRAWS) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
+def map_points(
+    suite: Any, seed: int = 0, resolution: int = MAP_RESOLUTION, draws: int = MAP_DRAWS
+) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
     """The map's grid: (space, unit points (R*R*K, D), x centres, y centres) over :data:`MAP_AXES`."""
-    from overtakezoo.envs.explicit import base_distribution
     from overtakezoo.envs.draws import space_for
+    from overtakezoo.envs.explicit import base_distribution
 
     space = space_for(base_distribution(suite), where=f"suite {suite.name!r}")
     labels = [d.label for d in space.dims]
@@ -128,9 +150,8 @@ def map_points(suite: Any, seed: int = 0, resolution: int = MAP_RESOLUTION,
 
 def _map_job(args: tuple[str, str, dict[str, list[float]], int, int, int, int]) -> dict[str, Any]:
     from overtakezoo import zoo
-
-    from overtakezoo.envs.suites import load_suite
     from overtakezoo.benchmark.failures.search import evaluate
+    from overtakezoo.envs.suites import load_suite
 
     suite_name, decider_name, failures, budget, resolution, draws, total = args
     suite = load_suite(suite_name)
@@ -141,8 +162,17 @@ def _map_job(args: tuple[str, str, dict[str, list[float]], int, int, int, int]) 
     return {"decider": decider_name, "png": png, "cells_failing": int((rate > 0).sum())}
 
 
-def map_png(decider: str, suite: Any, xs: np.ndarray, ys: np.ndarray, rate: np.ndarray,
-            failures: dict[str, list[float]], budget: int, draws: int = MAP_DRAWS, total: int | None = None) -> bytes:
+def map_png(
+    decider: str,
+    suite: Any,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    rate: np.ndarray,
+    failures: dict[str, list[float]],
+    budget: int,
+    draws: int = MAP_DRAWS,
+    total: int | None = None,
+) -> bytes:
     """The failure map as PNG bytes (Agg canvas, no timestamps)."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -160,23 +190,41 @@ def map_png(decider: str, suite: Any, xs: np.ndarray, ys: np.ndarray, rate: np.n
         ax = fig.add_subplot(1, 1, 1)
         hx, hy = (xs[1] - xs[0]) / 2, (ys[1] - ys[0]) / 2
         extent = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
-        im = ax.imshow(counts, origin="lower", aspect="auto", extent=extent, cmap=cmap, norm=norm,
-                       interpolation="nearest")
+        im = ax.imshow(
+            counts, origin="lower", aspect="auto", extent=extent, cmap=cmap, norm=norm, interpolation="nearest"
+        )
         fx, fy = failures.get(MAP_AXES[0], []), failures.get(MAP_AXES[1], [])
         if len(fx):
-            ax.scatter(fx, fy, s=14, marker="x", color="#1f3b73", linewidths=0.9,
-                       label=f"distinct crashes found by the search in {budget} episodes ({len(fx)}"
-                             + (f" of {total} shown)" if total and total > len(fx) else ")"))
+            ax.scatter(
+                fx,
+                fy,
+                s=14,
+                marker="x",
+                color="#1f3b73",
+                linewidths=0.9,
+                label=f"distinct crashes found by the search in {budget} episodes ({len(fx)}"
+                + (f" of {total} shown)" if total and total > len(fx) else ")"),
+            )
             ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=8, frameon=False)
         else:
-            ax.text(0.5, -0.16, f"no crash found by the search in {budget} episodes", transform=ax.transAxes,
-                    ha="center", va="center", fontsize=8)
+            ax.text(
+                0.5,
+                -0.16,
+                f"no crash found by the search in {budget} episodes",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                fontsize=8,
+            )
         ax.set_xlim(extent[0], extent[1])
         ax.set_ylim(extent[2], extent[3])
         ax.set_xlabel("NPC2 (oncoming) distance D2 from the ego's front (m)")
         ax.set_ylabel("NPC1 (lead) gap D1 (m)")
-        ax.set_title(f"{plot_text(decider)} on {plot_text(suite.name)}: where it crashes\n"
-                     f"(each cell: {draws} scenarios, NPC speeds drawn from the suite's ranges)", fontsize=9)
+        ax.set_title(
+            f"{plot_text(decider)} on {plot_text(suite.name)}: where it crashes\n"
+            f"(each cell: {draws} scenarios, NPC speeds drawn from the suite's ranges)",
+            fontsize=9,
+        )
         cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, ticks=range(draws + 1))
         cb.set_label(f"crashes among the cell's {draws} scenarios")
         fig.tight_layout()
@@ -210,8 +258,11 @@ def _worker(kind: str, shard: list[Any]) -> list[Any]:
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-m", "overtakezoo.benchmark.failures.board", "--worker", kind],
-                          input=json.dumps(_encode(shard)).encode(), capture_output=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "overtakezoo.benchmark.failures.board", "--worker", kind],
+        input=json.dumps(_encode(shard)).encode(),
+        capture_output=True,
+    )
     if done.returncode != 0:
         tail = done.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["(no message)"]
         raise RuntimeError(f"failure-board worker ({kind}) failed: {tail[0]}")
@@ -250,12 +301,18 @@ def board_columns(rows: list[str], upper_bounds: bool = True) -> list[str]:
     return rows + ([u for u in UPPER_BOUNDS if u in zoo.known_names() and u not in rows] if upper_bounds else [])
 
 
-def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str] | None = None,
-            budget: int = BUDGET, seed: int = 0, jobs: int = 1, maps: bool = True,
-            upper_bounds: bool = True) -> dict[str, Any]:
+def measure(
+    out_dir: Path,
+    suites: tuple[str, ...] = SUITES,
+    deciders: list[str] | None = None,
+    budget: int = BUDGET,
+    seed: int = 0,
+    jobs: int = 1,
+    maps: bool = True,
+    upper_bounds: bool = True,
+) -> dict[str, Any]:
     """Run everything; returns the files (relative name -> bytes) and the data document."""
     from overtakezoo import zoo
-
     from overtakezoo.envs.suites import load_suite
 
     rows = deciders or board_deciders()
@@ -271,15 +328,27 @@ def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str]
             drive.append((str(out_dir / name), r["file"], f"{r['suite']}/{r['decider']}", columns))
     driven = {d["row"]: d["cells"] for d in _pool_map("drive", drive, jobs)}
     if maps:
-        todo = [(MAP_SUITE, r["decider"], r["values"], budget, MAP_RESOLUTION, MAP_DRAWS, r["distinct"])
-                for r in searched if r["suite"] == MAP_SUITE]
+        todo = [
+            (MAP_SUITE, r["decider"], r["values"], budget, MAP_RESOLUTION, MAP_DRAWS, r["distinct"])
+            for r in searched
+            if r["suite"] == MAP_SUITE
+        ]
         for m in _pool_map("map", todo, jobs):
             files[f"maps/{m['decider']}.png"] = m["png"]
     wall = time.perf_counter() - t0
-    doc = {"generated_by": "overtakezoo failure-board", "budget": budget, "seed": seed, "cap": CAP,
-           "suites": {}, "rows": rows, "columns": columns,
-           "deciders": {}, "map": {"suite": MAP_SUITE, "axes": list(MAP_AXES), "resolution": MAP_RESOLUTION,
-                                   "draws": MAP_DRAWS} if maps else None}
+    doc = {
+        "generated_by": "overtakezoo failure-board",
+        "budget": budget,
+        "seed": seed,
+        "cap": CAP,
+        "suites": {},
+        "rows": rows,
+        "columns": columns,
+        "deciders": {},
+        "map": {"suite": MAP_SUITE, "axes": list(MAP_AXES), "resolution": MAP_RESOLUTION, "draws": MAP_DRAWS}
+        if maps
+        else None,
+    }
     for s in suites:
         suite = load_suite(s)
         doc["suites"][s] = {"version": suite.version, "hash": suite.hash, "count": suite.count, "rows": {}}
@@ -287,10 +356,12 @@ def measure(out_dir: Path, suites: tuple[str, ...] = SUITES, deciders: list[str]
         doc["deciders"][r["decider"]] = {"version": r["version"], "weights_sha256": r["weights_sha256"]}
         key = f"{r['suite']}/{r['decider']}"
         doc["suites"][r["suite"]]["rows"][r["decider"]] = {
-            k: r[k] for k in ("distinct", "failing", "episodes", "random_distinct", "random_failing",
-                              "random_episodes", "kept")} | {
+            k: r[k]
+            for k in ("distinct", "failing", "episodes", "random_distinct", "random_failing", "random_episodes", "kept")
+        } | {
             "file": f"suites/{suite_file_name(r['suite'], r['decider'])}" if r["file"] else None,
-            "cells": driven.get(key)}
+            "cells": driven.get(key),
+        }
     for c in columns:
         if c not in doc["deciders"]:
             d = zoo.load(c)
@@ -310,40 +381,63 @@ def _rate(cell: dict[str, int] | None, key: str) -> float | None:
 
 def markdown(doc: dict[str, Any]) -> str:
     b, cap = doc["budget"], doc["cap"]
-    out = ["# Failure board", "",
-           "<!-- generated by `overtakezoo failure-board --out leaderboards/failures` "
-           "(benchmark/failures/board.py); do not edit -->", "",
-           f"Each row is a zoo decider whose failures were searched for: CMA-ES failure search (`overtakezoo search "
-           f"--decider NAME --suite SUITE --budget {b} --seed {doc['seed']}`, every parameter range of the suite) "
-           f"and, for comparison, random sampling of the suite at the same budget ({b} episodes each). A failure is a "
-           "crash (or leaving the road); failures count once (distinct: more than 5 % of some range apart). The first "
-           f"{cap} distinct failures of each row are its failure suite (`suites/`, an explicit suite: "
-           "`overtakezoo eval --suite leaderboards/failures/suites/FILE --decider NAME` re-runs it), and every "
-           "decider drives every row's failure suite: the columns. The diagonal is a decider on its own failures "
-           "(all crash again: the failures reproduce). The oracle (privileged, it simulates the future) is a column "
-           "only, as an upper bound: where it succeeds, the failure was avoidable.", ""]
+    out = [
+        "# Failure board",
+        "",
+        "<!-- generated by `overtakezoo failure-board --out leaderboards/failures` "
+        "(benchmark/failures/board.py); do not edit -->",
+        "",
+        f"Each row is a zoo decider whose failures were searched for: CMA-ES failure search (`overtakezoo search "
+        f"--decider NAME --suite SUITE --budget {b} --seed {doc['seed']}`, every parameter range of the suite) "
+        f"and, for comparison, random sampling of the suite at the same budget ({b} episodes each). A failure is a "
+        "crash (or leaving the road); failures count once (distinct: more than 5 % of some range apart). The first "
+        f"{cap} distinct failures of each row are its failure suite (`suites/`, an explicit suite: "
+        "`overtakezoo eval --suite leaderboards/failures/suites/FILE --decider NAME` re-runs it), and every "
+        "decider drives every row's failure suite: the columns. The diagonal is a decider on its own failures "
+        "(all crash again: the failures reproduce). The oracle (privileged, it simulates the future) is a column "
+        "only, as an upper bound: where it succeeds, the failure was avoidable.",
+        "",
+    ]
     for s, info in doc["suites"].items():
         rows, cols = doc["rows"], doc["columns"]
-        out += [f"## {md(s)}", "",
-                f"Suite {md_code(s)} v{md(info['version'])}, sha256 {md_code(info['hash'][:12])}.", "",
-                "| decider (whose failures) | distinct failures, search | random sampling | ratio | failure suite |",
-                "|---|---|---|---|---|"]
+        out += [
+            f"## {md(s)}",
+            "",
+            f"Suite {md_code(s)} v{md(info['version'])}, sha256 {md_code(info['hash'][:12])}.",
+            "",
+            "| decider (whose failures) | distinct failures, search | random sampling | ratio | failure suite |",
+            "|---|---|---|---|---|",
+        ]
         for r in rows:
             row = info["rows"].get(r)
             if row is None:
                 continue
-            ratio = (f"{(row['distinct'] / row['episodes']) / (row['random_distinct'] / row['random_episodes']):.1f}x"
-                     if row["random_distinct"] else ("-" if not row["distinct"] else "random found none"))
+            ratio = (
+                f"{(row['distinct'] / row['episodes']) / (row['random_distinct'] / row['random_episodes']):.1f}x"
+                if row["random_distinct"]
+                else ("-" if not row["distinct"] else "random found none")
+            )
             link = md_link(Path(row["file"]).name, row["file"]) + f" ({row['kept']})" if row["file"] else "none found"
-            out.append(f"| {md(r)} | {row['distinct']} in {row['episodes']} | {row['random_distinct']} in "
-                       f"{row['random_episodes']} | {ratio} | {link} |")
-        out += ["", "Crash rate (%) of the column decider on the row's failures:", "",
-                "| failures of \\ driven by | " + " | ".join(map(md, cols)) + " |", "|" + "---|" * (len(cols) + 1)]
+            out.append(
+                f"| {md(r)} | {row['distinct']} in {row['episodes']} | {row['random_distinct']} in "
+                f"{row['random_episodes']} | {ratio} | {link} |"
+            )
+        out += [
+            "",
+            "Crash rate (%) of the column decider on the row's failures:",
+            "",
+            "| failures of \\ driven by | " + " | ".join(map(md, cols)) + " |",
+            "|" + "---|" * (len(cols) + 1),
+        ]
         for key in ("crash", "success"):
             if key == "success":
-                out += ["", "Success rate (%) of the column decider on the row's failures:", "",
-                        "| failures of \\ driven by | " + " | ".join(map(md, cols)) + " |",
-                        "|" + "---|" * (len(cols) + 1)]
+                out += [
+                    "",
+                    "Success rate (%) of the column decider on the row's failures:",
+                    "",
+                    "| failures of \\ driven by | " + " | ".join(map(md, cols)) + " |",
+                    "|" + "---|" * (len(cols) + 1),
+                ]
             for r in rows:
                 row = info["rows"].get(r)
                 if not row or not row["cells"]:
@@ -356,19 +450,24 @@ def markdown(doc: dict[str, Any]) -> str:
         out += ["", md_image(f"failure cross-table, {s}", f"cross-{s}.png"), ""]
     if doc["map"]:
         m = doc["map"]
-        out += ["## Failure maps", "",
-                f"Where each decider crashes on {md_code(m['suite'])} over NPC2 distance x NPC1 gap (the paper's "
-                f"Fig. 10 axes): a {m['resolution']} x {m['resolution']} grid, each cell coloured by how many of its "
-                f"{m['draws']} scenarios crash, their other parameters (the NPC speeds) drawn from the suite's ranges, "
-                "the same draws for every decider; crosses: the distinct crashes the search found (their speeds are "
-                "their own: a projection).", ""]
+        out += [
+            "## Failure maps",
+            "",
+            f"Where each decider crashes on {md_code(m['suite'])} over NPC2 distance x NPC1 gap (the paper's "
+            f"Fig. 10 axes): a {m['resolution']} x {m['resolution']} grid, each cell coloured by how many of its "
+            f"{m['draws']} scenarios crash, their other parameters (the NPC speeds) drawn from the suite's ranges, "
+            "the same draws for every decider; crosses: the distinct crashes the search found (their speeds are "
+            "their own: a projection).",
+            "",
+        ]
         for r in doc["rows"]:
             if m["suite"] in doc["suites"] and r in doc["suites"][m["suite"]]["rows"]:
                 out.append(f"- {md_link(r, f'maps/{r}.png')}")
         out.append("")
-    versions = ", ".join(f"{md(n)} v{md(d['version'])}" + (f" {md_code(str(d['weights_sha256'])[:10])}"
-                                                          if d["weights_sha256"] else "")
-                         for n, d in sorted(doc["deciders"].items()))
+    versions = ", ".join(
+        f"{md(n)} v{md(d['version'])}" + (f" {md_code(str(d['weights_sha256'])[:10])}" if d["weights_sha256"] else "")
+        for n, d in sorted(doc["deciders"].items())
+    )
     out += [f"Deciders: {versions}.", ""]
     return "\n".join(out)
 
@@ -385,7 +484,9 @@ def cross_png(doc: dict[str, Any], suite: str) -> bytes:
     with matplotlib.rc_context({"font.family": "DejaVu Sans", "font.size": 8}):
         fig = Figure(figsize=(13.0, 0.42 * max(len(rows), 3) + 2.6), dpi=100)
         FigureCanvasAgg(fig)
-        for i, (key, label, cmap) in enumerate((("crash", "crash rate", "Reds"), ("success", "success rate", "Greens"))):
+        for i, (key, label, cmap) in enumerate(
+            (("crash", "crash rate", "Reds"), ("success", "success rate", "Greens"))
+        ):
             ax = fig.add_subplot(1, 2, i + 1)
             m = np.array([[100.0 * (_rate(info["rows"][r]["cells"].get(c), key) or 0.0) for c in cols] for r in rows])
             if not rows:
@@ -393,27 +494,43 @@ def cross_png(doc: dict[str, Any], suite: str) -> bytes:
             im = ax.imshow(m, vmin=0, vmax=100, cmap=cmap, aspect="auto")
             for a in range(len(rows)):
                 for c in range(len(cols)):
-                    ax.text(c, a, f"{m[a, c]:.0f}", ha="center", va="center", fontsize=7,
-                            color="white" if m[a, c] > 60 else "black")
+                    ax.text(
+                        c,
+                        a,
+                        f"{m[a, c]:.0f}",
+                        ha="center",
+                        va="center",
+                        fontsize=7,
+                        color="white" if m[a, c] > 60 else "black",
+                    )
             ax.set_xticks(range(len(cols)), [plot_text(x) for x in cols], rotation=45, ha="right")
-            ax.set_yticks(range(len(rows)), [f"{plot_text(r)} ({info['rows'][r]['kept']})" for r in rows] if i == 0
-                          else [""] * len(rows))
+            ax.set_yticks(
+                range(len(rows)),
+                [f"{plot_text(r)} ({info['rows'][r]['kept']})" for r in rows] if i == 0 else [""] * len(rows),
+            )
             ax.set_xlabel("driven by")
             if i == 0:
                 ax.set_ylabel("failures of (distinct failures driven)")
             ax.set_title(f"{label} (%)")
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-        fig.suptitle(f"{plot_text(suite)}: each decider's failures (search, {doc['budget']} episodes) driven by "
-                     "every decider")
+        fig.suptitle(
+            f"{plot_text(suite)}: each decider's failures (search, {doc['budget']} episodes) driven by every decider"
+        )
         fig.tight_layout()
         buf = io.BytesIO()
         fig.savefig(buf, format="png", metadata={"Software": None})
     return buf.getvalue()
 
 
-def write_failure_board(out_dir: str | Path = "leaderboards/failures", jobs: int = 1, budget: int = BUDGET,
-                        deciders: list[str] | None = None, suites: tuple[str, ...] = SUITES,
-                        maps: bool = True, upper_bounds: bool = True) -> dict[str, Any]:
+def write_failure_board(
+    out_dir: str | Path = "leaderboards/failures",
+    jobs: int = 1,
+    budget: int = BUDGET,
+    deciders: list[str] | None = None,
+    suites: tuple[str, ...] = SUITES,
+    maps: bool = True,
+    upper_bounds: bool = True,
+) -> dict[str, Any]:
     """Measure and write the board into ``out_dir`` as one swap (``io.atomic_directory``): the folder is
     the old board or the new one, never a mix. A folder that is not a board (no marker file) and is
     not empty is refused, so ``--out`` cannot replace anything else."""

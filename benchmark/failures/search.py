@@ -49,8 +49,8 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs.explicit import base_distribution, in_memory
 from overtakezoo.envs.draws import Space, build, draw_plan, layout, space_for
+from overtakezoo.envs.explicit import base_distribution, in_memory
 
 TARGETS = ("crash", "rss", "ttc")
 CRASH, OFF_ROAD = 2, 4
@@ -73,16 +73,25 @@ class Evaluation:
     crash_time: np.ndarray  # s of the end of an episode that failed (NaN otherwise)
 
 
-def evaluate(suite: Any, decider: Any, scenarios: Any, target: str = "crash", ttc_limit: float = DEFAULT_TTC,
-             chunk_size: int = 4096) -> Evaluation:
+def evaluate(
+    suite: Any,
+    decider: Any,
+    scenarios: Any,
+    target: str = "crash",
+    ttc_limit: float = DEFAULT_TTC,
+    chunk_size: int = 4096,
+) -> Evaluation:
     """Run ``scenarios`` (one batch, in chunks of ``chunk_size``) and score each."""
     from overtakezoo.benchmark.run.runner import run_indices
 
     n = scenarios.num
     per = run_indices(in_memory(suite, scenarios), decider, np.arange(n), chunk_size=chunk_size, safety=True)
     e = scenarios.num_avs
-    shaped = {k: np.asarray(v).reshape(e, n) for k, v in per.items()
-              if k in ("outcome", "rss_worst_margin", "min_headon_ttc", "min_ttc", "episode_time")}
+    shaped = {
+        k: np.asarray(v).reshape(e, n)
+        for k, v in per.items()
+        if k in ("outcome", "rss_worst_margin", "min_headon_ttc", "min_ttc", "episode_time")
+    }
     outcome = shaped["outcome"].astype(np.int64)
     margin = shaped["rss_worst_margin"].astype(float)
     headon = shaped["min_headon_ttc"].astype(float)
@@ -92,11 +101,15 @@ def evaluate(suite: Any, decider: Any, scenarios: Any, target: str = "crash", tt
         rss = margin < 0
     low_ttc = headon < ttc_limit
     s_rss = np.where(np.isnan(margin), 1.0, 0.5 * (1 + np.tanh(np.nan_to_num(margin) / 10.0)))
-    s_ttc = np.where(np.isfinite(headon), 0.5 * (1 + np.tanh((np.where(np.isfinite(headon), headon, 0) - 3.0) / 2.0)),
-                     1.0)
+    s_ttc = np.where(
+        np.isfinite(headon), 0.5 * (1 + np.tanh((np.where(np.isfinite(headon), headon, 0) - 3.0) / 2.0)), 1.0
+    )
     signal = np.minimum(s_rss, s_ttc)
-    kinds = np.where(outcome == CRASH, "crash", np.where(outcome == OFF_ROAD, "off-road",
-                     np.where(rss, "rss", np.where(low_ttc, "ttc", ""))))
+    kinds = np.where(
+        outcome == CRASH,
+        "crash",
+        np.where(outcome == OFF_ROAD, "off-road", np.where(rss, "rss", np.where(low_ttc, "ttc", ""))),
+    )
     failed_av = crash | (rss if target in ("rss", "ttc") else False) | (low_ttc if target == "ttc" else False)
     score_av = np.where(failed_av, -1.0, signal)
     worst = np.argmin(score_av, axis=0)  # the AV whose episode is worst speaks for the scenario
@@ -104,10 +117,16 @@ def evaluate(suite: Any, decider: Any, scenarios: Any, target: str = "crash", tt
     pick = lambda a: a[worst, col]  # noqa: E731
     ended = pick(shaped["episode_time"].astype(float))
     failed = failed_av.any(axis=0)
-    return Evaluation(failed=failed, kind=pick(kinds), score=score_av.min(axis=0), outcome=pick(outcome),
-                      rss_margin=np.nanmin(np.where(np.isnan(margin), np.inf, margin), axis=0),
-                      headon_ttc=headon.min(axis=0), min_ttc=min_ttc.min(axis=0),
-                      crash_time=np.where(failed, ended, np.nan))
+    return Evaluation(
+        failed=failed,
+        kind=pick(kinds),
+        score=score_av.min(axis=0),
+        outcome=pick(outcome),
+        rss_margin=np.nanmin(np.where(np.isnan(margin), np.inf, margin), axis=0),
+        headon_ttc=headon.min(axis=0),
+        min_ttc=min_ttc.min(axis=0),
+        crash_time=np.where(failed, ended, np.nan),
+    )
 
 
 class Archive:
@@ -159,10 +178,11 @@ class Found:
     def rate(self) -> float:
         return self.distinct / self.episodes if self.episodes else 0.0
 
-    def first(self, k: int) -> "Found":
+    def first(self, k: int) -> Found:
         """The first ``k`` distinct failures (in the order found); the counts stay the search's."""
-        return dataclasses.replace(self, units=self.units[:k], values={n: v[:k] for n, v in self.values.items()},
-                                   info=self.info[:k])
+        return dataclasses.replace(
+            self, units=self.units[:k], values={n: v[:k] for n, v in self.values.items()}, info=self.info[:k]
+        )
 
 
 def _info(ev: Evaluation, i: int, episode: int) -> dict[str, Any]:
@@ -170,9 +190,13 @@ def _info(ev: Evaluation, i: int, episode: int) -> dict[str, Any]:
         x = float(x)
         return x if math.isfinite(x) else ("inf" if x > 0 else "nan" if math.isnan(x) else "-inf")
 
-    return {"kind": str(ev.kind[i]), "episode": int(episode), "t": round(float(ev.crash_time[i]), 4),
-            "rss_worst_margin": num(round(float(ev.rss_margin[i]), 4)),
-            "min_headon_ttc": num(round(float(ev.headon_ttc[i]), 4))}
+    return {
+        "kind": str(ev.kind[i]),
+        "episode": int(episode),
+        "t": round(float(ev.crash_time[i]), 4),
+        "rss_worst_margin": num(round(float(ev.rss_margin[i]), 4)),
+        "min_headon_ttc": num(round(float(ev.headon_ttc[i]), 4)),
+    }
 
 
 class _Island:
@@ -191,8 +215,14 @@ class _Island:
         self.restarts += 1
         rng = self.rng
         # randn from this island's own generator: cma then never touches numpy's global random state.
-        opts = {"bounds": [0.0, 1.0], "popsize": self.popsize, "verbose": -9, "seed": np.nan,
-                "randn": lambda *shape: rng.standard_normal(shape), "tolflatfitness": 3}
+        opts = {
+            "bounds": [0.0, 1.0],
+            "popsize": self.popsize,
+            "verbose": -9,
+            "seed": np.nan,
+            "randn": lambda *shape: rng.standard_normal(shape),
+            "tolflatfitness": 3,
+        }
         x0 = rng.uniform(0.0, 1.0, self.dims)
         if self.dims == 1:  # (cma needs two coordinates; the second is ignored)
             x0 = np.array([x0[0], 0.5])
@@ -201,7 +231,7 @@ class _Island:
 
     def ask(self) -> np.ndarray:
         x = np.asarray(self.es.ask(), float)
-        return x[:, :self.dims]
+        return x[:, : self.dims]
 
     def tell(self, x: np.ndarray, f: np.ndarray, new: int) -> None:
         if self.dims == 1:
@@ -231,14 +261,32 @@ def check_budget(budget: Any) -> int:
 def _progress(total: int, desc: str, progress: bool) -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="episode", desc=desc, leave=False, file=sys.stderr,
-                disable=not progress or not sys.stderr.isatty())
+    return tqdm(
+        total=total,
+        unit="episode",
+        desc=desc,
+        leave=False,
+        file=sys.stderr,
+        disable=not progress or not sys.stderr.isatty(),
+    )
 
 
-def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: list[str] | None = None,
-               target: str = "crash", batch: int = DEFAULT_BATCH, distinct: float = DEFAULT_DISTINCT,
-               ttc_limit: float = DEFAULT_TTC, patience: int = 6, sigma0: float = 0.2, progress: bool = True,
-               space: Space | None = None, popsize: int | None = None) -> Found:
+def cma_search(
+    suite: Any,
+    decider: Any,
+    budget: int,
+    seed: int = 0,
+    params: list[str] | None = None,
+    target: str = "crash",
+    batch: int = DEFAULT_BATCH,
+    distinct: float = DEFAULT_DISTINCT,
+    ttc_limit: float = DEFAULT_TTC,
+    patience: int = 6,
+    sigma0: float = 0.2,
+    progress: bool = True,
+    space: Space | None = None,
+    popsize: int | None = None,
+) -> Found:
     """Search ``budget`` episodes for distinct failures of ``decider`` on ``suite`` (module docstring)."""
     budget = check_budget(budget)
     try:
@@ -276,19 +324,37 @@ def cma_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: lis
             f = np.where(ev.failed & ~new, 0.0, ev.score)  # a known failure scores 0 (module docstring)
             if take == len(np.concatenate(asks)):
                 lo = 0
-                for isl, size in zip(islands, sizes):
-                    isl.tell(x[lo:lo + size], f[lo:lo + size], int(new[lo:lo + size].sum()))
+                for isl, size in zip(islands, sizes, strict=True):
+                    isl.tell(x[lo : lo + size], f[lo : lo + size], int(new[lo : lo + size].sum()))
                     lo += size
             bar.update(take)
             bar.set_postfix(failures=len(archive.points), refresh=False)
     finally:
         bar.close()
-    return _found(space, found_units, found_values, infos, episodes, failures, time.perf_counter() - t0,
-                  restarts=sum(isl.restarts for isl in islands), generations=generations, history=history)
+    return _found(
+        space,
+        found_units,
+        found_values,
+        infos,
+        episodes,
+        failures,
+        time.perf_counter() - t0,
+        restarts=sum(isl.restarts for isl in islands),
+        generations=generations,
+        history=history,
+    )
 
 
-def _keep_new(ev: Any, unit: np.ndarray, vals: dict[str, np.ndarray], archive: Any, offset: int, infos: list,
-              found_units: list, found_values: list) -> np.ndarray:
+def _keep_new(
+    ev: Any,
+    unit: np.ndarray,
+    vals: dict[str, np.ndarray],
+    archive: Any,
+    offset: int,
+    infos: list,
+    found_units: list,
+    found_values: list,
+) -> np.ndarray:
     """The batch's failures that the archive had not seen (each added to it), recorded with their
     values and episode info; returns which rows they are."""
     new = np.zeros(len(unit), bool)
@@ -301,9 +367,19 @@ def _keep_new(ev: Any, unit: np.ndarray, vals: dict[str, np.ndarray], archive: A
     return new
 
 
-def random_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: list[str] | None = None,
-                  target: str = "crash", batch: int = 4096, distinct: float = DEFAULT_DISTINCT,
-                  ttc_limit: float = DEFAULT_TTC, progress: bool = True, space: Space | None = None) -> Found:
+def random_search(
+    suite: Any,
+    decider: Any,
+    budget: int,
+    seed: int = 0,
+    params: list[str] | None = None,
+    target: str = "crash",
+    batch: int = 4096,
+    distinct: float = DEFAULT_DISTINCT,
+    ttc_limit: float = DEFAULT_TTC,
+    progress: bool = True,
+    space: Space | None = None,
+) -> Found:
     """The baseline: ``budget`` scenarios drawn by the suite's own sampler with ``seed`` (when
     ``params`` widen the box: uniformly in it), the same evaluation and deduplication."""
     budget = check_budget(budget)
@@ -332,8 +408,9 @@ def random_search(suite: Any, decider: Any, budget: int, seed: int = 0, params: 
             bar.update(n)
     finally:
         bar.close()
-    return _found(space, found_units, found_values, infos, episodes, failures, time.perf_counter() - t0,
-                  history=history)
+    return _found(
+        space, found_units, found_values, infos, episodes, failures, time.perf_counter() - t0, history=history
+    )
 
 
 def _recorded_sample(space: Space, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -346,36 +423,94 @@ def _recorded_sample(space: Space, n: int, rng: np.random.Generator) -> dict[str
     return layout(dist, n, vals)
 
 
-def _found(space: Space, units: list[np.ndarray], values: list[dict[str, np.ndarray]], infos: list[dict[str, Any]],
-           episodes: int, failures: int, wall: float, **extra: Any) -> Found:
+def _found(
+    space: Space,
+    units: list[np.ndarray],
+    values: list[dict[str, np.ndarray]],
+    infos: list[dict[str, Any]],
+    episodes: int,
+    failures: int,
+    wall: float,
+    **extra: Any,
+) -> Found:
     keys = values[0].keys() if values else space.fixed(0).keys()
     joined = {k: np.concatenate([v[k] for v in values]) if values else space.fixed(0)[k] for k in keys}
-    return Found(space=space, units=np.concatenate(units) if units else np.zeros((0, space.size)), values=joined,
-                 info=infos, episodes=episodes, failures=failures, wall_s=round(wall, 3), **extra)
+    return Found(
+        space=space,
+        units=np.concatenate(units) if units else np.zeros((0, space.size)),
+        values=joined,
+        info=infos,
+        episodes=episodes,
+        failures=failures,
+        wall_s=round(wall, 3),
+        **extra,
+    )
 
 
-def compare(suite: Any, decider: Any, budget: int, seeds: list[int], random_seeds: list[int],
-            params: list[str] | None = None, target: str = "crash", progress: bool = False,
-            **kwargs: Any) -> dict[str, Any]:
+def compare(
+    suite: Any,
+    decider: Any,
+    budget: int,
+    seeds: list[int],
+    random_seeds: list[int],
+    params: list[str] | None = None,
+    target: str = "crash",
+    progress: bool = False,
+    **kwargs: Any,
+) -> dict[str, Any]:
     """Distinct failures per episode, CMA-ES search against random sampling, at the same budget,
     over several seeds of each; the ratio of the pooled rates."""
     searches = [cma_search(suite, decider, budget, s, params, target, progress=progress, **kwargs) for s in seeds]
-    randoms = [random_search(suite, decider, budget, 10_000 + s, params, target, progress=progress,
-                             distinct=kwargs.get("distinct", DEFAULT_DISTINCT)) for s in random_seeds]
+    randoms = [
+        random_search(
+            suite,
+            decider,
+            budget,
+            10_000 + s,
+            params,
+            target,
+            progress=progress,
+            distinct=kwargs.get("distinct", DEFAULT_DISTINCT),
+        )
+        for s in random_seeds
+    ]
     s_rate = sum(f.distinct for f in searches) / sum(f.episodes for f in searches)
     r_found = sum(f.distinct for f in randoms)
     r_episodes = sum(f.episodes for f in randoms)
     r_rate = r_found / r_episodes
     # With no random failure the ratio has no finite estimate; the rule of three bounds the random rate
     # (95 %: at most 3 / episodes), so the ratio is at least s_rate / that.
-    return {"suite": suite.name, "decider": decider.name, "budget": budget, "target": target,
-            "search": [{"seed": s, "distinct": f.distinct, "failures": f.failures, "episodes": f.episodes,
-                        "restarts": f.restarts, "wall_s": f.wall_s} for s, f in zip(seeds, searches)],
-            "random": [{"seed": 10_000 + s, "distinct": f.distinct, "failures": f.failures, "episodes": f.episodes,
-                        "wall_s": f.wall_s} for s, f in zip(random_seeds, randoms)],
-            "search_rate": s_rate, "random_rate": r_rate,
-            "ratio": (s_rate / r_rate) if r_found else None,
-            "ratio_at_least": (s_rate / (3.0 / r_episodes)) if not r_found else None}
+    return {
+        "suite": suite.name,
+        "decider": decider.name,
+        "budget": budget,
+        "target": target,
+        "search": [
+            {
+                "seed": s,
+                "distinct": f.distinct,
+                "failures": f.failures,
+                "episodes": f.episodes,
+                "restarts": f.restarts,
+                "wall_s": f.wall_s,
+            }
+            for s, f in zip(seeds, searches, strict=True)
+        ],
+        "random": [
+            {
+                "seed": 10_000 + s,
+                "distinct": f.distinct,
+                "failures": f.failures,
+                "episodes": f.episodes,
+                "wall_s": f.wall_s,
+            }
+            for s, f in zip(random_seeds, randoms, strict=True)
+        ],
+        "search_rate": s_rate,
+        "random_rate": r_rate,
+        "ratio": (s_rate / r_rate) if r_found else None,
+        "ratio_at_least": (s_rate / (3.0 / r_episodes)) if not r_found else None,
+    }
 
 
 def default_name(suite: Any, decider: Any) -> str:
@@ -383,39 +518,55 @@ def default_name(suite: Any, decider: Any) -> str:
     import re
 
     raw = f"{suite.name}-{decider.name}".lower()
-    stem = re.sub(r"[^a-z0-9._-]+", "-", raw).strip("-._")[:64 - len("-failures")] or "search"
+    stem = re.sub(r"[^a-z0-9._-]+", "-", raw).strip("-._")[: 64 - len("-failures")] or "search"
     return f"{stem}-failures"
 
 
-def failure_suite(suite: Any, decider: Any, found: Found, *, name: str, seed: int, budget: int, target: str,
-                  command: str) -> bytes:
+def failure_suite(
+    suite: Any, decider: Any, found: Found, *, name: str, seed: int, budget: int, target: str, command: str
+) -> bytes:
     """The explicit suite (TOML bytes) of ``found``: loadable by ``load_suite``, its own hash."""
     from overtakezoo.envs import SIM_VERSION
-
     from overtakezoo.envs.explicit import entries_of, suite_tables, to_toml
 
     entries = entries_of(found.space, found.values)
-    for entry, info in zip(entries, found.info):
+    for entry, info in zip(entries, found.info, strict=True):
         entry["found"] = info
     doc = {
-        "name": name, "version": 1,
-        "description": (f"{found.distinct} distinct {target} failures of {decider.name} on {suite.name} "
-                        f"(failure search, {found.episodes} episodes)"),
-        "count": found.distinct, "seed": seed,
+        "name": name,
+        "version": 1,
+        "description": (
+            f"{found.distinct} distinct {target} failures of {decider.name} on {suite.name} "
+            f"(failure search, {found.episodes} episodes)"
+        ),
+        "count": found.distinct,
+        "seed": seed,
         "scenario": found.space.base.to_dict(),
         "sim": suite_tables(suite),
-        "search": {"decider": decider.name, "decider_version": str(getattr(decider, "version", "")),
-                   "weights_sha256": str(getattr(decider, "weights_sha256", None) or ""),
-                   "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.hash,
-                   "sim_version": SIM_VERSION, "target": target, "budget": budget, "seed": seed,
-                   "episodes": found.episodes, "failing_episodes": found.failures,
-                   "parameters": [d.label for d in found.space.dims], "command": command},
+        "search": {
+            "decider": decider.name,
+            "decider_version": str(getattr(decider, "version", "")),
+            "weights_sha256": str(getattr(decider, "weights_sha256", None) or ""),
+            "suite": suite.name,
+            "suite_version": suite.version,
+            "suite_hash": suite.hash,
+            "sim_version": SIM_VERSION,
+            "target": target,
+            "budget": budget,
+            "seed": seed,
+            "episodes": found.episodes,
+            "failing_episodes": found.failures,
+            "parameters": [d.label for d in found.space.dims],
+            "command": command,
+        },
         "scenarios": entries,
     }
-    header = (f"Failures of {decider.name} on {suite.name}, found by `{command}`.\n"
-              "Generated by overtakezoo search (benchmark/failures/search.py); do not edit (edits change the hash).\n"
-              "Each [[scenarios]] entry gives the values of the [scenario] distribution's draws for one scenario\n"
-              "(envs/draws.py); [scenarios.found] is what the search saw and is not read back.")
+    header = (
+        f"Failures of {decider.name} on {suite.name}, found by `{command}`.\n"
+        "Generated by overtakezoo search (benchmark/failures/search.py); do not edit (edits change the hash).\n"
+        "Each [[scenarios]] entry gives the values of the [scenario] distribution's draws for one scenario\n"
+        "(envs/draws.py); [scenarios.found] is what the search saw and is not read back."
+    )
     return to_toml(header, doc)
 
 

@@ -44,10 +44,9 @@ from typing import Any
 
 import numpy as np
 
+from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs import Scenarios
 from overtakezoo.envs.scenarios import BEHAVIOURS, OPPOSITE_LANE, SPEEDUP_WHEN_PASSED
-
-from overtakezoo.benchmark.errors import UserError
 
 OSC_MINOR = 2  # OpenSCENARIO 1.2: header properties (1.2+), the checkers' schemas include it
 ODR_MINOR = "7"  # OpenDRIVE 1.7 (the checkers apply every rule but one 1.8 rule to it)
@@ -111,23 +110,33 @@ def openscenario(suite: Any, sc: Scenarios, i: int, index: int, xodr_name: str, 
     w = float(sc.lane_width[i])
     planner, npc_cfg = config.planner, config.npc
     header = xosc.Properties()
-    meta = {"overtakezoo.suite": suite.name, "overtakezoo.suite_version": str(suite.version),
-            "overtakezoo.suite_hash": suite.hash, "overtakezoo.index": str(index),
-            "overtakezoo.sim_version": str(SIM_VERSION), "overtakezoo.npc_slots": str(sc.num_npcs),
-            "overtakezoo.lane_width": _num(w), "overtakezoo.speed_limit": _num(sc.speed_limit[i]),
-            "overtakezoo.goal_s": _num(sc.goal_s[i]), "overtakezoo.road_length": _num(sc.road_length[i]),
-            "overtakezoo.sensor_range": _num(sc.sensor_range[i]), "overtakezoo.time_limit": _num(sc.time_limit[i])}
+    meta = {
+        "overtakezoo.suite": suite.name,
+        "overtakezoo.suite_version": str(suite.version),
+        "overtakezoo.suite_hash": suite.hash,
+        "overtakezoo.index": str(index),
+        "overtakezoo.sim_version": str(SIM_VERSION),
+        "overtakezoo.npc_slots": str(sc.num_npcs),
+        "overtakezoo.lane_width": _num(w),
+        "overtakezoo.speed_limit": _num(sc.speed_limit[i]),
+        "overtakezoo.goal_s": _num(sc.goal_s[i]),
+        "overtakezoo.road_length": _num(sc.road_length[i]),
+        "overtakezoo.sensor_range": _num(sc.sensor_range[i]),
+        "overtakezoo.time_limit": _num(sc.time_limit[i]),
+    }
     for k, v in meta.items():
         header.add_property(k, v)
 
-    def car(name: str, length: float, width: float, v_max: float, accel: float, brake: float,
-            props: dict[str, str]) -> Any:
+    def car(
+        name: str, length: float, width: float, v_max: float, accel: float, brake: float, props: dict[str, str]
+    ) -> Any:
         box = xosc.BoundingBox(float(width), float(length), HEIGHT, 0.0, 0.0, HEIGHT / 2)
         half = min(planner.wheelbase, 0.9 * float(length)) / 2
         front = xosc.Axle(planner.max_steer, 0.6, float(width) * 0.85, half, 0.3)
         rear = xosc.Axle(0.0, 0.6, float(width) * 0.85, -half, 0.3)
-        vehicle = xosc.Vehicle(name, xosc.VehicleCategory.car, box, front, rear, float(max(v_max, 0.1)),
-                               float(accel), float(brake))
+        vehicle = xosc.Vehicle(
+            name, xosc.VehicleCategory.car, box, front, rear, float(max(v_max, 0.1)), float(accel), float(brake)
+        )
         for k, v in props.items():
             vehicle.add_property(k, v)
         return vehicle
@@ -136,54 +145,121 @@ def openscenario(suite: Any, sc: Scenarios, i: int, index: int, xodr_name: str, 
     step = xosc.TransitionDynamics(xosc.DynamicsShapes.step, xosc.DynamicsDimension.time, 0.0)
 
     def place(name: str, s: float, d: float, heading: float, v: float) -> None:
-        init.add_init_action(name, xosc.TeleportAction(xosc.WorldPosition(float(s), float(d) - w / 2, 0.0,
-                                                                          float(heading), 0.0, 0.0)))
+        init.add_init_action(
+            name, xosc.TeleportAction(xosc.WorldPosition(float(s), float(d) - w / 2, 0.0, float(heading), 0.0, 0.0))
+        )
         init.add_init_action(name, xosc.AbsoluteSpeedAction(float(v), step))
 
     speed_limit = float(sc.speed_limit[i])
-    entities.add_scenario_object("ego", car("ego", sc.ego_length[i], sc.ego_width[i], speed_limit,
-                                            planner.modes["overtake"].acceleration, planner.max_braking,
-                                            {"overtakezoo.role": "ego"}))
+    entities.add_scenario_object(
+        "ego",
+        car(
+            "ego",
+            sc.ego_length[i],
+            sc.ego_width[i],
+            speed_limit,
+            planner.modes["overtake"].acceleration,
+            planner.max_braking,
+            {"overtakezoo.role": "ego"},
+        ),
+    )
     place("ego", sc.ego_s[i], sc.ego_d[i], 0.0, sc.ego_v[i])
     story_groups = []
     for j in np.flatnonzero(sc.npc_present[i]):
         name = f"npc_{j}"
         behaviour = int(sc.npc_behaviour[i, j])
         v, v_des, boost = float(sc.npc_v[i, j]), float(sc.npc_v_des[i, j]), float(sc.npc_boost[i, j])
-        props = {"overtakezoo.role": "npc", "overtakezoo.slot": str(j),
-                 "overtakezoo.behaviour": BEHAVIOUR_NAMES[behaviour], "overtakezoo.desired_speed": _num(v_des),
-                 "overtakezoo.boost": _num(boost), "overtakezoo.reaction_time": _num(sc.npc_reaction[i, j]),
-                 "overtakezoo.reveal": _num(sc.npc_reveal[i, j]),
-                 "overtakezoo.must_pass": "true" if sc.npc_must_pass[i, j] else "false"}
-        entities.add_scenario_object(name, car(name, sc.npc_length[i, j], sc.npc_width[i, j],
-                                               max(v, v_des) + max(boost, 0.0) + 1.0, npc_cfg.max_acceleration,
-                                               npc_cfg.max_braking, props))
+        props = {
+            "overtakezoo.role": "npc",
+            "overtakezoo.slot": str(j),
+            "overtakezoo.behaviour": BEHAVIOUR_NAMES[behaviour],
+            "overtakezoo.desired_speed": _num(v_des),
+            "overtakezoo.boost": _num(boost),
+            "overtakezoo.reaction_time": _num(sc.npc_reaction[i, j]),
+            "overtakezoo.reveal": _num(sc.npc_reveal[i, j]),
+            "overtakezoo.must_pass": "true" if sc.npc_must_pass[i, j] else "false",
+        }
+        entities.add_scenario_object(
+            name,
+            car(
+                name,
+                sc.npc_length[i, j],
+                sc.npc_width[i, j],
+                max(v, v_des) + max(boost, 0.0) + 1.0,
+                npc_cfg.max_acceleration,
+                npc_cfg.max_braking,
+                props,
+            ),
+        )
         onc = int(sc.npc_lane[i, j]) == OPPOSITE_LANE
         place(name, sc.npc_s[i, j], w if onc else 0.0, math.pi if onc else 0.0, v)
         events = []
         if v_des != v:  # drive to the desired speed from the start (the simulator: IDM towards v_des)
             ev = xosc.Event(f"{name}_desired_speed", xosc.Priority.override)
-            ev.add_action(f"{name}_to_desired_speed", xosc.AbsoluteSpeedAction(v_des, xosc.TransitionDynamics(
-                xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, npc_cfg.max_acceleration)))
-            ev.add_trigger(xosc.ValueTrigger(f"{name}_start", 0.0, xosc.ConditionEdge.none,
-                                             xosc.SimulationTimeCondition(0.0, xosc.Rule.greaterOrEqual)))
+            ev.add_action(
+                f"{name}_to_desired_speed",
+                xosc.AbsoluteSpeedAction(
+                    v_des,
+                    xosc.TransitionDynamics(
+                        xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, npc_cfg.max_acceleration
+                    ),
+                ),
+            )
+            ev.add_trigger(
+                xosc.ValueTrigger(
+                    f"{name}_start",
+                    0.0,
+                    xosc.ConditionEdge.none,
+                    xosc.SimulationTimeCondition(0.0, xosc.Rule.greaterOrEqual),
+                )
+            )
             events.append(ev)
         if behaviour == SPEEDUP_WHEN_PASSED and boost > 0:
             ev = xosc.Event(f"{name}_speed_up", xosc.Priority.override)
-            ev.add_action(f"{name}_boost", xosc.AbsoluteSpeedAction(v_des + boost, xosc.TransitionDynamics(
-                xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, npc_cfg.max_acceleration)))
+            ev.add_action(
+                f"{name}_boost",
+                xosc.AbsoluteSpeedAction(
+                    v_des + boost,
+                    xosc.TransitionDynamics(
+                        xosc.DynamicsShapes.linear, xosc.DynamicsDimension.rate, npc_cfg.max_acceleration
+                    ),
+                ),
+            )
             group = xosc.ConditionGroup()
-            group.add_condition(xosc.EntityTrigger(
-                f"{name}_ego_close", 0.0, xosc.ConditionEdge.rising,
-                xosc.RelativeDistanceCondition(npc_cfg.speedup_trigger, xosc.Rule.lessThan,
-                                               xosc.RelativeDistanceType.longitudinal, name, alongroute=False,
-                                               freespace=True, coordinate_system=xosc.CoordinateSystem.entity),
-                "ego"))
-            group.add_condition(xosc.EntityTrigger(
-                f"{name}_ego_beside", 0.0, xosc.ConditionEdge.none,
-                xosc.RelativeDistanceCondition(0.0, xosc.Rule.greaterThan, xosc.RelativeDistanceType.lateral, name,
-                                               alongroute=False, freespace=True,
-                                               coordinate_system=xosc.CoordinateSystem.entity), "ego"))
+            group.add_condition(
+                xosc.EntityTrigger(
+                    f"{name}_ego_close",
+                    0.0,
+                    xosc.ConditionEdge.rising,
+                    xosc.RelativeDistanceCondition(
+                        npc_cfg.speedup_trigger,
+                        xosc.Rule.lessThan,
+                        xosc.RelativeDistanceType.longitudinal,
+                        name,
+                        alongroute=False,
+                        freespace=True,
+                        coordinate_system=xosc.CoordinateSystem.entity,
+                    ),
+                    "ego",
+                )
+            )
+            group.add_condition(
+                xosc.EntityTrigger(
+                    f"{name}_ego_beside",
+                    0.0,
+                    xosc.ConditionEdge.none,
+                    xosc.RelativeDistanceCondition(
+                        0.0,
+                        xosc.Rule.greaterThan,
+                        xosc.RelativeDistanceType.lateral,
+                        name,
+                        alongroute=False,
+                        freespace=True,
+                        coordinate_system=xosc.CoordinateSystem.entity,
+                    ),
+                    "ego",
+                )
+            )
             trigger = xosc.Trigger()
             trigger.add_conditiongroup(group)
             ev.add_trigger(trigger)
@@ -199,14 +275,32 @@ def openscenario(suite: Any, sc: Scenarios, i: int, index: int, xodr_name: str, 
     for k in range(sc.av_s.shape[1]):
         name = f"av_{k + 1}"
         direction = int(sc.av_direction[i, k])
-        props = {"overtakezoo.role": "av", "overtakezoo.goal_s": _num(sc.av_goal_s[i, k]),
-                 "overtakezoo.lead": str(int(sc.av_lead[i, k])), "overtakezoo.direction": str(direction)}
-        entities.add_scenario_object(name, car(name, sc.ego_length[i], sc.ego_width[i], speed_limit,
-                                               planner.modes["overtake"].acceleration, planner.max_braking, props))
+        props = {
+            "overtakezoo.role": "av",
+            "overtakezoo.goal_s": _num(sc.av_goal_s[i, k]),
+            "overtakezoo.lead": str(int(sc.av_lead[i, k])),
+            "overtakezoo.direction": str(direction),
+        }
+        entities.add_scenario_object(
+            name,
+            car(
+                name,
+                sc.ego_length[i],
+                sc.ego_width[i],
+                speed_limit,
+                planner.modes["overtake"].acceleration,
+                planner.max_braking,
+                props,
+            ),
+        )
         place(name, sc.av_s[i, k], sc.av_d[i, k], 0.0 if direction > 0 else math.pi, sc.av_v[i, k])
 
-    act = xosc.Act("traffic", xosc.ValueTrigger("traffic_start", 0.0, xosc.ConditionEdge.none,
-                                                 xosc.SimulationTimeCondition(0.0, xosc.Rule.greaterOrEqual)))
+    act = xosc.Act(
+        "traffic",
+        xosc.ValueTrigger(
+            "traffic_start", 0.0, xosc.ConditionEdge.none, xosc.SimulationTimeCondition(0.0, xosc.Rule.greaterOrEqual)
+        ),
+    )
     if not story_groups:  # an act needs a maneuver group: the ego's, empty (the ego is the system under test)
         mg = xosc.ManeuverGroup("ego_group")
         mg.add_actor("ego")
@@ -217,25 +311,52 @@ def openscenario(suite: Any, sc: Scenarios, i: int, index: int, xodr_name: str, 
     story.add_act(act)
     stop = xosc.Trigger("stop")
     goal = xosc.ConditionGroup("stop")
-    goal.add_condition(xosc.EntityTrigger(
-        "goal_reached", 0.0, xosc.ConditionEdge.rising,
-        xosc.DistanceCondition(0.0, xosc.Rule.lessOrEqual,
-                               xosc.WorldPosition(float(sc.goal_s[i]), float(sc.ego_d[i]) - w / 2, 0.0, 0.0, 0.0, 0.0),
-                               alongroute=False, freespace=True, distance_type=xosc.RelativeDistanceType.longitudinal,
-                               coordinate_system=xosc.CoordinateSystem.entity), "ego", triggeringpoint="stop"))
+    goal.add_condition(
+        xosc.EntityTrigger(
+            "goal_reached",
+            0.0,
+            xosc.ConditionEdge.rising,
+            xosc.DistanceCondition(
+                0.0,
+                xosc.Rule.lessOrEqual,
+                xosc.WorldPosition(float(sc.goal_s[i]), float(sc.ego_d[i]) - w / 2, 0.0, 0.0, 0.0, 0.0),
+                alongroute=False,
+                freespace=True,
+                distance_type=xosc.RelativeDistanceType.longitudinal,
+                coordinate_system=xosc.CoordinateSystem.entity,
+            ),
+            "ego",
+            triggeringpoint="stop",
+        )
+    )
     timeout = xosc.ConditionGroup("stop")
-    timeout.add_condition(xosc.ValueTrigger(
-        "time_limit", 0.0, xosc.ConditionEdge.rising,
-        xosc.SimulationTimeCondition(float(sc.time_limit[i]), xosc.Rule.greaterOrEqual), triggeringpoint="stop"))
+    timeout.add_condition(
+        xosc.ValueTrigger(
+            "time_limit",
+            0.0,
+            xosc.ConditionEdge.rising,
+            xosc.SimulationTimeCondition(float(sc.time_limit[i]), xosc.Rule.greaterOrEqual),
+            triggeringpoint="stop",
+        )
+    )
     stop.add_conditiongroup(goal)
     stop.add_conditiongroup(timeout)
     board = xosc.StoryBoard(init, stop)
     board.add_story(story)
-    description = (f"OvertakeZoo suite {suite.name} v{suite.version} (sha256 {suite.hash}), scenario {index} "
-                   f"of {suite.count}")
-    scenario = xosc.Scenario(description, "overtakezoo", xosc.ParameterDeclarations(), entities, board,
-                             xosc.RoadNetwork(roadfile=xodr_name), xosc.Catalog(), osc_minor_version=OSC_MINOR,
-                             header_properties=header)
+    description = (
+        f"OvertakeZoo suite {suite.name} v{suite.version} (sha256 {suite.hash}), scenario {index} of {suite.count}"
+    )
+    scenario = xosc.Scenario(
+        description,
+        "overtakezoo",
+        xosc.ParameterDeclarations(),
+        entities,
+        board,
+        xosc.RoadNetwork(roadfile=xodr_name),
+        xosc.Catalog(),
+        osc_minor_version=OSC_MINOR,
+        header_properties=header,
+    )
     element = scenario.get_element()
     element.find("FileHeader").set("date", FIXED_DATE)
     return prettify(element, encoding="utf-8")
@@ -275,8 +396,9 @@ def read_back(path: str | Path) -> tuple[Scenarios, dict[str, str]]:
     root = ET.parse(path).getroot()
     meta = {p.get("name"): p.get("value") for p in root.find("FileHeader").iter("Property")}
     road = ET.parse(path.parent / scenario.roadnetwork.road_file).getroot()
-    lane_widths = {int(lane.get("id")): float(lane.find("width").get("a")) for lane in road.iter("lane")
-                   if lane.get("id") != "0"}
+    lane_widths = {
+        int(lane.get("id")): float(lane.find("width").get("a")) for lane in road.iter("lane") if lane.get("id") != "0"
+    }
     geometry = road.find("road/planView/geometry")
     w = lane_widths[-1]
     if lane_widths[1] != w or float(meta["overtakezoo.lane_width"]) != w:
@@ -307,10 +429,19 @@ def read_back(path: str | Path) -> tuple[Scenarios, dict[str, str]]:
     goal, time_limit = _stop_values(scenario)
     M = int(meta["overtakezoo.npc_slots"])
     npc: dict[str, np.ndarray] = {
-        "npc_present": np.zeros(M, bool), "npc_lane": np.zeros(M, np.int8), "npc_s": np.zeros(M),
-        "npc_v": np.zeros(M), "npc_v_des": np.zeros(M), "npc_behaviour": np.zeros(M, np.int8),
-        "npc_boost": np.zeros(M), "npc_length": np.ones(M), "npc_width": np.ones(M),
-        "npc_reaction": np.zeros(M), "npc_reveal": np.full(M, np.inf), "npc_must_pass": np.zeros(M, bool)}
+        "npc_present": np.zeros(M, bool),
+        "npc_lane": np.zeros(M, np.int8),
+        "npc_s": np.zeros(M),
+        "npc_v": np.zeros(M),
+        "npc_v_des": np.zeros(M),
+        "npc_behaviour": np.zeros(M, np.int8),
+        "npc_boost": np.zeros(M),
+        "npc_length": np.ones(M),
+        "npc_width": np.ones(M),
+        "npc_reaction": np.zeros(M),
+        "npc_reveal": np.full(M, np.inf),
+        "npc_must_pass": np.zeros(M, bool),
+    }
     avs = sorted((int(n.split("_")[1]), n) for n in objects if n.startswith("av_"))
     av = {"av_s": [], "av_d": [], "av_v": [], "av_direction": [], "av_goal_s": [], "av_lead": []}
     for name in objects:
@@ -340,10 +471,17 @@ def read_back(path: str | Path) -> tuple[Scenarios, dict[str, str]]:
     ego, (ego_length, ego_width) = start["ego"], size("ego")
     one = lambda x: np.array([x])  # noqa: E731
     arrays = {
-        "lane_width": one(w), "speed_limit": one(float(meta["overtakezoo.speed_limit"])), "goal_s": one(goal),
-        "road_length": one(road_length), "sensor_range": one(float(meta["overtakezoo.sensor_range"])),
-        "time_limit": one(time_limit), "ego_s": one(ego["x"]), "ego_d": one(ego["y"] + w / 2), "ego_v": one(ego["v"]),
-        "ego_length": one(ego_length), "ego_width": one(ego_width),
+        "lane_width": one(w),
+        "speed_limit": one(float(meta["overtakezoo.speed_limit"])),
+        "goal_s": one(goal),
+        "road_length": one(road_length),
+        "sensor_range": one(float(meta["overtakezoo.sensor_range"])),
+        "time_limit": one(time_limit),
+        "ego_s": one(ego["x"]),
+        "ego_d": one(ego["y"] + w / 2),
+        "ego_v": one(ego["v"]),
+        "ego_length": one(ego_length),
+        "ego_width": one(ego_width),
         **{k: v[None] for k, v in npc.items()},
     }
     if avs:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,7 @@ class Stacked:
 
     def __init__(self, parts: list[tuple[Any, int]], num_avs: int = 1) -> None:
         bounds = np.cumsum([0] + [n for _, n in parts])
-        self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:])]
+        self.parts = [(d, slice(int(a), int(b))) for (d, _), a, b in zip(parts, bounds[:-1], bounds[1:], strict=True)]
         self.action_repeat = int(getattr(parts[0][0], "action_repeat", 1))  # equal in a batch (batches)
         self.num_avs = num_avs
 

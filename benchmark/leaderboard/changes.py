@@ -78,8 +78,9 @@ def changed_files(root: str | Path, base: str, folder: str) -> set[str]:
     sub = (root / folder).resolve()
     # Both lists name paths from the repository's top (ls-files would name them from `root` without
     # --full-name); no --exclude-standard: an ignored file is still read by the board, so it is new.
-    listed = (_git(root, "diff", "-z", "--name-only", "--no-renames", base, "--", str(sub)) or "") + \
-             (_git(root, "ls-files", "-z", "--others", "--full-name", "--", str(sub)) or "")
+    listed = (_git(root, "diff", "-z", "--name-only", "--no-renames", base, "--", str(sub)) or "") + (
+        _git(root, "ls-files", "-z", "--others", "--full-name", "--", str(sub)) or ""
+    )
     top_path = Path(top.strip()).resolve()
     files = set()
     for line in listed.split("\0"):

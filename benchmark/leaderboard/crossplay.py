@@ -4,10 +4,11 @@
 Decider A drives AV 0 (the ego) and B drives every other AV of the suite's first ``scenarios``
 roads (a :class:`~.pairing.Pairing`, one B object per AV: their per-row state stays apart); each
 ordered pair (A, B), A = B included, is one run. On ``duel`` AV 1 drives towards -s; on
-``platoon`` AVs 1 and 2 follow the ego in its direction. What is measured is written, as counts, to ``leaderboards/crossplay/<suite>.json`` (the
-input, like the submissions; ``overtakezoo crossplay --check`` re-runs it and requires the same
-bytes), and ``overtakezoo leaderboard`` turns it into ``crossplay-<suite>.md`` (matrices of joint
-success and AV-AV crash rate with 95 % Wilson intervals) and ``crossplay-<suite>.png`` (heatmaps).
+``platoon`` AVs 1 and 2 follow the ego in its direction. What is measured is written, as counts, to
+``leaderboards/crossplay/<suite>.json`` (the input, like the submissions;
+``overtakezoo crossplay --check`` re-runs it and requires the same bytes), and
+``overtakezoo leaderboard`` turns it into ``crossplay-<suite>.md`` (matrices of joint success and
+AV-AV crash rate with 95 % Wilson intervals) and ``crossplay-<suite>.png`` (heatmaps).
 
 Privileged deciders (the oracle) are left out: they bind the whole core, and on a road shared with
 another decider their simulated future would need that decider's (runner.py says why).
@@ -23,14 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import SIM_VERSION
-
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs import safe_json
+from overtakezoo.benchmark.leaderboard.untrusted import md, md_code, md_image, plot_text
 from overtakezoo.benchmark.results.metrics import format_metric, wilson
 from overtakezoo.benchmark.results.results import config_sha256
+from overtakezoo.envs import SIM_VERSION, safe_json
 from overtakezoo.envs.suites import Suite, load_suite
-from overtakezoo.benchmark.leaderboard.untrusted import md, md_code, md_image, plot_text
 
 DATA = Path("crossplay")
 # 500 roads per pair: the 11 x 11 matrix of the zoo's non-privileged members takes about 2-3 minutes with
@@ -38,9 +37,15 @@ DATA = Path("crossplay")
 # +-4.4 points.
 DEFAULT_SCENARIOS = 500
 # (key, label) of the counts kept for each pair; the matrices show the first two.
-MEASURES = [("all_succeed", "joint success (every AV succeeds)"), ("av_crash", "AV-AV crash"),
-            ("any_crash", "any crash"), ("a_success", "A's AV succeeds"), ("b_success", "B's AV succeeds"),
-            ("a_yielded", "A yielded"), ("b_yielded", "B yielded")]
+MEASURES = [
+    ("all_succeed", "joint success (every AV succeeds)"),
+    ("av_crash", "AV-AV crash"),
+    ("any_crash", "any crash"),
+    ("a_success", "A's AV succeeds"),
+    ("b_success", "B's AV succeeds"),
+    ("a_yielded", "A yielded"),
+    ("b_yielded", "B yielded"),
+]
 
 
 def zoo_deciders(config: Any) -> list[str]:
@@ -67,8 +72,9 @@ def _pairing(suite: Suite, a: str, b: str) -> Any:
 
 
 def _counts(summary: dict[str, Any]) -> dict[str, list[int]]:
-    counts = {key: [summary["joint"][key]["k"], summary["joint"][key]["n"]] for key, _ in MEASURES
-              if key in summary["joint"]}
+    counts = {
+        key: [summary["joint"][key]["k"], summary["joint"][key]["n"]] for key, _ in MEASURES if key in summary["joint"]
+    }
     av, rest = summary["per_av"][0], summary["per_av"][1:]  # B's counts: summed over its AVs (per AV, not per road)
     for mine, theirs, key in (("a_success", "b_success", "success_rate"), ("a_yielded", "b_yielded", "yielded")):
         counts[mine] = [av[key]["k"], av[key]["n"]]
@@ -95,7 +101,7 @@ def _run_group(args: tuple[str, list[tuple[str, str]], int]) -> list[dict[str, A
     per = run_scenarios(suite, stacked, batch, np.tile(np.arange(scenarios), len(pairs)), batch.num, safety=False)
     out = []
     for i, (a, b) in enumerate(pairs):
-        mine = {k: v.reshape(e, -1)[:, i * scenarios:(i + 1) * scenarios].reshape(-1) for k, v in per.items()}
+        mine = {k: v.reshape(e, -1)[:, i * scenarios : (i + 1) * scenarios].reshape(-1) for k, v in per.items()}
         out.append({"a": a, "b": b, **_counts(summary_of(round_per_scenario(mine), suite.seed, e))})
     return out
 
@@ -103,8 +109,12 @@ def _run_group(args: tuple[str, list[tuple[str, str]], int]) -> list[dict[str, A
 def reusable(stored: dict[str, Any] | None, suite: Suite, scenarios: int, deciders: list[dict[str, Any]]) -> set[str]:
     """The deciders whose pairs ``stored`` (an earlier matrix) already holds as a re-run would give
     them: same suite, config, simulator and scenario count, and the decider's version and weights."""
-    if not stored or (stored["suite"].get("hash"), stored.get("config_sha256"), stored.get("sim_version"),
-                      stored["scenarios"]) != (suite.hash, config_sha256(suite.config), SIM_VERSION, scenarios):
+    if not stored or (
+        stored["suite"].get("hash"),
+        stored.get("config_sha256"),
+        stored.get("sim_version"),
+        stored["scenarios"],
+    ) != (suite.hash, config_sha256(suite.config), SIM_VERSION, scenarios):
         return set()
     before = {d["name"]: (d["version"], d["weights_sha256"]) for d in stored["deciders"]}
     return {d["name"] for d in deciders if before.get(d["name"]) == (d["version"], d["weights_sha256"])}
@@ -124,7 +134,9 @@ def labels(suite: Suite, names: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def run_pairs(suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs: int = 1) -> dict[tuple[str, str], dict]:
+def run_pairs(
+    suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs: int = 1
+) -> dict[tuple[str, str], dict]:
     """Each ordered pair of ``wanted`` run on the suite's first ``scenarios`` roads, as ``{(a, b): pair}``:
     pairs that hold their decisions equally long share a batch of up to :data:`BATCH_ROADS` roads
     (:func:`_run_group`); ``jobs`` > 1 runs the batches in that many worker processes."""
@@ -135,8 +147,11 @@ def run_pairs(suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs:
     per_batch = max(1, BATCH_ROADS // scenarios)
     if jobs > 1:  # batches small enough that every worker gets some
         per_batch = max(1, min(per_batch, -(-len(wanted) // jobs)))
-    todo = [(where, group[i:i + per_batch], scenarios) for group in by_hold.values()
-            for i in range(0, len(group), per_batch)]
+    todo = [
+        (where, group[i : i + per_batch], scenarios)
+        for group in by_hold.values()
+        for i in range(0, len(group), per_batch)
+    ]
     if jobs > 1 and len(todo) > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
@@ -151,14 +166,21 @@ def run_pairs(suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs:
 
 def _check_scenarios(suite: Suite, scenarios: int, flag: str = "--limit") -> None:
     if suite.num_avs < 2:
-        raise UserError(f"suite {suite.name!r} has one automated vehicle per scenario; cross-play pairs deciders "
-                        "on multi-AV suites (duel, platoon, mixed-traffic)")
+        raise UserError(
+            f"suite {suite.name!r} has one automated vehicle per scenario; cross-play pairs deciders "
+            "on multi-AV suites (duel, platoon, mixed-traffic)"
+        )
     if not 1 <= scenarios <= suite.count:
         raise UserError(f"{flag} {scenarios}: must lie in [1, {suite.count}] (the suite's scenarios)")
 
 
-def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAULT_SCENARIOS,
-            jobs: int = 1, stored: dict[str, Any] | None = None) -> dict[str, Any]:
+def measure(
+    suite: Suite,
+    names: list[str] | None = None,
+    scenarios: int = DEFAULT_SCENARIOS,
+    jobs: int = 1,
+    stored: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """Run every ordered pair of ``names`` (default: :func:`zoo_deciders`) on the suite's first
     ``scenarios`` roads; returns the data document (deterministic: no timing in it). With ``stored``
     (an earlier matrix) a pair of two unchanged deciders (:func:`reusable`) is copied, not re-run:
@@ -170,10 +192,15 @@ def measure(suite: Suite, names: list[str] | None = None, scenarios: int = DEFAU
     old = {(p["a"], p["b"]): p for p in stored["pairs"]} if same else {}
     new = run_pairs(suite, [(a, b) for a in names for b in names if not (a in same and b in same)], scenarios, jobs)
     pairs = [new.get((a, b)) or old[(a, b)] for a in names for b in names]
-    return {"generated_by": "overtakezoo crossplay",
-            "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
-            "config_sha256": config_sha256(suite.config), "sim_version": SIM_VERSION, "scenarios": scenarios,
-            "deciders": deciders, "pairs": pairs}
+    return {
+        "generated_by": "overtakezoo crossplay",
+        "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
+        "config_sha256": config_sha256(suite.config),
+        "sim_version": SIM_VERSION,
+        "scenarios": scenarios,
+        "deciders": deciders,
+        "pairs": pairs,
+    }
 
 
 def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, jobs: int = 1) -> str:
@@ -191,8 +218,10 @@ def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, j
     suite = load_suite(name) if name in suite_names() else None
     stale = _stale(doc, suite)
     if stale:
-        raise UserError(f"{rel}: measured on {'; '.join(stale)}: the board shows only what a re-run gives; "
-                        f"re-run `overtakezoo crossplay --suite {name}`")
+        raise UserError(
+            f"{rel}: measured on {'; '.join(stale)}: the board shows only what a re-run gives; "
+            f"re-run `overtakezoo crossplay --suite {name}`"
+        )
     _check_scenarios(suite, doc["scenarios"], f"{rel}: scenarios:")
     if doc["suite"] != {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count}:
         raise UserError(f"{rel}: suite: {doc['suite']!r} is not the suite file's block (edited by hand?)")
@@ -203,10 +232,12 @@ def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, j
     if unknown:
         raise UserError(f"{rel}: deciders: {unknown[0]!r} is no zoo member (cross-play pairs the zoo's own)")
     derived = labels(suite, names)
-    for got, want in zip(doc["deciders"], derived):
+    for got, want in zip(doc["deciders"], derived, strict=True):
         if got != want:
-            raise UserError(f"{rel}: deciders: recorded {got!r}, derived {want!r} from the zoo (labels are derived, "
-                            f"never declared; re-run `overtakezoo crossplay --suite {name}` after a zoo change)")
+            raise UserError(
+                f"{rel}: deciders: recorded {got!r}, derived {want!r} from the zoo (labels are derived, "
+                f"never declared; re-run `overtakezoo crossplay --suite {name}` after a zoo change)"
+            )
     pairs = [(p["a"], p["b"]) for p in doc["pairs"]]
     if sample is not None and sample < len(pairs):
         rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
@@ -216,8 +247,10 @@ def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, j
     for a, b in pairs:
         for key, label in MEASURES:
             if stored[a, b][key] != got[a, b][key]:
-                raise UserError(f"{rel}: pair A={a}, B={b}: {key} ({label}): recorded {stored[a, b][key]}, the re-run "
-                                f"gives {got[a, b][key]} (edited by hand, or measured on other code)")
+                raise UserError(
+                    f"{rel}: pair A={a}, B={b}: {key} ({label}): recorded {stored[a, b][key]}, the re-run "
+                    f"gives {got[a, b][key]} (edited by hand, or measured on other code)"
+                )
     return f"verified {rel}: {len(pairs)} of {len(stored)} pairs reproduce exactly"
 
 
@@ -269,41 +302,68 @@ def markdown(doc: dict[str, Any], stale: list[str]) -> str:
     name, n, raw = md(doc["suite"]["name"]), doc["scenarios"], doc["suite"]["name"]
     names = [d["name"] for d in doc["deciders"]]
     pairs = {(p["a"], p["b"]): p for p in doc["pairs"]}
-    out = [f"# Cross-play: {name}", "",
-           "<!-- generated by `overtakezoo leaderboard` from crossplay/"
-           f"{name}.json (measured by `overtakezoo crossplay --suite {name}`); do not edit -->", "",
-           f"Every zoo decider against every other on the first {n} of the {md(doc['suite']['count'])} {md_code(raw)} "
-           f"scenarios (suite v{md(doc['suite']['version'])}, sha256 {md_code(str(doc['suite']['hash'])[:12])}), {len(names)} x "
-           f"{len(names)} ordered pairs ({md_code(f'overtakezoo crossplay --suite {raw} --jobs 2')}; at the default "
-           f"{DEFAULT_SCENARIOS} scenarios per pair an 11 x 11 matrix took 128 s wall and 223 s of CPU time on 2 cores, "
-           "measured on duel; the time grows with the square of the number of deciders). Row A drives AV 0, the ego; column B drives every other AV "
-           "(AV 1 on duel, towards -s, and on mixed-traffic; AVs 1 and 2 on platoon, behind the ego), one B per AV; the "
-           "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
-           "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
-           "the other decider's).", ""]
+    out = [
+        f"# Cross-play: {name}",
+        "",
+        "<!-- generated by `overtakezoo leaderboard` from crossplay/"
+        f"{name}.json (measured by `overtakezoo crossplay --suite {name}`); do not edit -->",
+        "",
+        f"Every zoo decider against every other on the first {n} of the {md(doc['suite']['count'])} {md_code(raw)} "
+        f"scenarios (suite v{md(doc['suite']['version'])}, sha256 {md_code(str(doc['suite']['hash'])[:12])}), "
+        f"{len(names)} x "
+        f"{len(names)} ordered pairs ({md_code(f'overtakezoo crossplay --suite {raw} --jobs 2')}; at the default "
+        f"{DEFAULT_SCENARIOS} scenarios per pair an 11 x 11 matrix took 128 s wall and 223 s of CPU time on 2 cores, "
+        "measured on duel; the time grows with the square of the number of deciders). Row A drives AV 0, the ego; "
+        "column B drives every other AV "
+        "(AV 1 on duel, towards -s, and on mixed-traffic; AVs 1 and 2 on platoon, behind the ego), one B per AV; the "
+        "diagonal is self-play on the same roads. Rates per road with 95 % Wilson intervals. The oracle is "
+        "left out: it is privileged (it simulates the future of its rows, which on a shared road would need "
+        "the other decider's).",
+        "",
+    ]
     if stale:
-        out += [f"**Stale**: measured on {'; '.join(map(md, stale))}: re-run "
-                f"{md_code(f'overtakezoo crossplay --suite {raw}')}.", ""]
-    versions = ", ".join(f"{md(d['name'])} v{md(d['version'])}" + (f" {md_code(str(d['weights_sha256'])[:10])}"
-                                                                   if d["weights_sha256"] else "") for d in doc["deciders"])
+        out += [
+            f"**Stale**: measured on {'; '.join(map(md, stale))}: re-run "
+            f"{md_code(f'overtakezoo crossplay --suite {raw}')}.",
+            "",
+        ]
+    versions = ", ".join(
+        f"{md(d['name'])} v{md(d['version'])}"
+        + (f" {md_code(str(d['weights_sha256'])[:10])}" if d["weights_sha256"] else "")
+        for d in doc["deciders"]
+    )
     out += [f"Deciders: {versions}.", ""]
     for key, label in MEASURES[:2]:
-        out += [f"## {label}", "", "| A (AV 0) \\ B (the other AVs) | " + " | ".join(map(md, names)) + " |", "|" + "---|" * (len(names) + 1)]
+        out += [
+            f"## {label}",
+            "",
+            "| A (AV 0) \\ B (the other AVs) | " + " | ".join(map(md, names)) + " |",
+            "|" + "---|" * (len(names) + 1),
+        ]
         for a in names:
             cells = [format_metric(_rate(pairs[(a, b)][key]), "rate", "%") for b in names]
             out.append(f"| **{md(a)}** | " + " | ".join(cells) + " |")
         out.append("")
-    out += ["## Per decider", "",
-            "Each decider's mean over its partners (both seats, self-play included): joint success, AV-AV crash, "
-            "and how often its own AV yielded (aborted or never pulled out while the other AV passed first). "
-            "Sorted by joint success.", "",
-            "| decider | joint success | AV-AV crash | yielded |", "|---|---|---|---|"]
+    out += [
+        "## Per decider",
+        "",
+        "Each decider's mean over its partners (both seats, self-play included): joint success, AV-AV crash, "
+        "and how often its own AV yielded (aborted or never pulled out while the other AV passed first). "
+        "Sorted by joint success.",
+        "",
+        "| decider | joint success | AV-AV crash | yielded |",
+        "|---|---|---|---|",
+    ]
     summary = []
     for d in names:
         mine = [pairs[(d, b)] for b in names] + [pairs[(a, d)] for a in names]
         mean = lambda key, rows: float(np.mean([r[key][0] / r[key][1] for r in rows]))  # noqa: E731
-        yielded = float(np.mean([pairs[(d, b)]["a_yielded"][0] / pairs[(d, b)]["a_yielded"][1] for b in names]
-                                + [pairs[(a, d)]["b_yielded"][0] / pairs[(a, d)]["b_yielded"][1] for a in names]))
+        yielded = float(
+            np.mean(
+                [pairs[(d, b)]["a_yielded"][0] / pairs[(d, b)]["a_yielded"][1] for b in names]
+                + [pairs[(a, d)]["b_yielded"][0] / pairs[(a, d)]["b_yielded"][1] for a in names]
+            )
+        )
         summary.append((-mean("all_succeed", mine), mean("av_crash", mine), d, yielded))
     for neg_ok, crash, d, yielded in sorted(summary):
         out.append(f"| {md(d)} | {-neg_ok * 100:.1f} % | {crash * 100:.1f} % | {yielded * 100:.1f} % |")
@@ -322,17 +382,27 @@ def against_reference(names: list[str], pairs: dict[tuple[str, str], dict[str, A
     if REFERENCE not in names:
         return []
     rate = lambda a, b: pairs[(a, b)]["all_succeed"][0] / pairs[(a, b)]["all_succeed"][1]  # noqa: E731
-    out = ["", f"## Against {md(REFERENCE)}, place by place", "",
-           f"For each decider D and each partner B: D's joint success as the ego beside B against {md(REFERENCE)}'s "
-           f"as the ego beside B, and D's as B's partner (column D of row B) against {md(REFERENCE)}'s there; "
-           "2 x the number of deciders places. A decider that leads only on average can still fall short in "
-           "some places: the largest shortfall is named.", "",
-           f"| decider | places at least {md(REFERENCE)}'s | largest shortfall |", "|---|---|---|"]
+    out = [
+        "",
+        f"## Against {md(REFERENCE)}, place by place",
+        "",
+        f"For each decider D and each partner B: D's joint success as the ego beside B against {md(REFERENCE)}'s "
+        f"as the ego beside B, and D's as B's partner (column D of row B) against {md(REFERENCE)}'s there; "
+        "2 x the number of deciders places. A decider that leads only on average can still fall short in "
+        "some places: the largest shortfall is named.",
+        "",
+        f"| decider | places at least {md(REFERENCE)}'s | largest shortfall |",
+        "|---|---|---|",
+    ]
     for d in names:
         if d == REFERENCE:
             continue
-        places = [(rate(d, b) - rate(REFERENCE, b), f"ego beside {md(b)}", rate(d, b), rate(REFERENCE, b)) for b in names]
-        places += [(rate(b, d) - rate(b, REFERENCE), f"partner of {md(b)}", rate(b, d), rate(b, REFERENCE)) for b in names]
+        places = [
+            (rate(d, b) - rate(REFERENCE, b), f"ego beside {md(b)}", rate(d, b), rate(REFERENCE, b)) for b in names
+        ]
+        places += [
+            (rate(b, d) - rate(b, REFERENCE), f"partner of {md(b)}", rate(b, d), rate(b, REFERENCE)) for b in names
+        ]
         ok = sum(gap >= 0 for gap, *_ in places)
         gap, where, mine, ref = min(places, key=lambda p: p[0])
         worst = f"{where}: {mine * 100:.1f} % against {ref * 100:.1f} %" if gap < 0 else "none"
@@ -351,14 +421,21 @@ def heatmap(doc: dict[str, Any]) -> bytes:
     with matplotlib.rc_context({"svg.hashsalt": "overtakezoo", "font.family": "DejaVu Sans", "font.size": 8}):
         fig = Figure(figsize=(12.0, 5.4), dpi=100)
         FigureCanvasAgg(fig)
-        for i, ((key, label), cmap) in enumerate(zip(MEASURES[:2], ("Greens", "Reds"))):
+        for i, ((key, label), cmap) in enumerate(zip(MEASURES[:2], ("Greens", "Reds"), strict=True)):
             ax = fig.add_subplot(1, 2, i + 1)
             m = np.array([[100.0 * pairs[(a, b)][key][0] / pairs[(a, b)][key][1] for b in names] for a in names])
             im = ax.imshow(m, vmin=0, vmax=100, cmap=cmap)
             for r in range(len(names)):
                 for c in range(len(names)):
-                    ax.text(c, r, f"{m[r, c]:.0f}", ha="center", va="center", fontsize=7,
-                            color="white" if m[r, c] > 60 else "black")
+                    ax.text(
+                        c,
+                        r,
+                        f"{m[r, c]:.0f}",
+                        ha="center",
+                        va="center",
+                        fontsize=7,
+                        color="white" if m[r, c] > 60 else "black",
+                    )
             ax.set_xticks(range(len(names)), [plot_text(x) for x in names], rotation=45, ha="right")
             ax.set_yticks(range(len(names)), [plot_text(x) for x in names])
             ax.set_xlabel("B (every other AV)")
@@ -386,7 +463,12 @@ def generated(root: str | Path) -> tuple[dict[str, bytes], dict[str, Any]]:
         stale = _stale(doc, load_suite(name) if name in suite_names() else None)
         files[f"crossplay-{name}.md"] = markdown(doc, stale).encode()
         files[f"crossplay-{name}.png"] = heatmap(doc)
-        index[name] = {"table": f"crossplay-{name}.md", "plot": f"crossplay-{name}.png",
-                       "data": (DATA / path.name).as_posix(), "scenarios": doc["scenarios"],
-                       "deciders": [d["name"] for d in doc["deciders"]], "stale": stale}
+        index[name] = {
+            "table": f"crossplay-{name}.md",
+            "plot": f"crossplay-{name}.png",
+            "data": (DATA / path.name).as_posix(),
+            "scenarios": doc["scenarios"],
+            "deciders": [d["name"] for d in doc["deciders"]],
+            "stale": stale,
+        }
     return files, index

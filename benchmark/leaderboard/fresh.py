@@ -74,8 +74,11 @@ def block(seed: int, count: int, outcome: np.ndarray) -> dict[str, Any]:
 def rates(outcome: np.ndarray) -> dict[str, Any]:
     """Counts of a draw: ``n`` (scenarios x AVs), ``success`` and ``crash``."""
     outcome = np.asarray(outcome)
-    return {"n": int(outcome.size), "success": int(np.count_nonzero(outcome == SUCCESS)),
-            "crash": int(np.count_nonzero(outcome == CRASH))}
+    return {
+        "n": int(outcome.size),
+        "success": int(np.count_nonzero(outcome == SUCCESS)),
+        "crash": int(np.count_nonzero(outcome == CRASH)),
+    }
 
 
 def z_score(k1: int, n1: int, k2: int, n2: int) -> float:
@@ -90,8 +93,10 @@ def disagreement(a: dict[str, Any], b: dict[str, Any]) -> str | None:
     for key in ("success", "crash"):
         z = z_score(a[key], a["n"], b[key], b["n"])
         if z >= Z_LIMIT:
-            return (f"{key} rate {100 * a[key] / a['n']:.1f} % of {a['n']} against {100 * b[key] / b['n']:.1f} % "
-                    f"of {b['n']} (z = {z:.1f}, the limit is {Z_LIMIT:g})")
+            return (
+                f"{key} rate {100 * a[key] / a['n']:.1f} % of {a['n']} against {100 * b[key] / b['n']:.1f} % "
+                f"of {b['n']} (z = {z:.1f}, the limit is {Z_LIMIT:g})"
+            )
     return None
 
 
@@ -115,8 +120,13 @@ def summary(results: Any) -> dict[str, Any] | None:
     if fresh is None:
         return None
     r = rates(decode(fresh["outcomes"]))
-    return {"seed": fresh["seed"], "count": fresh["count"], **r,
-            "success_rate": r["success"] / r["n"], "crash_rate": r["crash"] / r["n"]}
+    return {
+        "seed": fresh["seed"],
+        "count": fresh["count"],
+        **r,
+        "success_rate": r["success"] / r["n"],
+        "crash_rate": r["crash"] / r["n"],
+    }
 
 
 def cell(results: Any) -> str:
@@ -133,10 +143,15 @@ def shape_error(results: Any, suite: Suite, public_seeds: set[int]) -> str | Non
     if fresh is None:
         return "submission.fresh: missing: every row records a fresh draw (re-file it with `overtakezoo submit`)"
     if fresh["count"] != fresh_count(suite):
-        return f"submission.fresh.count: {fresh['count']} scenarios (a fresh draw of {suite.name} has {fresh_count(suite)})"
+        return (
+            f"submission.fresh.count: {fresh['count']} scenarios "
+            f"(a fresh draw of {suite.name} has {fresh_count(suite)})"
+        )
     if len(fresh["outcomes"]) != fresh["count"] * suite.num_avs:
-        return (f"submission.fresh.outcomes: {len(fresh['outcomes'])} values (the draw gives {fresh['count']} "
-                f"scenarios x {suite.num_avs} AV)")
+        return (
+            f"submission.fresh.outcomes: {len(fresh['outcomes'])} values (the draw gives {fresh['count']} "
+            f"scenarios x {suite.num_avs} AV)"
+        )
     if fresh["seed"] in public_seeds:
         return f"submission.fresh.seed: {fresh['seed']} is a built-in suite's seed, not a fresh draw"
     return None

@@ -22,28 +22,39 @@ from typing import Any
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs import safe_json
-from overtakezoo.envs.io import atomic_write_bytes
-from overtakezoo.benchmark.leaderboard import crossplay
-from overtakezoo.benchmark.leaderboard import fresh
-from overtakezoo.benchmark.leaderboard import headline
+from overtakezoo.benchmark.leaderboard import crossplay, fresh, headline, paper_table, safety_board
 from overtakezoo.benchmark.leaderboard import multi as multi_leaderboard
-from overtakezoo.benchmark.leaderboard import paper_table
-from overtakezoo.benchmark.leaderboard import safety_board
 from overtakezoo.benchmark.leaderboard.guide import GUIDE, GUIDE_HEADING, SECURITY
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
-from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
 from overtakezoo.benchmark.leaderboard.rows import Row, board_reasons, load_submissions
+from overtakezoo.benchmark.leaderboard.untrusted import (
+    check_target,
+    check_tree,
+    md,
+    md_code,
+    md_image,
+    md_link,
+    plain_name,
+)
+from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
+from overtakezoo.envs import safe_json
+from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.envs.suites import CORE, MULTI, load_suite, suite_names
-from overtakezoo.benchmark.leaderboard.untrusted import check_target, check_tree, md, md_code, md_image, md_link, plain_name
 
 REFERENCE = Path("reference") / "paper.json"
 REFERENCE_NOTE = "reported in the paper, different simulator"
 SHAPE_NOTES = Path("reference") / "table1-shape.json"  # why a Table I row's shape differs (paper_table.py)
 _GENERATED_SUFFIXES = (".md", ".png", ".json")
-_RANK_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
-                 ("completion_time", "mean", "s"), ("crash_share_npc1", "rate", "%"),
-                 ("crash_share_npc2", "rate", "%"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
+_RANK_COLUMNS = [
+    ("success_rate", "rate", "%"),
+    ("crash_rate", "rate", "%"),
+    ("timeout_rate", "rate", "%"),
+    ("completion_time", "mean", "s"),
+    ("crash_share_npc1", "rate", "%"),
+    ("crash_share_npc2", "rate", "%"),
+    ("aborts", "mean", ""),
+    ("opposite_time", "mean", "s"),
+]
 LEARNED = set(zoo.names("learned"))  # the zoo's learned members (targets in the headline): the registry's
 _LABELS = {k: label for k, label, _, _ in TABLE}
 
@@ -90,22 +101,29 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         suite_ref = ref if ref and ref["suite"] == name else None
         live_rows[name] = live
         paper = _paper_section(ranked, suite_ref, root) if suite_ref else ""
-        covered = {m: d for m, d in seeds.items() if suite is not None and all(
-            e["suites"].get(name, {}).get("suite_sha256") == suite.hash for e in d["seeds"])}
+        covered = {
+            m: d
+            for m, d in seeds.items()
+            if suite is not None
+            and all(e["suites"].get(name, {}).get("suite_sha256") == suite.hash for e in d["seeds"])
+        }
         if covered:  # learned members as the mean and spread over their training seeds
             paper += headline.seed_lines(covered, name) + "\n"
         files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref, paper, flagged).encode()
         if live:
             files[f"{name}.png"] = rate_plot(name, ranked, bounds)
         index["suites"][name] = {
-            "version": suite.version if suite else None, "hash": suite.hash if suite else None,
-            "count": suite.count if suite else None, "table": f"{name}.md",
+            "version": suite.version if suite else None,
+            "hash": suite.hash if suite else None,
+            "count": suite.count if suite else None,
+            "table": f"{name}.md",
             "plot": f"{name}.png" if live else None,
             "entries": [_entry(row) for row in ranked],
             "upper_bounds": [_entry(row) for row in bounds],
             "flagged": [{**_entry(row), "why": fresh.flag(row.results)} for row in flagged],
-            "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
-                      for row, why in stale],
+            "stale": [
+                {"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]} for row, why in stale
+            ],
             "reference": REFERENCE.as_posix() if suite_ref else None,
         }
     means = safety_board.core_means(live_rows, CORE)  # (the score page's RSS column, the shield section)
@@ -119,7 +137,9 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         index["crossplay"] = cross_index
     for rel in files:  # suite names come from input (folder names, reference/paper.json)
         if not plain_name(rel):
-            raise UserError(f"{root}: suite {rel.rsplit('.', 1)[0]!r}: not a plain file name; refusing to write {rel!r}")
+            raise UserError(
+                f"{root}: suite {rel.rsplit('.', 1)[0]!r}: not a plain file name; refusing to write {rel!r}"
+            )
     # What regeneration owns (and may remove later): only these, never a file it did not write.
     index["files"] = sorted(set(files) | {"index.json", "README.md"})
     files["index.json"] = (json.dumps(index, indent=1, sort_keys=True) + "\n").encode()
@@ -127,25 +147,38 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     return files
 
 
-def _multi_suite(name: str, suite: Any, live: list[Row], flagged: list[Row], stale: list, files: dict[str, bytes],
-                 cross: dict[str, Any] | None) -> dict[str, Any]:
+def _multi_suite(
+    name: str,
+    suite: Any,
+    live: list[Row],
+    flagged: list[Row],
+    stale: list,
+    files: dict[str, bytes],
+    cross: dict[str, Any] | None,
+) -> dict[str, Any]:
     """A multi-agent suite's table and plot (into ``files``); returns its index entry."""
     ml = multi_leaderboard
     ranked = sorted(live, key=ml.rank_key)
-    files[f"{name}.md"] = ml.markdown(name, suite, ranked, stale, _policy_cell, cross and cross["table"],
-                                      flagged).encode()
+    files[f"{name}.md"] = ml.markdown(
+        name, suite, ranked, stale, _policy_cell, cross and cross["table"], flagged
+    ).encode()
     if ranked:
         files[f"{name}.png"] = ml.plot(name, ranked)
-    return {"version": suite.version if suite else None, "hash": suite.hash if suite else None,
-            "count": suite.count if suite else None, "table": f"{name}.md", "plot": f"{name}.png" if ranked else None,
-            "entries": [ml.entry(row, _entry(row)) for row in ranked],
-            "flagged": [{**ml.entry(row, _entry(row)), "why": fresh.flag(row.results)} for row in flagged],
-            "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]}
-                      for row, why in stale]}
+    return {
+        "version": suite.version if suite else None,
+        "hash": suite.hash if suite else None,
+        "count": suite.count if suite else None,
+        "table": f"{name}.md",
+        "plot": f"{name}.png" if ranked else None,
+        "entries": [ml.entry(row, _entry(row)) for row in ranked],
+        "flagged": [{**ml.entry(row, _entry(row)), "why": fresh.flag(row.results)} for row in flagged],
+        "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]} for row, why in stale],
+    }
 
 
-def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
-              means: dict[str, dict[str, float]]) -> tuple[str, dict[str, Any]]:
+def _headline(
+    live_rows: dict[str, list[Row]], seeds: dict[str, Any], means: dict[str, dict[str, float]]
+) -> tuple[str, dict[str, Any]]:
     """The OvertakeZoo score over the core suites (benchmark/leaderboard/headline.py), learned members as the
     mean over their training seeds (``seeds/<member>.json``) where those cover the current suites."""
     rows: dict[str, dict[str, Any]] = {}
@@ -161,9 +194,13 @@ def _headline(live_rows: dict[str, list[Row]], seeds: dict[str, Any],
     scores = {name: headline.score(runs, CORE) for name, runs in table.items()}
     learned = sorted(set(seeds) | (LEARNED & set(table)))
     safety = safety_board.safety_column(means) if any(m["rss"] == m["rss"] for m in means.values()) else None
-    text = (headline.render(table, privileged, suites=CORE, safety=safety) + "\n"
-            + headline.generalization(table, learned, suites=CORE)
-            + "\n" + headline.seed_lines(seeds))
+    text = (
+        headline.render(table, privileged, suites=CORE, safety=safety)
+        + "\n"
+        + headline.generalization(table, learned, suites=CORE)
+        + "\n"
+        + headline.seed_lines(seeds)
+    )
     return text, {"core": list(CORE), "k": headline.K, "scores": scores}
 
 
@@ -173,8 +210,9 @@ def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:
     dqn, fsm = by_name.get("dqn"), by_name.get("rule-fsm")
     if dqn is None or fsm is None:
         return ""
-    paired = crash_same_scenarios({"outcome": dqn.results.per_scenario_array("outcome")},
-                                  {"outcome": fsm.results.per_scenario_array("outcome")})
+    paired = crash_same_scenarios(
+        {"outcome": dqn.results.per_scenario_array("outcome")}, {"outcome": fsm.results.per_scenario_array("outcome")}
+    )
     path = root / SHAPE_NOTES
     try:
         notes = safe_json.load_file(path, path.name) if path.is_file() else {}
@@ -182,20 +220,31 @@ def _paper_section(ranked: list[Row], ref: dict[str, Any], root: Path) -> str:
         raise UserError(f"{path}: malformed notes file ({exc})") from None
     if not isinstance(notes, dict):
         raise UserError(f"{path}: malformed notes file (expected an object of row notes)")
-    return ("## Table I beside the paper\n\n"
-            f"The paper's two columns ({REFERENCE_NOTE}) next to ours for the shipped `dqn` and `rule-fsm` "
-            "(OpenPlanner only), with 95 % CIs. *Shape* compares which column is higher: the paper's RL vs "
-            "OP against our dqn vs rule-fsm (above or below when our CIs do not overlap, level when they "
-            "do). The crash-in-the-same-scenarios row is one paired number per pair of columns.\n\n"
-            + paper_table.render(ref, dqn.results.summary, fsm.results.summary, paired, notes) + "\n")
+    return (
+        "## Table I beside the paper\n\n"
+        f"The paper's two columns ({REFERENCE_NOTE}) next to ours for the shipped `dqn` and `rule-fsm` "
+        "(OpenPlanner only), with 95 % CIs. *Shape* compares which column is higher: the paper's RL vs "
+        "OP against our dqn vs rule-fsm (above or below when our CIs do not overlap, level when they "
+        "do). The crash-in-the-same-scenarios row is one paired number per pair of columns.\n\n"
+        + paper_table.render(ref, dqn.results.summary, fsm.results.summary, paired, notes)
+        + "\n"
+    )
 
 
 def _entry(row: Row) -> dict[str, Any]:
     r = row.results
-    return {"name": row.name, "decider": r.decider["name"], "version": r.decider["version"], "file": row.rel,
-            "policy": (r.meta.get("submission") or {}).get("policy"), "privileged": row.privileged,
-            "overtakezoo": r.meta["package"]["version"], "sim_version": r.meta.get("sim_version"),
-            **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS}, "fresh": fresh.summary(r)}
+    return {
+        "name": row.name,
+        "decider": r.decider["name"],
+        "version": r.decider["version"],
+        "file": row.rel,
+        "policy": (r.meta.get("submission") or {}).get("policy"),
+        "privileged": row.privileged,
+        "overtakezoo": r.meta["package"]["version"],
+        "sim_version": r.meta.get("sim_version"),
+        **{k: r.summary[k]["value"] for k, _, _ in _RANK_COLUMNS},
+        "fresh": fresh.summary(r),
+    }
 
 
 def write(root: str | Path = "leaderboards") -> list[str]:
@@ -264,35 +313,59 @@ def _policy_cell(row: Row) -> str:
 
 
 def _rows_table(rows: list[Row], ranked: bool) -> list[str]:
-    head = (["rank"] if ranked else []) + ["name", "policy", *[_LABELS[k] for k, _, _ in _RANK_COLUMNS],
-                                           multi_leaderboard.FRESH_LABEL, "overtakezoo", "commit"]
+    head = (["rank"] if ranked else []) + [
+        "name",
+        "policy",
+        *[_LABELS[k] for k, _, _ in _RANK_COLUMNS],
+        multi_leaderboard.FRESH_LABEL,
+        "overtakezoo",
+        "commit",
+    ]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for i, row in enumerate(rows, 1):
         r = row.results
         cells = ([str(i)] if ranked else []) + [
-            md_link(row.name, row.rel), _policy_cell(row),
-            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS], fresh.cell(r),
-            md(r.meta["package"]["version"]), md((r.meta["git_commit"] or "-")[:10])]
+            md_link(row.name, row.rel),
+            _policy_cell(row),
+            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in _RANK_COLUMNS],
+            fresh.cell(r),
+            md(r.meta["package"]["version"]),
+            md((r.meta["git_commit"] or "-")[:10]),
+        ]
         out.append("| " + " | ".join(cells) + " |")
     return out
 
 
-def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale: list,
-              ref: dict[str, Any] | None, paper: str = "", flagged: list[Row] = ()) -> str:
+def _markdown(
+    name: str,
+    suite: Any,
+    ranked: list[Row],
+    bounds: list[Row],
+    stale: list,
+    ref: dict[str, Any] | None,
+    paper: str = "",
+    flagged: list[Row] = (),
+) -> str:
     out = multi_leaderboard.page_header(name, name, suite)
     out += ["## Measured", ""]
     if ranked or bounds:
-        out.append("Sorted by success rate, then crash rate. Values with 95 % confidence intervals "
-                   "(Wilson for rates, seeded bootstrap for means). Every row re-runs with "
-                   "`overtakezoo leaderboard --verify`. " + multi_leaderboard.FRESH_NOTE)
+        out.append(
+            "Sorted by success rate, then crash rate. Values with 95 % confidence intervals "
+            "(Wilson for rates, seeded bootstrap for means). Every row re-runs with "
+            "`overtakezoo leaderboard --verify`. " + multi_leaderboard.FRESH_NOTE
+        )
         out.append("")
         out += _rows_table(ranked, ranked=True) if ranked else ["No ranked submissions yet."]
         out += ["", md_image("success vs crash rate", f"{name}.png"), ""]
         if bounds:
-            out += ["## Upper bounds (privileged deciders, not ranked)", "",
-                    "These deciders read the simulator's state, the future included (`privileged = True`): "
-                    "they show what a decision could reach, not what a decider that sees only observations "
-                    "achieves, so they are never ranked with the rows above.", ""]
+            out += [
+                "## Upper bounds (privileged deciders, not ranked)",
+                "",
+                "These deciders read the simulator's state, the future included (`privileged = True`): "
+                "they show what a decision could reach, not what a decider that sees only observations "
+                "achieves, so they are never ranked with the rows above.",
+                "",
+            ]
             out += _rows_table(bounds, ranked=False) + [""]
         out += ["### Table I, every metric", ""]
         cols = [(md(row.name), row.results.summary) for row in ranked]
@@ -303,9 +376,13 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
     else:
         out += ["No measured submissions yet.", ""]
     if ref is not None:
-        out += [f"## Reference: {REFERENCE_NOTE}", "",
-                f"Not measured here. Source: {md(ref['source'])}. These numbers come from another simulator "
-                "and are shown for orientation only; they are never ranked with the measured rows.", ""]
+        out += [
+            f"## Reference: {REFERENCE_NOTE}",
+            "",
+            f"Not measured here. Source: {md(ref['source'])}. These numbers come from another simulator "
+            "and are shown for orientation only; they are never ranked with the measured rows.",
+            "",
+        ]
         keys = [k for k, _, _, _ in TABLE if any(k in row for row in ref["rows"])]
         kinds = {k: (kind, unit) for k, _, kind, unit in TABLE}
         out += ["| decider | " + " | ".join(_LABELS[k] for k in keys) + " |", "|" + "---|" * (len(keys) + 1)]
@@ -315,8 +392,9 @@ def _markdown(name: str, suite: Any, ranked: list[Row], bounds: list[Row], stale
         out.append("")
     if paper:
         out.append(paper)
-    return "\n".join(out + multi_leaderboard.flagged_section(list(flagged), _policy_cell)
-                     + multi_leaderboard.stale_section(stale))
+    return "\n".join(
+        out + multi_leaderboard.flagged_section(list(flagged), _policy_cell) + multi_leaderboard.stale_section(stale)
+    )
 
 
 def _reported(value: Any, kind: str, unit: str) -> str:
@@ -327,19 +405,29 @@ def _reported(value: Any, kind: str, unit: str) -> str:
 
 
 def _readme(index: dict[str, Any], head: str = "") -> str:
-    out = ["# OvertakeZoo leaderboards", "",
-           "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", "",
-           *([head] if head else []), "## Suites", "",
-           "One table per suite, generated from `submissions/`. CI runs `overtakezoo leaderboard --check` "
-           "(the files are current) and `overtakezoo leaderboard --verify --sample 1` (every row new or "
-           "changed in the pull request re-runs on every scenario, one scenario of each other row; see the "
-           "[security model](#security-model)). Privileged deciders (the oracle) are listed apart as upper "
-           "bounds and not ranked; the best success rate below is among the ranked rows.", "",
-           "| suite | version | scenarios | ranked rows | best success rate |", "|---|---|---|---|---|"]
+    out = [
+        "# OvertakeZoo leaderboards",
+        "",
+        "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->",
+        "",
+        *([head] if head else []),
+        "## Suites",
+        "",
+        "One table per suite, generated from `submissions/`. CI runs `overtakezoo leaderboard --check` "
+        "(the files are current) and `overtakezoo leaderboard --verify --sample 1` (every row new or "
+        "changed in the pull request re-runs on every scenario, one scenario of each other row; see the "
+        "[security model](#security-model)). Privileged deciders (the oracle) are listed apart as upper "
+        "bounds and not ranked; the best success rate below is among the ranked rows.",
+        "",
+        "| suite | version | scenarios | ranked rows | best success rate |",
+        "|---|---|---|---|---|",
+    ]
     for name, s in index["suites"].items():
         best = s["entries"][0] if s["entries"] else None
         best_txt = f"{best['success_rate'] * 100:.1f} % ({md(best['name'])})" if best else "-"
-        out.append(f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | "
-                   f"{len(s['entries'])} | {best_txt} |")
+        out.append(
+            f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | "
+            f"{len(s['entries'])} | {best_txt} |"
+        )
     multi = multi_leaderboard.readme_section(index.get("multi_agent", {}), index.get("crossplay", {}))
     return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE_HEADING + "\n\n" + GUIDE + "\n" + SECURITY

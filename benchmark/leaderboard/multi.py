@@ -10,51 +10,80 @@ from __future__ import annotations
 
 from typing import Any
 
-from overtakezoo.benchmark.results.metrics import format_metric, render_table
-from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
 from overtakezoo.benchmark.leaderboard import fresh
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
 from overtakezoo.benchmark.leaderboard.rows import Row, describe
 from overtakezoo.benchmark.leaderboard.safety_board import safety_section
 from overtakezoo.benchmark.leaderboard.untrusted import md, md_code, md_image, md_link
+from overtakezoo.benchmark.results.metrics import format_metric, render_table
+from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
 
 _LABELS = {k: label for k, label, _, _ in MULTI_TABLE}
 _JOINT = {k: (label, kind, unit) for k, label, kind, unit in JOINT}
 # Columns of the ranked table: joint (per road), then per agent (pooled over AV episodes).
 JOINT_COLUMNS = ["all_succeed", "any_crash", "av_crash", "any_yield"]
-AGENT_COLUMNS = [("success_rate", "rate", "%"), ("crash_rate", "rate", "%"), ("timeout_rate", "rate", "%"),
-                 ("completion_time", "mean", "s"), ("aborts", "mean", ""), ("opposite_time", "mean", "s")]
+AGENT_COLUMNS = [
+    ("success_rate", "rate", "%"),
+    ("crash_rate", "rate", "%"),
+    ("timeout_rate", "rate", "%"),
+    ("completion_time", "mean", "s"),
+    ("aborts", "mean", ""),
+    ("opposite_time", "mean", "s"),
+]
 PER_AV_COLUMNS = [("success_rate", "success"), ("crash_rate", "crash"), ("yielded", "yielded")]
-YIELD_NOTE = ("An AV *yielded* on a road when it did not crash, aborted at least once or never entered the "
-              "opposite lane, and another AV of the road succeeded before it (earlier, or while it did not "
-              "succeed at all).")
+YIELD_NOTE = (
+    "An AV *yielded* on a road when it did not crash, aborted at least once or never entered the "
+    "opposite lane, and another AV of the road succeeded before it (earlier, or while it did not "
+    "succeed at all)."
+)
 
 
 def rank_key(row: Row) -> tuple:
     j = row.results.summary["joint"]
-    return (-(j["all_succeed"]["value"] or 0.0), j["av_crash"]["value"] or 0.0, j["any_crash"]["value"] or 0.0,
-            row.name)
+    return (
+        -(j["all_succeed"]["value"] or 0.0),
+        j["av_crash"]["value"] or 0.0,
+        j["any_crash"]["value"] or 0.0,
+        row.name,
+    )
 
 
 def entry(row: Row, policy_entry: dict[str, Any]) -> dict[str, Any]:
     s = row.results.summary
-    return {**policy_entry, "num_avs": row.results.num_avs,
-            "joint": {k: s["joint"][k]["value"] for k in _JOINT},
-            "per_agent": {k: s[k]["value"] for k, _, _ in AGENT_COLUMNS + [("crash_share_av", "", ""),
-                                                                          ("yielded", "", "")]}}
+    return {
+        **policy_entry,
+        "num_avs": row.results.num_avs,
+        "joint": {k: s["joint"][k]["value"] for k in _JOINT},
+        "per_agent": {
+            k: s[k]["value"] for k, _, _ in AGENT_COLUMNS + [("crash_share_av", "", ""), ("yielded", "", "")]
+        },
+    }
 
 
 def _rows_table(rows: list[Row], policy_cell: Any) -> list[str]:
-    head = ["rank", "name", "policy", *[_JOINT[k][0] for k in JOINT_COLUMNS],
-            *[f"{_LABELS[k]} (per AV)" for k, _, _ in AGENT_COLUMNS], FRESH_LABEL + " (per AV)", "overtakezoo",
-            "commit"]
+    head = [
+        "rank",
+        "name",
+        "policy",
+        *[_JOINT[k][0] for k in JOINT_COLUMNS],
+        *[f"{_LABELS[k]} (per AV)" for k, _, _ in AGENT_COLUMNS],
+        FRESH_LABEL + " (per AV)",
+        "overtakezoo",
+        "commit",
+    ]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for i, row in enumerate(rows, 1):
         r = row.results
-        cells = [str(i), md_link(row.name, row.rel), policy_cell(row),
-                 *[format_metric(r.summary["joint"][k], *_JOINT[k][1:]) for k in JOINT_COLUMNS],
-                 *[format_metric(r.summary[k], kind, unit) for k, kind, unit in AGENT_COLUMNS], fresh.cell(r),
-                 md(r.meta["package"]["version"]), md((r.meta["git_commit"] or "-")[:10])]
+        cells = [
+            str(i),
+            md_link(row.name, row.rel),
+            policy_cell(row),
+            *[format_metric(r.summary["joint"][k], *_JOINT[k][1:]) for k in JOINT_COLUMNS],
+            *[format_metric(r.summary[k], kind, unit) for k, kind, unit in AGENT_COLUMNS],
+            fresh.cell(r),
+            md(r.meta["package"]["version"]),
+            md((r.meta["git_commit"] or "-")[:10]),
+        ]
         out.append("| " + " | ".join(cells) + " |")
     return out
 
@@ -64,57 +93,107 @@ def _per_av_table(rows: list[Row], num_avs: int) -> list[str]:
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         per_av = row.results.summary["per_av"]
-        out.append("| " + " | ".join([md(row.name), *[format_metric(per_av[e][k], "rate", "%") for e in range(num_avs)
-                                                  for k, _ in PER_AV_COLUMNS]]) + " |")
+        out.append(
+            "| "
+            + " | ".join(
+                [
+                    md(row.name),
+                    *[format_metric(per_av[e][k], "rate", "%") for e in range(num_avs) for k, _ in PER_AV_COLUMNS],
+                ]
+            )
+            + " |"
+        )
     return out
 
 
 def page_header(title: str, name: str, suite: Any, per_scenario: str = "") -> list[str]:
     """The first lines of a suite's leaderboard page (single-ego and multi-agent alike)."""
-    out = [f"# Leaderboard: {md(title)}", "", "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->", ""]
+    out = [
+        f"# Leaderboard: {md(title)}",
+        "",
+        "<!-- generated by `overtakezoo leaderboard` from submissions/; do not edit -->",
+        "",
+    ]
     if suite is None:  # (only a built-in suite's description and numbers below are trusted text)
         return out + [f"{md_code(name)} is not a built-in suite.", ""]
-    return out + [suite.description, "", f"Suite `{name}` v{suite.version}, {suite.count} scenarios{per_scenario}, "
-                  f"seed {suite.seed}, sha256 `{suite.hash}`.", ""]
+    return out + [
+        suite.description,
+        "",
+        f"Suite `{name}` v{suite.version}, {suite.count} scenarios{per_scenario}, "
+        f"seed {suite.seed}, sha256 `{suite.hash}`.",
+        "",
+    ]
 
 
-def markdown(name: str, suite: Any, ranked: list[Row], stale: list, policy_cell: Any,
-             crossplay: str | None = None, flagged: list[Row] = ()) -> str:
+def markdown(
+    name: str,
+    suite: Any,
+    ranked: list[Row],
+    stale: list,
+    policy_cell: Any,
+    crossplay: str | None = None,
+    flagged: list[Row] = (),
+) -> str:
     num_avs = suite.num_avs if suite is not None else None
-    out = page_header(f"{name} (multi-agent)", name, suite,
-                      f" with {num_avs} automated vehicles (AVs) each" if suite is not None else "")
+    out = page_header(
+        f"{name} (multi-agent)",
+        name,
+        suite,
+        f" with {num_avs} automated vehicles (AVs) each" if suite is not None else "",
+    )
     out += ["## Measured (self-play)", ""]
     if not ranked:
         out += ["No measured submissions yet.", ""]
     else:
-        out += ["Each row's decider drives every AV of every road (self-play). Sorted by the joint success "
-                "(every AV of the road succeeds), then the AV-AV crash rate. The first columns are joint, one "
-                "value per road (AV-AV crash: a crash between two AVs, counted once per road); the columns "
-                "marked *per AV* pool every AV's episode (scenarios x AVs). " + YIELD_NOTE + " Values with 95 % "
-                "confidence intervals (Wilson for rates, seeded bootstrap for means). Every row re-runs with "
-                "`overtakezoo leaderboard --verify`.", ""]
+        out += [
+            "Each row's decider drives every AV of every road (self-play). Sorted by the joint success "
+            "(every AV of the road succeeds), then the AV-AV crash rate. The first columns are joint, one "
+            "value per road (AV-AV crash: a crash between two AVs, counted once per road); the columns "
+            "marked *per AV* pool every AV's episode (scenarios x AVs). " + YIELD_NOTE + " Values with 95 % "
+            "confidence intervals (Wilson for rates, seeded bootstrap for means). Every row re-runs with "
+            "`overtakezoo leaderboard --verify`.",
+            "",
+        ]
         if crossplay:
-            out += [f"Deciders against each other (decider A drives one AV, B the other): {md_link(crossplay, crossplay)}.",
-                    ""]
+            out += [
+                f"Deciders against each other (decider A drives one AV, B the other): {md_link(crossplay, crossplay)}.",
+                "",
+            ]
         out += _rows_table(ranked, policy_cell)
-        out += ["", md_image("joint success vs any crash", f"{name}.png"), "", "### Per AV index", "",
-                "AV 0 is the ego of the suite's layout (README: Multi-agent suites); the others follow in the "
-                "suite's order.", ""]
+        out += [
+            "",
+            md_image("joint success vs any crash", f"{name}.png"),
+            "",
+            "### Per AV index",
+            "",
+            "AV 0 is the ego of the suite's layout (README: Multi-agent suites); the others follow in the "
+            "suite's order.",
+            "",
+        ]
         out += _per_av_table(ranked, len(ranked[0].results.summary["per_av"]))
-        out += ["", "### Table I per agent, every metric", "",
-                "Pooled over every AV's episode. NPC1 is each AV's own lead; NPC2 any NPC in its opposite lane.",
-                ""]
-        out.append(render_table([(md(row.name), row.results.summary) for row in ranked], markdown=True,
-                                table=MULTI_TABLE).rstrip())
+        out += [
+            "",
+            "### Table I per agent, every metric",
+            "",
+            "Pooled over every AV's episode. NPC1 is each AV's own lead; NPC2 any NPC in its opposite lane.",
+            "",
+        ]
+        out.append(
+            render_table(
+                [(md(row.name), row.results.summary) for row in ranked], markdown=True, table=MULTI_TABLE
+            ).rstrip()
+        )
         out.append("")
     out += safety_section(ranked, "## Safety (per AV, pooled)")
     return "\n".join(out + flagged_section(flagged, policy_cell) + stale_section(stale))
 
 
 FRESH_LABEL = "fresh draw: success / crash (scenarios)"
-FRESH_NOTE = ("*Fresh draw*: the row's policy on its suite's distribution drawn with a seed nobody knew when it "
-              "was submitted (recorded by `overtakezoo submit`; `leaderboard --verify` re-runs it and checks it "
-              "against a draw of its own).")
+FRESH_NOTE = (
+    "*Fresh draw*: the row's policy on its suite's distribution drawn with a seed nobody knew when it "
+    "was submitted (recorded by `overtakezoo submit`; `leaderboard --verify` re-runs it and checks it "
+    "against a draw of its own)."
+)
 
 
 def flagged_section(flagged: list[Row], policy_cell: Any) -> list[str]:
@@ -122,18 +201,24 @@ def flagged_section(flagged: list[Row], policy_cell: Any) -> list[str]:
     ranked (single-ego and multi-agent pages alike; :mod:`.fresh`)."""
     if not flagged:
         return []
-    out = ["## Flagged: not ranked", "",
-           "These rows do markedly better on the public scenarios than on a fresh draw of the same "
-           f"distribution (success or crash rate more than {fresh.Z_LIMIT:g} standard errors apart), which an "
-           "honest policy almost never does (fewer than one row in a million): a policy fit to the public "
-           "scenarios, not to the task. " + FRESH_NOTE, "",
-           "| name | policy | success rate (public) | crash rate (public) | " + FRESH_LABEL + " | why |",
-           "|---|---|---|---|---|---|"]
+    out = [
+        "## Flagged: not ranked",
+        "",
+        "These rows do markedly better on the public scenarios than on a fresh draw of the same "
+        f"distribution (success or crash rate more than {fresh.Z_LIMIT:g} standard errors apart), which an "
+        "honest policy almost never does (fewer than one row in a million): a policy fit to the public "
+        "scenarios, not to the task. " + FRESH_NOTE,
+        "",
+        "| name | policy | success rate (public) | crash rate (public) | " + FRESH_LABEL + " | why |",
+        "|---|---|---|---|---|---|",
+    ]
     for row in flagged:
         s = row.results.summary
-        out.append(f"| {md_link(row.name, row.rel)} | {policy_cell(row)} | {format_metric(s['success_rate'], 'rate', '%')} "
-                   f"| {format_metric(s['crash_rate'], 'rate', '%')} | {fresh.cell(row.results)} | "
-                   f"{md(fresh.flag(row.results))} |")
+        out.append(
+            f"| {md_link(row.name, row.rel)} | {policy_cell(row)} | {format_metric(s['success_rate'], 'rate', '%')} "
+            f"| {format_metric(s['crash_rate'], 'rate', '%')} | {fresh.cell(row.results)} | "
+            f"{md(fresh.flag(row.results))} |"
+        )
     return out + [""]
 
 
@@ -141,29 +226,50 @@ def stale_section(stale: list) -> list[str]:
     """The closing list of a suite page's stale rows (single-ego and multi-agent alike)."""
     if not stale:
         return []
-    return (["## Stale submissions", "",
-             "Measured on another suite file, environment config or simulator version than the current "
-             "ones; re-run the evaluation and re-submit (`--replace`) to list them above.", ""]
-            + [f"- {md_link(row.name, row.rel)}: measured on {md(describe(why))}" for row, why in stale] + [""])
+    return (
+        [
+            "## Stale submissions",
+            "",
+            "Measured on another suite file, environment config or simulator version than the current "
+            "ones; re-run the evaluation and re-submit (`--replace`) to list them above.",
+            "",
+        ]
+        + [f"- {md_link(row.name, row.rel)}: measured on {md(describe(why))}" for row, why in stale]
+        + [""]
+    )
 
 
 def plot(name: str, ranked: list[Row]) -> bytes:
-    return rate_plot(name, ranked, [], x_of=lambda s: s["joint"]["all_succeed"], y_of=lambda s: s["joint"]["any_crash"],
-                 labels=("all AVs succeed (%)", "any crash (%)", "joint success and any crash"))
+    return rate_plot(
+        name,
+        ranked,
+        [],
+        x_of=lambda s: s["joint"]["all_succeed"],
+        y_of=lambda s: s["joint"]["any_crash"],
+        labels=("all AVs succeed (%)", "any crash (%)", "joint success and any crash"),
+    )
 
 
 def readme_section(multi: dict[str, Any], crossplay: dict[str, Any]) -> list[str]:
     if not multi and not crossplay:
         return []
-    out = ["## Multi-agent suites", "",
-           "Several automated vehicles on one road, each row's decider driving all of them (self-play); not part "
-           "of the OvertakeZoo score. Joint success: every AV of the road succeeds.", "",
-           "| suite | version | scenarios | ranked rows | best joint success | cross-play |", "|---|---|---|---|---|---|"]
+    out = [
+        "## Multi-agent suites",
+        "",
+        "Several automated vehicles on one road, each row's decider driving all of them (self-play); not part "
+        "of the OvertakeZoo score. Joint success: every AV of the road succeeds.",
+        "",
+        "| suite | version | scenarios | ranked rows | best joint success | cross-play |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, s in multi.items():
         best = s["entries"][0] if s["entries"] else None
         best_txt = f"{best['joint']['all_succeed'] * 100:.1f} % ({md(best['name'])})" if best else "-"
         cross = crossplay.get(name)
         cross_txt = md_link(cross["table"], cross["table"]) if cross else "-"
-        out.append(f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | {len(s['entries'])} | "
-                   f"{best_txt} | {cross_txt} |")
+        out.append(
+            f"| {md_link(name, s['table'])} | {md(s['version'] or '-')} | {md(s['count'] or '-')} | "
+            f"{len(s['entries'])} | "
+            f"{best_txt} | {cross_txt} |"
+        )
     return out

@@ -13,13 +13,26 @@ from __future__ import annotations
 
 from typing import Any
 
-from overtakezoo.benchmark.results.metrics import TABLE, format_metric
 from overtakezoo.benchmark.leaderboard.untrusted import md
+from overtakezoo.benchmark.results.metrics import TABLE, format_metric
 
-_LEVEL = {"success_rate": 0.02, "completion_time": 0.3, "crash_share_npc1": 0.05, "crash_share_npc2": 0.05,
-          "npc1_speed_failed": 0.15, "npc2_speed_failed": 0.15}
-ROWS = ["success_rate", "completion_time", "crash_share_npc1", "crash_share_npc2", "crash_same_scenarios",
-        "npc1_speed_failed", "npc2_speed_failed"]
+_LEVEL = {
+    "success_rate": 0.02,
+    "completion_time": 0.3,
+    "crash_share_npc1": 0.05,
+    "crash_share_npc2": 0.05,
+    "npc1_speed_failed": 0.15,
+    "npc2_speed_failed": 0.15,
+}
+ROWS = [
+    "success_rate",
+    "completion_time",
+    "crash_share_npc1",
+    "crash_share_npc2",
+    "crash_same_scenarios",
+    "npc1_speed_failed",
+    "npc2_speed_failed",
+]
 _KIND = {k: (label, kind, unit) for k, label, kind, unit in TABLE}
 
 
@@ -39,8 +52,9 @@ def _our_direction(a: dict[str, Any] | None, b: dict[str, Any] | None) -> str | 
     return "level"
 
 
-def verdicts(paper_rl: dict[str, Any], paper_op: dict[str, Any], dqn: dict[str, Any],
-             fsm: dict[str, Any]) -> dict[str, tuple[str | None, str | None]]:
+def verdicts(
+    paper_rl: dict[str, Any], paper_op: dict[str, Any], dqn: dict[str, Any], fsm: dict[str, Any]
+) -> dict[str, tuple[str | None, str | None]]:
     """Per row: (paper's direction of RL vs OP, ours of dqn vs rule-fsm)."""
     out = {}
     for key in ROWS:
@@ -59,14 +73,23 @@ def _reported(value: Any, kind: str, unit: str) -> str:
     return f"{value * 100:.1f} %" if kind == "rate" else f"{value:.1f} {unit}".strip()
 
 
-def render(reference: dict[str, Any], dqn: dict[str, Any], fsm: dict[str, Any], paired: dict[str, Any] | None,
-           notes: dict[str, Any], labels: tuple[str, str] = ("dqn", "rule-fsm")) -> str:
+def render(
+    reference: dict[str, Any],
+    dqn: dict[str, Any],
+    fsm: dict[str, Any],
+    paired: dict[str, Any] | None,
+    notes: dict[str, Any],
+    labels: tuple[str, str] = ("dqn", "rule-fsm"),
+) -> str:
     """Markdown: the side-by-side table and one sentence per row. ``reference`` is paper.json;
     ``dqn`` / ``fsm`` are results summaries on table1; ``paired`` is crash-in-the-same-scenarios."""
     rl, op = reference["rows"][0], reference["rows"][1]
     v = verdicts(rl, op, dqn, fsm)
-    out = [f"| Table I row | paper: {md(rl['decider'])} | ours: {labels[0]} | paper: {md(op['decider'])} | "
-           f"ours: {labels[1]} | shape |", "|---|---|---|---|---|---|"]
+    out = [
+        f"| Table I row | paper: {md(rl['decider'])} | ours: {labels[0]} | paper: {md(op['decider'])} | "
+        f"ours: {labels[1]} | shape |",
+        "|---|---|---|---|---|---|",
+    ]
     sentences = []
     for key in ROWS:
         label, kind, unit = _KIND[key]
@@ -75,8 +98,12 @@ def render(reference: dict[str, Any], dqn: dict[str, Any], fsm: dict[str, Any], 
             cells = [_reported(rl.get(key), kind, unit), ours, _reported(op.get(key), kind, unit), ours]
             shape = "paired"
         else:
-            cells = [_reported(rl.get(key), kind, unit), format_metric(dqn.get(key), kind, unit),
-                     _reported(op.get(key), kind, unit), format_metric(fsm.get(key), kind, unit)]
+            cells = [
+                _reported(rl.get(key), kind, unit),
+                format_metric(dqn.get(key), kind, unit),
+                _reported(op.get(key), kind, unit),
+                format_metric(fsm.get(key), kind, unit),
+            ]
             paper, ours = v[key]
             shape = "-" if ours is None else ("holds" if paper == ours else "differs")
             if paper is not None and ours is not None:

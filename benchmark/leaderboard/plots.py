@@ -9,8 +9,14 @@ from overtakezoo.benchmark.leaderboard.rows import Row
 from overtakezoo.benchmark.leaderboard.untrusted import plot_text
 
 
-def rate_plot(name: str, ranked: list[Row], bounds: list[Row], x_of: Any = None, y_of: Any = None,
-              labels: tuple[str, str, str] = ("success rate (%)", "crash rate (%)", "success and crash rate")) -> bytes:
+def rate_plot(
+    name: str,
+    ranked: list[Row],
+    bounds: list[Row],
+    x_of: Any = None,
+    y_of: Any = None,
+    labels: tuple[str, str, str] = ("success rate (%)", "crash rate (%)", "success and crash rate"),
+) -> bytes:
     """Success and crash rate with Wilson CIs, one row per decider in rank order (upper bounds last),
     two panels sharing the names on the y axis: a dot plot, so no label can hide another however
     close the rates are. Agg canvas, no pyplot state, no timestamps in the PNG. ``x_of`` / ``y_of``
@@ -34,8 +40,16 @@ def rate_plot(name: str, ranked: list[Row], bounds: list[Row], x_of: Any = None,
                 v = 100 * r["value"]
                 # max(0, .): a Wilson bound can sit a rounding error beyond the rate it brackets.
                 err = [[max(0.0, v - 100 * r["lo"])], [max(0.0, 100 * r["hi"] - v)]]
-                ax.errorbar([v], [i], xerr=err, fmt="s" if row.privileged else "o", capsize=2, markersize=4,
-                            color="C1" if row.privileged else "C0", mfc="none" if row.privileged else None)
+                ax.errorbar(
+                    [v],
+                    [i],
+                    xerr=err,
+                    fmt="s" if row.privileged else "o",
+                    capsize=2,
+                    markersize=4,
+                    color="C1" if row.privileged else "C0",
+                    mfc="none" if row.privileged else None,
+                )
             ax.set_xlim(-3, 103)
             ax.set_xlabel(label)
             ax.grid(True, axis="x", alpha=0.3)

@@ -25,12 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import SIM_VERSION
-
-from overtakezoo.benchmark.run.artifacts import Artifact, policy_kind
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.results import Results, config_sha256
 from overtakezoo.benchmark.results.schema import recorded_keys
+from overtakezoo.benchmark.run.artifacts import Artifact, policy_kind
+from overtakezoo.envs import SIM_VERSION
 from overtakezoo.envs.suites import Suite
 
 ARTIFACTS = "artifacts"
@@ -62,15 +61,22 @@ def reserved_name(name: str, where: str) -> None:
     """Refuse a row name that is a built-in member's (in any case): those rows re-run the zoo itself."""
     reserved = {b.lower(): b for b in builtin_names()}
     if name.lower() in reserved:
-        raise UserError(f"{where} {name!r}: reserved for the built-in zoo member {reserved[name.lower()]!r}; "
-                        "submit your policy under its own name (--name my-policy)")
+        raise UserError(
+            f"{where} {name!r}: reserved for the built-in zoo member {reserved[name.lower()]!r}; "
+            "submit your policy under its own name (--name my-policy)"
+        )
 
 
 def artifact_decider(name: str, art: Artifact) -> dict[str, Any]:
     """The ``decider`` block of a row re-run from ``art``: every field derived from the artifact."""
     kind = policy_kind(art.card) if art.kind == "mlp" else "onnx"
-    return {"name": name, "version": "1", "weights_sha256": art.sha256, "privileged": False,
-            "policy": {"kind": kind, "file": f"{art.sha256}{art.ext}", "sha256": art.sha256}}
+    return {
+        "name": name,
+        "version": "1",
+        "weights_sha256": art.sha256,
+        "privileged": False,
+        "policy": {"kind": kind, "file": f"{art.sha256}{art.ext}", "sha256": art.sha256},
+    }
 
 
 def stored_files(policy: dict[str, Any]) -> dict[str, str]:
@@ -113,15 +119,20 @@ def stale_reasons(results: Results, suite: Suite | None) -> list[tuple[str, str]
         return [("suite.name", f"suite {s['name']!r}, which is not built in (any more)")]
     out = []
     if s["hash"] != suite.hash:
-        out.append(("suite.hash", f"suite {s['name']} v{s['version']} ({s['hash'][:12]}; now v{suite.version}, "
-                                  f"{suite.hash[:12]})"))
+        out.append(
+            (
+                "suite.hash",
+                f"suite {s['name']} v{s['version']} ({s['hash'][:12]}; now v{suite.version}, {suite.hash[:12]})",
+            )
+        )
     current = config_sha256(suite.config)
     if results.meta["config_sha256"] != current:
         out.append(("config_sha256", f"environment config {results.meta['config_sha256'][:12]} (now {current[:12]})"))
     sim = results.meta.get("sim_version")
     if sim != SIM_VERSION:
-        out.append(("sim_version", f"simulator {'of unknown version' if sim is None else f'v{sim}'} "
-                                   f"(now v{SIM_VERSION})"))
+        out.append(
+            ("sim_version", f"simulator {'of unknown version' if sim is None else f'v{sim}'} (now v{SIM_VERSION})")
+        )
     return out
 
 
@@ -137,8 +148,9 @@ def suite_mismatch(results: Results, suite: Suite) -> list[tuple[str, str]]:
     have = results.suite
     for key in sorted(set(have) | set(want), key=lambda k: (k not in want, k)):
         if have.get(key) != want.get(key):
-            out.append((f"suite.{key}", f"a suite block with {key} {have.get(key)!r} (the suite file gives "
-                                        f"{want.get(key)!r})"))
+            out.append(
+                (f"suite.{key}", f"a suite block with {key} {have.get(key)!r} (the suite file gives {want.get(key)!r})")
+            )
     if list(results.meta["range"]) != [0, suite.count]:
         out.append(("range", f"scenarios {results.meta['range']} (the suite file gives [0, {suite.count}])"))
     e = suite.num_avs
@@ -151,8 +163,12 @@ def suite_mismatch(results: Results, suite: Suite) -> list[tuple[str, str]]:
         if a is None:
             out.append((f"scenarios.{key}", f"a run without scenarios.{key}, which every run records"))
         elif np.shape(a) != (n,):
-            out.append((f"scenarios.{key}", f"{np.size(a)} values of {key} (the suite file gives {n}: "
-                                            f"{suite.count} scenarios x {e} AV)"))
+            out.append(
+                (
+                    f"scenarios.{key}",
+                    f"{np.size(a)} values of {key} (the suite file gives {n}: {suite.count} scenarios x {e} AV)",
+                )
+            )
     for key in sorted(set(results.per) - set(wanted)):
         out.append((f"scenarios.{key}", f"an array {key} that no run of this suite records"))
     return out

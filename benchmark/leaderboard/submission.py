@@ -15,24 +15,32 @@ import contextlib
 import hashlib
 import os
 import re
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
-from overtakezoo.benchmark.run.artifacts import Artifact
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs import safe_json
-from overtakezoo.envs.io import atomic_write_bytes
-from overtakezoo.benchmark.results.results import Results, same_summary, summary_of
-from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, Row, artifact_decider, builtin_names, reserved_name,
-                                                     stale_reasons, stored_files, suite_mismatch)
-from overtakezoo.benchmark.run.sandbox import PolicyFailure
-from overtakezoo.envs.io import file_sha256
-from overtakezoo.envs.suites import Suite, load_suite, suite_names
 from overtakezoo.benchmark.leaderboard import fresh
+from overtakezoo.benchmark.leaderboard.rows import (
+    ARTIFACTS,
+    Row,
+    artifact_decider,
+    builtin_names,
+    reserved_name,
+    stale_reasons,
+    stored_files,
+    suite_mismatch,
+)
 from overtakezoo.benchmark.leaderboard.untrusted import check_tree
 from overtakezoo.benchmark.leaderboard.verify import compare, torch_single_threaded
+from overtakezoo.benchmark.results.results import Results, same_summary, summary_of
+from overtakezoo.benchmark.run.artifacts import Artifact
+from overtakezoo.benchmark.run.sandbox import PolicyFailure
+from overtakezoo.envs import safe_json
+from overtakezoo.envs.io import atomic_write_bytes, file_sha256
+from overtakezoo.envs.suites import Suite, load_suite, suite_names
 
 LOCK = ".lock"  # submissions_lock's file
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,63}$")  # the schema's decider-name pattern
@@ -40,9 +48,16 @@ _SHA_NAME = re.compile(r"^[0-9a-f]{64}(\.[A-Za-z0-9_-]{1,16})?$")
 
 
 # ------------------------------------------------------------------ filing
-def submit(results: Results, root: str | Path = "leaderboards", *, name: str | None = None,
-           policy: str | Path | None = None, replace: bool = False, source: str = "results",
-           report: Callable[[str], None] | None = None) -> Path:
+def submit(
+    results: Results,
+    root: str | Path = "leaderboards",
+    *,
+    name: str | None = None,
+    policy: str | Path | None = None,
+    replace: bool = False,
+    source: str = "results",
+    report: Callable[[str], None] | None = None,
+) -> Path:
     """File ``results`` as the row ``name`` with the policy that re-runs it; returns the row's path.
 
     Without ``policy`` the results must come from a built-in zoo member (its current version and
@@ -63,11 +78,15 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
     builtins = builtin_names()
     if policy is None:
         if decider["name"] not in builtins:
-            raise UserError(f"{source}: decider {decider['name']!r} is not a built-in zoo member: pass the policy "
-                            "it was measured with (--policy FILE) so the row can be verified")
+            raise UserError(
+                f"{source}: decider {decider['name']!r} is not a built-in zoo member: pass the policy "
+                "it was measured with (--policy FILE) so the row can be verified"
+            )
         if name != decider["name"]:
-            raise UserError(f"--name {name!r}: a built-in zoo member is filed under its own name "
-                            f"({decider['name']!r}); a policy of your own needs --policy FILE")
+            raise UserError(
+                f"--name {name!r}: a built-in zoo member is filed under its own name "
+                f"({decider['name']!r}); a policy of your own needs --policy FILE"
+            )
         block = _builtin_block(results, suite, source, said)
         from overtakezoo.benchmark.run.policy import load_zoo
 
@@ -75,15 +94,18 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
     else:
         reserved_name(name, "--name")
         if decider["name"].endswith("+shield"):
-            raise UserError(f"{source}: decider {decider['name']!r} ran behind --shield, which the stored policy file "
-                            "does not carry: submit the results of the policy without --shield")
+            raise UserError(
+                f"{source}: decider {decider['name']!r} ran behind --shield, which the stored policy file "
+                "does not carry: submit the results of the policy without --shield"
+            )
         if decider["privileged"]:
             raise UserError(f"{source}: decider.privileged: only built-in zoo members may read the simulator state")
         art = _converted(Path(policy), decider, suite)
         _not_zoo_weights(art, Path(policy))  # a member's weights under a new name would rank beside the member
         meta = {**results.meta, "decider": artifact_decider(name, art)}
-        drawn = _reproduces(Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy),
-                            source, said)
+        drawn = _reproduces(
+            Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source, said
+        )
     with submissions_lock(root):
         check_tree(root)  # no symlink or FIFO planted under the root is written through
         path = root / "submissions" / suite.name / f"{name}.json"
@@ -91,13 +113,18 @@ def submit(results: Results, root: str | Path = "leaderboards", *, name: str | N
         if clash:
             raise UserError(f"--name {name!r}: differs only in case from the row {clash[0]} (one file on some systems)")
         if path.exists() and not replace:
-            raise UserError(f"{path}: a row named {name!r} is already on the {suite.name} leaderboard; "
-                            "pass --replace to replace it")
+            raise UserError(
+                f"{path}: a row named {name!r} is already on the {suite.name} leaderboard; pass --replace to replace it"
+            )
         if policy is not None:
             block = _store_artifact(art, root, path, Path(policy))
             results = Results(meta, results.per, results.summary, results.timing)
-        filed = Results({**results.meta, "submission": {"name": name, "policy": block, "fresh": drawn}}, results.per,
-                        results.summary, results.timing)
+        filed = Results(
+            {**results.meta, "submission": {"name": name, "policy": block, "fresh": drawn}},
+            results.per,
+            results.summary,
+            results.timing,
+        )
         filed.save(path)
         said += _fresh_lines(filed)
         prune_artifacts(root, locked=True)
@@ -125,11 +152,15 @@ def submissions_lock(root: Path) -> Iterator[None]:
 def _current_suite(results: Results, source: str) -> Suite:
     suite = results.suite
     if not results.complete:
-        raise UserError(f"{source}: range: covers scenarios {results.meta['range']} of {suite['count']}; "
-                        "submit every shard of the run together")
+        raise UserError(
+            f"{source}: range: covers scenarios {results.meta['range']} of {suite['count']}; "
+            "submit every shard of the run together"
+        )
     if suite["name"] not in suite_names():
-        raise UserError(f"{source}: suite.name: {suite['name']!r} is not a built-in suite "
-                        f"(leaderboards exist for: {', '.join(suite_names())})")
+        raise UserError(
+            f"{source}: suite.name: {suite['name']!r} is not a built-in suite "
+            f"(leaderboards exist for: {', '.join(suite_names())})"
+        )
     current = load_suite(suite["name"])
     reasons = stale_reasons(results, current)
     if reasons:
@@ -138,8 +169,10 @@ def _current_suite(results: Results, source: str) -> Suite:
     mismatch = suite_mismatch(results, current)  # the suite's shape: no scenario appended, no array dropped
     if mismatch:
         field, why = mismatch[0]
-        raise UserError(f"{source}: {field}: measured on {why}: not what a run of the current suite file "
-                        "gives (edited by hand?); submit the results `overtakezoo eval` wrote")
+        raise UserError(
+            f"{source}: {field}: measured on {why}: not what a run of the current suite file "
+            "gives (edited by hand?); submit the results `overtakezoo eval` wrote"
+        )
     if not same_summary(results.summary, summary_of(results.per, results.meta["seed"], results.num_avs)):
         raise UserError(f"{source}: summary: does not match the per-scenario arrays (edited by hand?)")
     return current
@@ -153,9 +186,11 @@ def _builtin_block(results: Results, suite: Suite, source: str, said: list[str] 
         said += hold_lines(member, suite.config, suite.name)
     now = (str(member.version), member.weights_sha256, bool(member.privileged))
     if (d["version"], d["weights_sha256"], d["privileged"]) != now or "policy" in d:
-        raise UserError(f"{source}: decider: measured with {d['name']} v{d['version']} (weights "
-                        f"{str(d['weights_sha256'])[:12]}), the zoo has v{now[0]} (weights {str(now[1])[:12]}): "
-                        "re-run the evaluation, or submit your own policy with --policy FILE --name NAME")
+        raise UserError(
+            f"{source}: decider: measured with {d['name']} v{d['version']} (weights "
+            f"{str(d['weights_sha256'])[:12]}), the zoo has v{now[0]} (weights {str(now[1])[:12]}): "
+            "re-run the evaluation, or submit your own policy with --policy FILE --name NAME"
+        )
     return {"builtin": d["name"], "version": now[0], "weights_sha256": now[1]}
 
 
@@ -164,8 +199,10 @@ def _converted(policy: Path, decider: dict[str, Any], suite: Suite) -> Artifact:
     from overtakezoo.benchmark.run.artifacts import read_policy_file
 
     if not policy.is_file():
-        raise UserError(f"--policy {policy}: not a file (a row needs its policy file, e.g. an SB3 .zip, "
-                        "an .onnx file or `overtakezoo train` weights, so that it can be re-run)")
+        raise UserError(
+            f"--policy {policy}: not a file (a row needs its policy file, e.g. an SB3 .zip, "
+            "an .onnx file or `overtakezoo train` weights, so that it can be re-run)"
+        )
     data = _read_policy(policy)
     measured = decider["weights_sha256"]
     if policy.suffix != ".onnx" and measured not in (None, hashlib.sha256(data).hexdigest()):
@@ -193,9 +230,11 @@ def _not_zoo_weights(art: Artifact, policy: Path) -> None:
     (:func:`zoo_weights_of`): that member already has its row, under its own name."""
     member = zoo_weights_of(art)
     if member is not None:
-        raise UserError(f"--policy {policy}: its weights are the built-in zoo member {member!r}'s (zoo/pretrained/"
-                        f"{member}.npz): the zoo's own row ranks them; submit weights of your own (a member's "
-                        "results are filed under its name, without --policy)")
+        raise UserError(
+            f"--policy {policy}: its weights are the built-in zoo member {member!r}'s (zoo/pretrained/"
+            f"{member}.npz): the zoo's own row ranks them; submit weights of your own (a member's "
+            "results are filed under its name, without --policy)"
+        )
 
 
 def _weights_prints(arrays: list[np.ndarray]) -> set[str]:
@@ -258,12 +297,15 @@ def zoo_weights_of(art: Artifact) -> str | None:
 
 
 def _not_evaluated(policy: Path, sha: str, measured: str) -> None:
-    raise UserError(f"--policy {policy}: sha256 {sha[:12]}..., but the results were measured with weights "
-                    f"{measured[:12]}...: submit the file that was evaluated")
+    raise UserError(
+        f"--policy {policy}: sha256 {sha[:12]}..., but the results were measured with weights "
+        f"{measured[:12]}...: submit the file that was evaluated"
+    )
 
 
-def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, source: str,
-                said: list[str] | None = None) -> None:
+def _reproduces(
+    results: Results, suite: Suite, art: Artifact, policy: Path, source: str, said: list[str] | None = None
+) -> None:
     """Re-run the stored form on every scenario: a row whose artifact does not give its numbers is refused,
     and so is one that is not deterministic (:mod:`~overtakezoo.benchmark.run.determinism`: no random op,
     the same decisions by batch size, row order and call), whose row would fail later verifications."""
@@ -289,8 +331,10 @@ def _reproduces(results: Results, suite: Suite, art: Artifact, policy: Path, sou
     try:
         compare(Row(source, results), np.arange(suite.count), got)
     except UserError as exc:
-        raise UserError(f"{exc} [the stored {art.kind} form of --policy {policy}: evaluate it with `overtakezoo eval "
-                        "--policy` and submit those results]") from None
+        raise UserError(
+            f"{exc} [the stored {art.kind} form of --policy {policy}: evaluate it with `overtakezoo eval "
+            "--policy` and submit those results]"
+        ) from None
     return drawn
 
 
@@ -298,6 +342,7 @@ def _fresh_block(suite: Suite, decider: Any) -> dict[str, Any]:
     """The row's fresh draw (:mod:`.fresh`): ``decider`` on its suite's distribution drawn with a seed
     from fresh randomness, so nobody knew its scenarios when the policy was made."""
     from overtakezoo.benchmark.leaderboard.changes import fresh_seed
+
     seed, public = fresh_seed(), fresh.public_seeds()
     while seed in public:  # (2^-63 odds; a built-in suite's seed is no fresh draw)
         seed = fresh_seed()
@@ -308,18 +353,25 @@ def _fresh_block(suite: Suite, decider: Any) -> dict[str, Any]:
 def _fresh_lines(row: Results) -> list[str]:
     """What ``submit`` says about the row's fresh draw, and its flag if it has one."""
     s, why = fresh.summary(row), fresh.flag(row)
-    lines = [f"fresh draw: seed {s['seed']}, {s['count']} scenarios: success {100 * s['success_rate']:.1f} %, "
-             f"crash {100 * s['crash_rate']:.1f} % (the public suite: success "
-             f"{100 * row.summary['success_rate']['value']:.1f} %, crash {100 * row.summary['crash_rate']['value']:.1f} %)"]
+    lines = [
+        f"fresh draw: seed {s['seed']}, {s['count']} scenarios: success {100 * s['success_rate']:.1f} %, "
+        f"crash {100 * s['crash_rate']:.1f} % (the public suite: success "
+        f"{100 * row.summary['success_rate']['value']:.1f} %, crash {100 * row.summary['crash_rate']['value']:.1f} %)"
+    ]
     if why:
-        lines.append(f"flagged: {why}: the row is listed apart and not ranked (a policy that does as well on "
-                     "scenarios nobody knew in advance ranks)")
+        lines.append(
+            f"flagged: {why}: the row is listed apart and not ranked (a policy that does as well on "
+            "scenarios nobody knew in advance ranks)"
+        )
     return lines
 
 
 def _store_artifact(art: Artifact, root: Path, row: Path, policy: Path) -> dict[str, Any]:
-    block = {"artifact": f"{ARTIFACTS}/{art.sha256}{art.ext}", "sha256": art.sha256,
-             "source": {"kind": art.source_kind, "sha256": art.source_sha256}}
+    block = {
+        "artifact": f"{ARTIFACTS}/{art.sha256}{art.ext}",
+        "sha256": art.sha256,
+        "source": {"kind": art.source_kind, "sha256": art.source_sha256},
+    }
     todo = [(block["artifact"], art.data)]
     if art.card is not None:
         card_data = art.card_bytes
@@ -328,8 +380,10 @@ def _store_artifact(art: Artifact, root: Path, row: Path, policy: Path) -> dict[
         stored = root / "submissions" / card_rel
         refs = _references(root, row)
         if stored.is_file() and file_sha256(stored) != block["card_sha256"] and (refs is None or card_rel in refs):
-            raise UserError(f"--policy {policy}: another model card for these weights is already stored "
-                            f"({card_rel}, used by another row): submit the weights with that card")
+            raise UserError(
+                f"--policy {policy}: another model card for these weights is already stored "
+                f"({card_rel}, used by another row): submit the weights with that card"
+            )
         todo.append((card_rel, card_data))
     for rel, content in todo:
         target = root / "submissions" / rel
@@ -368,10 +422,11 @@ def prune_artifacts(root: str | Path, locked: bool = False) -> list[Path]:
     used = _references(Path(root))
     if used is None:
         return []  # a row we cannot read might reference anything: remove nothing
-    gone = [p for p in sorted((base / ARTIFACTS).glob("*")) if _SHA_NAME.match(p.name)
-            and f"{ARTIFACTS}/{p.name}" not in used]
+    gone = [
+        p
+        for p in sorted((base / ARTIFACTS).glob("*"))
+        if _SHA_NAME.match(p.name) and f"{ARTIFACTS}/{p.name}" not in used
+    ]
     for p in gone:
         p.unlink()
     return gone
-
-

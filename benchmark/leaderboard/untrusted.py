@@ -107,19 +107,27 @@ def check_tree(root: str | Path) -> None:
 
 def _refuse(path: Path, st: os.stat_result, top: bool = False) -> None:
     if stat.S_ISLNK(st.st_mode):
-        raise UserError(f"{path}: is a symbolic link; the leaderboard reads and writes only regular files "
-                        "inside its root (replace the link by the file)")
+        raise UserError(
+            f"{path}: is a symbolic link; the leaderboard reads and writes only regular files "
+            "inside its root (replace the link by the file)"
+        )
     if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
-        raise UserError(f"{path}: is not a regular file or folder (a FIFO, device or socket); "
-                        "the leaderboard refuses it")
+        raise UserError(
+            f"{path}: is not a regular file or folder (a FIFO, device or socket); the leaderboard refuses it"
+        )
     if top and not stat.S_ISDIR(st.st_mode):
         raise UserError(f"{path}: is not a folder")
 
 
 def plain_name(name: object) -> bool:
     """A file name directly in the root: no folder part, no ``..``, not hidden."""
-    return (isinstance(name, str) and name != "" and not name.startswith(".")
-            and not any(c in name for c in "/\\\0") and _printable(name) == name)
+    return (
+        isinstance(name, str)
+        and name != ""
+        and not name.startswith(".")
+        and not any(c in name for c in "/\\\0")
+        and _printable(name) == name
+    )
 
 
 def check_target(root: Path, rel: str) -> Path:

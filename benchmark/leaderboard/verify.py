@@ -46,22 +46,32 @@ from __future__ import annotations
 import fnmatch
 import hashlib
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import fresh
-from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
-from overtakezoo.benchmark.leaderboard.rows import (ARTIFACTS, STORED_KINDS, Row, artifact_decider, describe,
-                                                     load_submissions, reserved_name, stale_reasons, stored_files,
-                                                     suite_mismatch)
-from overtakezoo.envs.suites import Suite, load_suite, suite_names
 from overtakezoo.benchmark.leaderboard.batching import Stacked, batches, torch_single_threaded
 from overtakezoo.benchmark.leaderboard.changes import fresh_seed
+from overtakezoo.benchmark.leaderboard.rows import (
+    ARTIFACTS,
+    STORED_KINDS,
+    Row,
+    artifact_decider,
+    describe,
+    load_submissions,
+    reserved_name,
+    stale_reasons,
+    stored_files,
+    suite_mismatch,
+)
 from overtakezoo.benchmark.run.determinism import check_deterministic, check_onnx_ops, probe_observations
+from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
+from overtakezoo.envs.suites import Suite, load_suite, suite_names
 
 
 def sample_indices(count: int, sample: int | None, seed: int, rel: str) -> np.ndarray:
@@ -78,23 +88,38 @@ def row_policy(row: Row, root: Path, config: Any) -> Any:
     label of the row equals what is derived from it; :class:`UserError` naming the row otherwise."""
     sub = row.results.meta.get("submission")
     if not sub:
-        raise UserError(f"{row.rel}: submission: missing (filed before submissions named their policy): "
-                        "re-file it with `overtakezoo submit`")
+        raise UserError(
+            f"{row.rel}: submission: missing (filed before submissions named their policy): "
+            "re-file it with `overtakezoo submit`"
+        )
     policy, d = sub["policy"], row.results.decider
     if "builtin" in policy:
         from overtakezoo.benchmark.run.policy import load_zoo
 
         if policy["builtin"] != row.name:
-            raise UserError(f"{row.rel}: submission.policy.builtin: {policy['builtin']!r} filed as the row "
-                            f"{row.name!r}: a built-in member's row carries its own name")
+            raise UserError(
+                f"{row.rel}: submission.policy.builtin: {policy['builtin']!r} filed as the row "
+                f"{row.name!r}: a built-in member's row carries its own name"
+            )
         member = load_zoo(policy["builtin"], config, hint="")
         if (str(member.version), member.weights_sha256) != (policy["version"], policy["weights_sha256"]):
-            raise UserError(f"{row.rel}: submission.policy: measured with {policy['builtin']} v{policy['version']} "
-                            f"(weights {str(policy['weights_sha256'])[:12]}), the zoo now has v{member.version} "
-                            f"(weights {str(member.weights_sha256)[:12]}): re-measure the row "
-                            "(scripts/reproduce-leaderboard.sh)")
-        _same(row, d, {"name": member.name, "version": str(member.version), "weights_sha256": member.weights_sha256,
-                       "privileged": bool(member.privileged)}, f"the zoo member {member.name}")
+            raise UserError(
+                f"{row.rel}: submission.policy: measured with {policy['builtin']} v{policy['version']} "
+                f"(weights {str(policy['weights_sha256'])[:12]}), the zoo now has v{member.version} "
+                f"(weights {str(member.weights_sha256)[:12]}): re-measure the row "
+                "(scripts/reproduce-leaderboard.sh)"
+            )
+        _same(
+            row,
+            d,
+            {
+                "name": member.name,
+                "version": str(member.version),
+                "weights_sha256": member.weights_sha256,
+                "privileged": bool(member.privileged),
+            },
+            f"the zoo member {member.name}",
+        )
         return member
     reserved_name(row.name, f"{row.rel}: submission.name")
     art = stored_artifact(row, root, policy)
@@ -112,21 +137,30 @@ def stored_artifact(row: Row, root: Path, policy: dict[str, Any]) -> Any:
     from overtakezoo.benchmark.run.artifacts import Artifact
 
     kind = STORED_KINDS.get(Path(policy["artifact"]).suffix)
-    if kind is None or Path(policy["artifact"]).stem != policy["sha256"] or (kind == "mlp") != ("card_sha256" in policy):
-        raise UserError(f"{row.rel}: submission.policy.artifact: {policy['artifact']} is not a stored format "
-                        "(<sha256>.npz with its model card, or <sha256>.onnx): re-submit it with `overtakezoo submit`")
+    if (
+        kind is None
+        or Path(policy["artifact"]).stem != policy["sha256"]
+        or (kind == "mlp") != ("card_sha256" in policy)
+    ):
+        raise UserError(
+            f"{row.rel}: submission.policy.artifact: {policy['artifact']} is not a stored format "
+            "(<sha256>.npz with its model card, or <sha256>.onnx): re-submit it with `overtakezoo submit`"
+        )
     data: dict[str, bytes] = {}
     for rel, recorded in stored_files(policy).items():  # the policy file, and an npz's model card
         path = root / "submissions" / rel
         try:
             content = path.read_bytes()
         except OSError as exc:
-            raise UserError(f"{row.rel}: submission.policy.artifact: cannot read {rel}: "
-                            f"{exc.strerror or exc}") from None
+            raise UserError(
+                f"{row.rel}: submission.policy.artifact: cannot read {rel}: {exc.strerror or exc}"
+            ) from None
         sha = hashlib.sha256(content).hexdigest()
         if sha != recorded:
-            raise UserError(f"{row.rel}: submission.policy.artifact: {rel} has sha256 {sha[:12]}..., "
-                            f"the row recorded {recorded[:12]}... (artifact swapped or corrupted)")
+            raise UserError(
+                f"{row.rel}: submission.policy.artifact: {rel} has sha256 {sha[:12]}..., "
+                f"the row recorded {recorded[:12]}... (artifact swapped or corrupted)"
+            )
         data[rel] = content
     card = None
     if kind == "mlp":
@@ -145,25 +179,37 @@ def stored_artifact(row: Row, root: Path, policy: dict[str, Any]) -> Any:
 def _same(row: Row, recorded: dict[str, Any], derived: dict[str, Any], source: str) -> None:
     for key in sorted(set(recorded) | set(derived)):
         if recorded.get(key) != derived.get(key):
-            raise UserError(f"{row.rel}: decider.{key}: recorded {recorded.get(key)!r}, derived "
-                            f"{derived.get(key)!r} from {source} (labels are derived, never declared)")
+            raise UserError(
+                f"{row.rel}: decider.{key}: recorded {recorded.get(key)!r}, derived "
+                f"{derived.get(key)!r} from {source} (labels are derived, never declared)"
+            )
 
 
 # ------------------------------------------------------------------ verification
-def verify(root: str | Path = "leaderboards", sample: int | None = None, seed: int | None = None,
-           only: str | None = None, chunk_size: int = 4096, jobs: int = 1, changed: set[str] | None = None,
-           log: Callable[[str], None] = print, pair_sample: int | None = None) -> int:
+def verify(
+    root: str | Path = "leaderboards",
+    sample: int | None = None,
+    seed: int | None = None,
+    only: str | None = None,
+    chunk_size: int = 4096,
+    jobs: int = 1,
+    changed: set[str] | None = None,
+    log: Callable[[str], None] = print,
+    pair_sample: int | None = None,
+) -> int:
     """Re-run every current row (``only``: rows whose ``suite/name`` matches this glob) on every
     scenario of the rows in ``changed`` and on ``sample`` scenarios of the others (all when None),
     drawn from ``seed`` (default :func:`.changes.fresh_seed`, logged); then the cross-play matrices:
-    every pair of those in ``changed``, ``pair_sample`` pairs of the others (all when None); raises a UserError at the first row that does
-    not reproduce (suites in name order). ``jobs`` > 1 verifies suites in that many worker
-    processes. Returns the number of rows verified."""
+    every pair of those in ``changed``, ``pair_sample`` pairs of the others (all when None); raises
+    a UserError at the first row that does not reproduce (suites in name order). ``jobs`` > 1
+    verifies suites in that many worker processes. Returns the number of rows verified."""
     root = Path(root)
     if seed is None:
         seed = fresh_seed()
-        log(f"verify seed {seed} (fresh: it draws the sample and verify's own fresh draws; replay them with "
-            f"--seed {seed})")
+        log(
+            f"verify seed {seed} (fresh: it draws the sample and verify's own fresh draws; replay them with "
+            f"--seed {seed})"
+        )
     base = root / "submissions"
     suites = sorted(p.name for p in base.iterdir() if p.is_dir() and p.name != ARTIFACTS) if base.is_dir() else []
     args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ())) for name in suites]
@@ -185,12 +231,22 @@ def matrices(root: Path, only: str | None = None) -> list[Path]:
     """The stored cross-play matrices (those ``only`` matches as ``crossplay/<suite>``)."""
     from overtakezoo.benchmark.leaderboard.crossplay import DATA
 
-    return [p for p in sorted((root / DATA).glob("*.json"))
-            if only is None or fnmatch.fnmatchcase(f"{DATA.as_posix()}/{p.stem}", only)]
+    return [
+        p
+        for p in sorted((root / DATA).glob("*.json"))
+        if only is None or fnmatch.fnmatchcase(f"{DATA.as_posix()}/{p.stem}", only)
+    ]
 
 
-def verify_crossplay(root: Path, sample: int | None, seed: int, only: str | None, jobs: int, changed: set[str],
-                     log: Callable[[str], None]) -> None:
+def verify_crossplay(
+    root: Path,
+    sample: int | None,
+    seed: int,
+    only: str | None,
+    jobs: int,
+    changed: set[str],
+    log: Callable[[str], None],
+) -> None:
     """Re-run the stored cross-play matrices (``crossplay/<suite>.json``, those ``only`` matches as
     ``crossplay/<suite>``): every pair of a matrix in ``changed`` (or with ``sample`` None), else
     ``sample`` pairs drawn from ``seed`` (:func:`.crossplay.verify_matrix`)."""
@@ -199,8 +255,10 @@ def verify_crossplay(root: Path, sample: int | None, seed: int, only: str | None
     for path in matrices(root, only):
         rel = path.relative_to(root).as_posix()
         full = sample is None or rel in changed
-        log(crossplay.verify_matrix(root, path, None if full else sample, seed, jobs)
-            + (" (new or changed: every pair)" if full and sample is not None else ""))
+        log(
+            crossplay.verify_matrix(root, path, None if full else sample, seed, jobs)
+            + (" (new or changed: every pair)" if full and sample is not None else "")
+        )
 
 
 def _verify_suite_star(args: tuple) -> list[str]:
@@ -240,8 +298,15 @@ class _Draws:
         return self._cache[seed, count]
 
 
-def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, only: str | None,
-                 chunk_size: int = 4096, changed: frozenset[str] = frozenset()) -> list[str]:
+def verify_suite(
+    root: Path,
+    suite_name: str,
+    sample: int | None,
+    seed: int,
+    only: str | None,
+    chunk_size: int = 4096,
+    changed: frozenset[str] = frozenset(),
+) -> list[str]:
     """Verify the rows of one suite (see :func:`verify`); returns one report line per row."""
     suite = load_suite(suite_name) if suite_name in suite_names() else None
     lines: list[str] = []
@@ -253,15 +318,19 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
             reasons = stale_reasons(row.results, suite)
             if reasons:
                 if row.rel in changed:
-                    raise UserError(f"{row.rel}: stale (measured on {describe(reasons)}): a new or changed row must "
-                                    "measure the current benchmark; re-run the evaluation")
+                    raise UserError(
+                        f"{row.rel}: stale (measured on {describe(reasons)}): a new or changed row must "
+                        "measure the current benchmark; re-run the evaluation"
+                    )
                 lines.append(f"stale {row.rel}: listed by name only, not re-run (measured on {describe(reasons)})")
                 continue
             mismatch = suite_mismatch(row.results, suite)  # new or not: never an honest row (rows.py)
             if mismatch:
                 field, why = mismatch[0]
-                raise UserError(f"{row.rel}: {field}: measured on {why}: not what a run of the current suite file "
-                                "gives (results edited by hand?)")
+                raise UserError(
+                    f"{row.rel}: {field}: measured on {why}: not what a run of the current suite file "
+                    "gives (results edited by hand?)"
+                )
             policy = row_policy(row, root, suite.config)  # (labels first: they name what the row claims to be)
             todo.append((row, None, policy))
             if "artifact" in row.results.meta["submission"]["policy"]:  # deterministic, or refused (cheap)
@@ -275,8 +344,10 @@ def verify_suite(root: Path, suite_name: str, sample: int | None, seed: int, onl
         for batch in batches(todo, chunk_size):
             with torch_single_threaded():
                 _verify_batch(suite, batch, chunk_size, seed)
-            lines += [_report(row, plan, suite) + (" (new or changed: every scenario)" if row.rel in changed else "")
-                      for row, plan, _ in batch]
+            lines += [
+                _report(row, plan, suite) + (" (new or changed: every scenario)" if row.rel in changed else "")
+                for row, plan, _ in batch
+            ]
     finally:
         for _, _, dec in todo:
             if hasattr(getattr(dec, "inner", None), "close"):
@@ -288,8 +359,10 @@ def _plan(row: Row, suite: Suite, sample: int | None, seed: int, full: bool) -> 
     draws = _draw_cache(suite)
     rec = row.results.meta["submission"]["fresh"]
     n = None if full else sample
-    pieces = [("public", sample_indices(suite.count, n, seed, row.rel), draws.get(suite.seed, suite.count)),
-              ("fresh", sample_indices(rec["count"], n, seed, row.rel + "#fresh"), draws.get(rec["seed"], rec["count"]))]
+    pieces = [
+        ("public", sample_indices(suite.count, n, seed, row.rel), draws.get(suite.seed, suite.count)),
+        ("fresh", sample_indices(rec["count"], n, seed, row.rel + "#fresh"), draws.get(rec["seed"], rec["count"])),
+    ]
     if full or sample is None:  # a row verified in full also meets a draw nobody knew before this run
         count = min(fresh.CHECK_COUNT, suite.count)
         pieces.append(("check", np.arange(count), draws.get(fresh.check_seed(seed, suite.name), count)))
@@ -309,8 +382,11 @@ def _draw_cache(suite: Suite) -> _Draws:
 def _report(row: Row, plan: Plan, suite: Suite) -> str:
     n = {kind: idx.size for kind, idx, _ in plan.pieces}
     rec = row.results.meta["submission"]["fresh"]
-    return (f"verified {row.rel}: {n['public']} of {suite.count} scenarios reproduce exactly; fresh draw: "
-            f"{n['fresh']} of {rec['count']} reproduce" + (f", verify's own draw of {n['check']} agrees" if "check" in n else ""))
+    return (
+        f"verified {row.rel}: {n['public']} of {suite.count} scenarios reproduce exactly; fresh draw: "
+        f"{n['fresh']} of {rec['count']} reproduce"
+        + (f", verify's own draw of {n['check']} agrees" if "check" in n else "")
+    )
 
 
 def _verify_batch(suite: Suite, batch: list, chunk_size: int, seed: int) -> None:
@@ -331,7 +407,7 @@ def _verify_batch(suite: Suite, batch: list, chunk_size: int, seed: int) -> None
     lo = 0
     for row, plan, _ in batch:  # (multi-AV arrays are AV-major: each AV's block holds every row's scenarios)
         for kind, idx, _ in plan.pieces:
-            part = {k: v.reshape(e, -1)[:, lo:lo + idx.size].reshape(-1) for k, v in got.items()}
+            part = {k: v.reshape(e, -1)[:, lo : lo + idx.size].reshape(-1) for k, v in got.items()}
             lo += idx.size
             if kind == "public":
                 compare(row, idx, part)
@@ -350,10 +426,12 @@ def compare_fresh(row: Row, indices: np.ndarray, outcome: np.ndarray) -> None:
     if bad.size:
         i = int(np.tile(indices, e)[bad].min())
         j = int(bad[np.argmin(np.tile(indices, e)[bad])])
-        raise UserError(f"{row.rel}: submission.fresh (seed {rec['seed']}): scenario {i}"
-                        + (f", AV {j // indices.size}" if e > 1 else "")
-                        + f": outcome recorded {OUTCOME_NAMES[want[j]]}, the re-run gives {OUTCOME_NAMES[outcome[j]]} "
-                        "(results edited by hand, or not produced by this policy)")
+        raise UserError(
+            f"{row.rel}: submission.fresh (seed {rec['seed']}): scenario {i}"
+            + (f", AV {j // indices.size}" if e > 1 else "")
+            + f": outcome recorded {OUTCOME_NAMES[want[j]]}, the re-run gives {OUTCOME_NAMES[outcome[j]]} "
+            "(results edited by hand, or not produced by this policy)"
+        )
 
 
 def compare_check(row: Row, outcome: np.ndarray, check_seed: int) -> None:
@@ -361,9 +439,11 @@ def compare_check(row: Row, outcome: np.ndarray, check_seed: int) -> None:
     rec = row.results.meta["submission"]["fresh"]
     why = fresh.disagreement(fresh.rates(outcome), fresh.rates(fresh.decode(rec["outcomes"])))
     if why is not None:
-        raise UserError(f"{row.rel}: submission.fresh: verify's own draw of the suite (seed {check_seed}) against "
-                        f"the recorded fresh draw (seed {rec['seed']}): {why}: a recorded draw must be one the "
-                        "policy never saw, not a seed it was fit to")
+        raise UserError(
+            f"{row.rel}: submission.fresh: verify's own draw of the suite (seed {check_seed}) against "
+            f"the recorded fresh draw (seed {rec['seed']}): {why}: a recorded draw must be one the "
+            "policy never saw, not a seed it was fit to"
+        )
 
 
 def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
@@ -379,12 +459,20 @@ def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
         if bad.size:
             bad = bad[np.argsort(indices_av[bad], kind="stable")]  # the first scenario, then the lowest AV
         if bad.size and (first is None or indices_av[bad[0]] < first[0]):
-            first = (int(indices_av[bad[0]]), key, want[bad[0]].item(), have[bad[0]].item(), int(bad[0]) // indices.size)
+            first = (
+                int(indices_av[bad[0]]),
+                key,
+                want[bad[0]].item(),
+                have[bad[0]].item(),
+                int(bad[0]) // indices.size,
+            )
     if first is not None:
         i, key, want, have, av = first
         where = f"scenario {i}" + (f", AV {av}" if e > 1 else "")
-        raise UserError(f"{row.rel}: {where}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
-                        "(results edited by hand, or not produced by this policy)")
+        raise UserError(
+            f"{row.rel}: {where}: {key}: recorded {_show(want)}, the re-run gives {_show(have)} "
+            "(results edited by hand, or not produced by this policy)"
+        )
 
 
 def _show(v: Any) -> str:

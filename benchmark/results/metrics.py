@@ -75,15 +75,18 @@ def bootstrap_mean(x: np.ndarray, seed: Any, samples: int = BOOTSTRAP_SAMPLES) -
         return math.nan, math.nan
     rng = np.random.default_rng(seed)
     rows = max(1, _BLOCK // m)
-    means = np.concatenate([x[rng.integers(0, m, size=(min(rows, samples - b), m))].mean(axis=1)
-                            for b in range(0, samples, rows)])
+    means = np.concatenate(
+        [x[rng.integers(0, m, size=(min(rows, samples - b), m))].mean(axis=1) for b in range(0, samples, rows)]
+    )
     lo, hi = np.percentile(means, [2.5, 97.5])
     return float(lo), float(hi)
 
 
 def _rate(mask: np.ndarray, within: np.ndarray | None = None) -> dict[str, Any]:
-    k, n = int(np.count_nonzero(mask if within is None else mask & within)), int(
-        mask.shape[0] if within is None else np.count_nonzero(within))
+    k, n = (
+        int(np.count_nonzero(mask if within is None else mask & within)),
+        int(mask.shape[0] if within is None else np.count_nonzero(within)),
+    )
     lo, hi = wilson(k, n)
     return {"value": k / n if n else None, "lo": _num(lo), "hi": _num(hi), "k": k, "n": n}
 
@@ -166,8 +169,12 @@ def format_metric(m: dict[str, Any] | None, kind: str, unit: str) -> str:
     return f"{value} {unit} [{m['lo']:.2f}, {m['hi']:.2f}]".replace("  ", " ")
 
 
-def render_table(columns: list[tuple[str, dict[str, Any]]], paired: dict[str, Any] | None = None,
-                 markdown: bool = False, table: list[tuple[str, str, str, str]] | None = None) -> str:
+def render_table(
+    columns: list[tuple[str, dict[str, Any]]],
+    paired: dict[str, Any] | None = None,
+    markdown: bool = False,
+    table: list[tuple[str, str, str, str]] | None = None,
+) -> str:
     """Table I: one row per metric, one column per (header, summary). ``paired`` fills the
     "crash in the same scenarios" row (it exists only for two results). ``table``: other rows
     (multi_metrics.MULTI_TABLE) than :data:`TABLE`."""
@@ -185,5 +192,5 @@ def render_table(columns: list[tuple[str, dict[str, Any]]], paired: dict[str, An
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
         return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows]) + "\n"
     widths = [max(len(r[i]) for r in [headers, *rows]) for i in range(len(headers))]
-    fmt = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip()  # noqa: E731
+    fmt = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()  # noqa: E731
     return "\n".join([fmt(headers), fmt(["-" * w for w in widths]), *map(fmt, rows)]) + "\n"

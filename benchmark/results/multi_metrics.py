@@ -25,9 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
-
 from overtakezoo.benchmark.results.metrics import TABLE, _mean, _rate, summarize
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 
 # Rows added to Table I for multi-AV results (after the single-ego rows).
 MULTI_TABLE = TABLE + [
@@ -64,8 +63,7 @@ def yielded(per: dict[str, np.ndarray], num_avs: int) -> np.ndarray:
 def _agent_rows(per: dict[str, np.ndarray], gave_way: np.ndarray, seed: int) -> dict[str, Any]:
     """Table I of a set of AV episodes, with the multi-AV rows."""
     crash = per["outcome"] == CRASH
-    return {**summarize(per, seed), "crash_share_av": _rate(per["crash_av"] >= 0, crash),
-            "yielded": _rate(gave_way)}
+    return {**summarize(per, seed), "crash_share_av": _rate(per["crash_av"] >= 0, crash), "yielded": _rate(gave_way)}
 
 
 def summarize_multi(per: dict[str, np.ndarray], seed: int, num_avs: int) -> dict[str, Any]:

@@ -23,14 +23,18 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import SIM_VERSION, safe_json
-
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs.io import atomic_write_text
 from overtakezoo.benchmark.results.metrics import summarize
-from overtakezoo.benchmark.results.schema import (PER_SCENARIO, SAFETY_PER_SCENARIO, SCHEMA_ID,
-                                                 per_scenario_keys, stored_keys, validate)
-
+from overtakezoo.benchmark.results.schema import (
+    PER_SCENARIO,
+    SAFETY_PER_SCENARIO,
+    SCHEMA_ID,
+    per_scenario_keys,
+    stored_keys,
+    validate,
+)
+from overtakezoo.envs import SIM_VERSION, safe_json
+from overtakezoo.envs.io import atomic_write_text
 
 _OPTIONAL = ("sim_version", "submission", "num_avs")  # absent from older files / until submitted / single-ego
 
@@ -66,8 +70,14 @@ def package_version() -> str:
 @functools.cache
 def git_commit() -> str | None:
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                             text=True, timeout=5, check=True)
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     commit = out.stdout.strip()
@@ -100,16 +110,29 @@ class Results:
 
     # ------------------------------------------------------------ building
     @classmethod
-    def create(cls, suite: Any, decider: Any, per: dict[str, np.ndarray], *, start: int, stop: int,
-               shard: tuple[int, int] | None, timing: dict[str, Any], num_avs: int = 1) -> "Results":
+    def create(
+        cls,
+        suite: Any,
+        decider: Any,
+        per: dict[str, np.ndarray],
+        *,
+        start: int,
+        stop: int,
+        shard: tuple[int, int] | None,
+        timing: dict[str, Any],
+        num_avs: int = 1,
+    ) -> Results:
         meta = {
             "suite": {"name": suite.name, "version": suite.version, "hash": suite.hash, "count": suite.count},
             "config_sha256": config_sha256(suite.config),
-            "decider": {"name": str(decider.name), "version": str(decider.version),
-                        "weights_sha256": getattr(decider, "weights_sha256", None),
-                        "privileged": bool(getattr(decider, "privileged", False)),
-                        # What a --policy was (kind, file, sha256); zoo members by name have none.
-                        **({"policy": decider.policy} if getattr(decider, "policy", None) else {})},
+            "decider": {
+                "name": str(decider.name),
+                "version": str(decider.version),
+                "weights_sha256": getattr(decider, "weights_sha256", None),
+                "privileged": bool(getattr(decider, "privileged", False)),
+                # What a --policy was (kind, file, sha256); zoo members by name have none.
+                **({"policy": decider.policy} if getattr(decider, "policy", None) else {}),
+            },
             "package": {"name": "overtakezoo", "version": package_version()},
             "git_commit": git_commit(),
             "seed": suite.seed,
@@ -152,9 +175,13 @@ class Results:
     # ------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
         meta = {k: v for k, v in self.meta.items() if v is not None or k not in _OPTIONAL}
-        return {"schema": SCHEMA_ID, **meta,
-                "scenarios": {k: _to_list(v) for k, v in self.per.items()},
-                "summary": self.summary, "timing": self.timing}
+        return {
+            "schema": SCHEMA_ID,
+            **meta,
+            "scenarios": {k: _to_list(v) for k, v in self.per.items()},
+            "summary": self.summary,
+            "timing": self.timing,
+        }
 
     def to_json(self) -> str:
         """Indented JSON with each per-scenario array on one line (compact, still diffable)."""
@@ -174,7 +201,7 @@ class Results:
         return atomic_write_text(path, self.to_json())
 
     @classmethod
-    def load(cls, path: str | Path) -> "Results":
+    def load(cls, path: str | Path) -> Results:
         path = Path(path)
         try:
             data = safe_json.read_bounded(path)
@@ -183,7 +210,7 @@ class Results:
         return cls.from_json(data, str(path))
 
     @classmethod
-    def from_json(cls, data: bytes | str, where: str = "results") -> "Results":
+    def from_json(cls, data: bytes | str, where: str = "results") -> Results:
         try:
             doc = safe_json.loads(data, where, parse_constant=_reject_constant)  # bounded size and depth
         except safe_json.JSONInputError as exc:
@@ -191,8 +218,9 @@ class Results:
         except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
             raise UserError(f"{where}: not a valid JSON document: {str(exc).splitlines()[0][:200]}") from None
         validate(doc, where)
-        meta = {k: doc[k] for k in ("suite", "config_sha256", "decider", "package", "git_commit", "seed",
-                                    "shard", "range")}
+        meta = {
+            k: doc[k] for k in ("suite", "config_sha256", "decider", "package", "git_commit", "seed", "shard", "range")
+        }
         meta.update({k: doc.get(k) for k in _OPTIONAL})
         start, stop = meta["range"]
         if not 0 <= start < stop <= meta["suite"]["count"]:
@@ -200,20 +228,27 @@ class Results:
         shard = meta["shard"]
         if shard is not None:
             from overtakezoo.envs.suites import shard_bounds
-            if not 0 <= shard[0] < shard[1] <= meta["suite"]["count"] or \
-                    list(shard_bounds(meta["suite"]["count"], tuple(shard))) != [start, stop]:
+
+            if not 0 <= shard[0] < shard[1] <= meta["suite"]["count"] or list(
+                shard_bounds(meta["suite"]["count"], tuple(shard))
+            ) != [start, stop]:
                 raise UserError(f"{where}: shard: {shard} does not match range {meta['range']}")
         per = {}
         num_avs = int(meta.get("num_avs") or 1)
         for key, (dtype, null) in stored_keys(doc["scenarios"], num_avs).items():
             values = doc["scenarios"].get(key)
             if values is None:
-                why = "a file with any safety array needs all" if key in SAFETY_PER_SCENARIO else \
-                    f"a file with num_avs {num_avs} needs it"
+                why = (
+                    "a file with any safety array needs all"
+                    if key in SAFETY_PER_SCENARIO
+                    else f"a file with num_avs {num_avs} needs it"
+                )
                 raise UserError(f"{where}: scenarios.{key}: missing ({why})")
             if len(values) != (stop - start) * num_avs:
-                raise UserError(f"{where}: scenarios.{key}: expected {(stop - start) * num_avs} values "
-                                f"({num_avs} per scenario), got {len(values)}")
+                raise UserError(
+                    f"{where}: scenarios.{key}: expected {(stop - start) * num_avs} values "
+                    f"({num_avs} per scenario), got {len(values)}"
+                )
             if dtype is np.float64:
                 per[key] = np.array([null if v is None else v for v in values], dtype=np.float64)
             else:
@@ -249,13 +284,19 @@ def merge(parts: list[Results]) -> Results:
         raise UserError(f"merge: range: shards cover {edge} of {first.suite['count']} scenarios")
     e = first.num_avs  # AV-major: join each AV's part of every shard
     # (the safety arrays only when every shard has them)
-    keys = stored_keys(first.per, e) if all(any(k in p.per for k in SAFETY_PER_SCENARIO) for p in parts) \
+    keys = (
+        stored_keys(first.per, e)
+        if all(any(k in p.per for k in SAFETY_PER_SCENARIO) for p in parts)
         else per_scenario_keys(e)
+    )
     per = {k: np.concatenate([p.per[k].reshape(e, -1) for p in parts], axis=1).reshape(-1) for k in keys}
     meta = {**first.meta, "shard": None, "range": [0, edge], "submission": None}
-    timing = {"wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
-              "started": min(str(p.timing.get("started", "")) for p in parts),
-              "steps": sum(int(p.timing.get("steps", 0)) for p in parts), "shards": len(parts)}
+    timing = {
+        "wall_time_s": round(sum(p.timing.get("wall_time_s", 0.0) for p in parts), 3),
+        "started": min(str(p.timing.get("started", "")) for p in parts),
+        "steps": sum(int(p.timing.get("steps", 0)) for p in parts),
+        "shards": len(parts),
+    }
     return Results(meta, per, summary_of(per, meta["seed"], e), timing)
 
 

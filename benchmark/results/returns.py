@@ -10,13 +10,13 @@ the way the task does::
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.config import RewardConfig
-
 from overtakezoo.benchmark.run.runner import run_suite
+from overtakezoo.envs.config import RewardConfig
 from overtakezoo.envs.suites import Suite, load_suite
 
 DECIDERS = ("rule-fsm", "always-follow", "always-overtake", "dqn")
@@ -38,8 +38,9 @@ class _ReturnRecorder:
         self.parts.append(np.asarray(core.episode_return, float).copy())
 
 
-def episode_returns(suite: Suite | str, decider: Any, reward: RewardConfig | dict[str, Any] | None = None,
-                    limit: int | None = None) -> np.ndarray:
+def episode_returns(
+    suite: Suite | str, decider: Any, reward: RewardConfig | dict[str, Any] | None = None, limit: int | None = None
+) -> np.ndarray:
     """Per-scenario returns of ``decider`` (a zoo name or a decider) on ``suite``; ``reward``
     replaces the suite's reward (a ``RewardConfig`` or a dict of its keys)."""
     suite = load_suite(suite) if isinstance(suite, str) else suite
@@ -56,8 +57,12 @@ def episode_returns(suite: Suite | str, decider: Any, reward: RewardConfig | dic
     return np.concatenate(rec.parts)
 
 
-def mean_returns(suite: Suite | str = "table1-train", deciders: Iterable[Any] = DECIDERS,
-                 reward: RewardConfig | dict[str, Any] | None = None, limit: int | None = None) -> dict[str, float]:
+def mean_returns(
+    suite: Suite | str = "table1-train",
+    deciders: Iterable[Any] = DECIDERS,
+    reward: RewardConfig | dict[str, Any] | None = None,
+    limit: int | None = None,
+) -> dict[str, float]:
     """Mean episode return of each decider on ``suite`` (default: table1-train, the training set)."""
     suite = load_suite(suite) if isinstance(suite, str) else suite
     return {getattr(d, "name", d): float(np.mean(episode_returns(suite, d, reward, limit))) for d in deciders}

@@ -4,10 +4,9 @@ problem as one line naming the key, and the per-scenario arrays checked item by 
 
 from __future__ import annotations
 
-import math
-
 import functools
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -16,15 +15,21 @@ import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
 
-
 # Per-scenario arrays: name -> (dtype, value a JSON null stands for).
 PER_SCENARIO: dict[str, tuple[type, float | None]] = {
-    "outcome": (np.int8, None), "crash_npc": (np.int64, None), "crash_lane": (np.int64, None),
-    "completion_time": (np.float64, math.nan), "episode_time": (np.float64, math.nan),
-    "aborts": (np.int64, None), "switches": (np.int64, None), "opposite_time": (np.float64, math.nan),
+    "outcome": (np.int8, None),
+    "crash_npc": (np.int64, None),
+    "crash_lane": (np.int64, None),
+    "completion_time": (np.float64, math.nan),
+    "episode_time": (np.float64, math.nan),
+    "aborts": (np.int64, None),
+    "switches": (np.int64, None),
+    "opposite_time": (np.float64, math.nan),
     "min_ttc": (np.float64, math.inf),  # inf: never on a collision course
-    "peak_lat_accel": (np.float64, math.nan), "peak_jerk": (np.float64, math.nan),
-    "npc1_speed": (np.float64, math.nan), "npc2_speed": (np.float64, math.nan),
+    "peak_lat_accel": (np.float64, math.nan),
+    "peak_jerk": (np.float64, math.nan),
+    "npc1_speed": (np.float64, math.nan),
+    "npc2_speed": (np.float64, math.nan),
 }
 
 
@@ -36,10 +41,14 @@ MULTI_PER_SCENARIO: dict[str, tuple[type, float | None]] = {"crash_av": (np.int6
 # they existed, e.g. the shipped leaderboard rows, have none and still load; verify compares what a row has).
 # -1 in the int arrays: not applicable (no merge back / never unsafe).
 SAFETY_PER_SCENARIO: dict[str, tuple[type, float | None]] = {
-    "rss_violation_share": (np.float64, math.nan), "rss_first_violation": (np.float64, math.nan),
-    "rss_worst_margin": (np.float64, math.nan), "rss_merge_violation": (np.int8, None),
+    "rss_violation_share": (np.float64, math.nan),
+    "rss_first_violation": (np.float64, math.nan),
+    "rss_worst_margin": (np.float64, math.nan),
+    "rss_merge_violation": (np.int8, None),
     "min_headon_ttc": (np.float64, math.inf),  # inf: never closing head-on in the opposite lane
-    "cutin_pet": (np.float64, math.nan), "abort_delay": (np.float64, math.nan), "late_abort": (np.int8, None),
+    "cutin_pet": (np.float64, math.nan),
+    "abort_delay": (np.float64, math.nan),
+    "late_abort": (np.int8, None),
     "ponr_margin": (np.float64, math.nan),
 }
 

@@ -42,17 +42,19 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.envs import safe_json
 from overtakezoo.benchmark.memory_cap import memory_cap, out_of_memory
+from overtakezoo.envs import safe_json
 
 NUM_MODES = 3
 SB3_ALGOS = {"dqn": "q-network", "ppo": "policy", "a2c": "policy"}
 _SB3_DEFAULT_ACTIVATION = {"dqn": "relu", "ppo": "tanh", "a2c": "tanh"}
 _ACTIVATIONS = {"ReLU": "relu", "Tanh": "tanh", "ELU": "elu"}
-# An ONNX policy's external data, inlined and stored: this benchmark's networks are KB to a few MB; 256 MiB bounds memory.
+# An ONNX policy's external data, inlined and stored: this benchmark's networks are KB to a few MB;
+# 256 MiB bounds memory.
 MAX_ONNX_EXTERNAL_BYTES = 256 << 20
 # What a Stable-Baselines3 .zip's members may inflate to (the declared size checked, then enforced while reading).
-# policy.pth: an MlpPolicy's float32 weights are ~25 KB at SB3's [64, 64], ~4.5 MB at [1024, 1024]; 64 MiB bounds memory.
+# policy.pth: an MlpPolicy's float32 weights are ~25 KB at SB3's [64, 64], ~4.5 MB at [1024, 1024];
+# 64 MiB bounds memory.
 MAX_SB3_STATE_BYTES = 64 << 20
 # data: SB3's JSON of hyperparameters with base64 cloudpickles, tens of KB; 16 MiB is far beyond any real one.
 MAX_SB3_DATA_BYTES = 16 << 20
@@ -109,9 +111,11 @@ def _read_policy_file(path: Path, data: bytes, config: Any) -> Artifact:
     beside = card_file(path)
     if path.suffix == ".onnx" or _looks_onnx(data):
         if beside.is_file():
-            raise UserError(f"policy {path}: the policy card of an ONNX file travels inside it, not beside it "
-                            f"({beside.name}): run `overtakezoo card {path} --action-repeat N` (and remove "
-                            f"{beside.name})")
+            raise UserError(
+                f"policy {path}: the policy card of an ONNX file travels inside it, not beside it "
+                f"({beside.name}): run `overtakezoo card {path} --action-repeat N` (and remove "
+                f"{beside.name})"
+            )
         need("onnxruntime", "onnx", path)
         model = self_contained_onnx(path, data)  # its sha256 covers the external data too
         art = Artifact("onnx", model, None, "onnx", hashlib.sha256(model).hexdigest())
@@ -127,10 +131,15 @@ def _read_policy_file(path: Path, data: bytes, config: Any) -> Artifact:
         if any(n.endswith("/constants.pkl") or "/code/" in n for n in names):
             need("torch", "train", path)
             return Artifact("torchscript", data, None, "torchscript", sha, policy_card=card)
-    hint = (f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
-            "`overtakezoo train` writes)" if path.suffix in (".pt", ".pth", ".npz") else "")
-    raise UserError(f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a "
-                    f"model card{hint}")
+    hint = (
+        f" (a plain state_dict needs its model card {path.with_suffix('.json').name} beside it, as "
+        "`overtakezoo train` writes)"
+        if path.suffix in (".pt", ".pth", ".npz")
+        else ""
+    )
+    raise UserError(
+        f"policy {path}: not a TorchScript, ONNX or Stable-Baselines3 file, nor weights with a model card{hint}"
+    )
 
 
 def need(module: str, extra: str, path: Path) -> None:
@@ -169,15 +178,19 @@ def _trained(weights: Path, data: bytes, card_path: Path, sha: str) -> Artifact:
             raise UserError(f"policy {weights}: model card {card_path.name} is not one `overtakezoo train` writes")
         if weights.suffix == ".npz":
             if card.get("weights_sha256") != sha:
-                raise WeightsError(f"{weights.name}: weights sha256 {sha[:12]}... does not match the model card's "
-                                   f"{str(card.get('weights_sha256'))[:12]}... (file truncated or modified)")
+                raise WeightsError(
+                    f"{weights.name}: weights sha256 {sha[:12]}... does not match the model card's "
+                    f"{str(card.get('weights_sha256'))[:12]}... (file truncated or modified)"
+                )
             return Artifact("mlp", data, card, policy_kind(card), sha)
         # The torch file of a training run, converted as `overtakezoo export` does (weights_only load).
         from overtakezoo.zoo.train.export import convert, trained_sha256
 
         if trained_sha256(card) != sha:
-            raise WeightsError(f"{weights.name}: weights sha256 {sha[:12]}... does not match the model card's "
-                               f"{str(trained_sha256(card))[:12]}... (file truncated or modified)")
+            raise WeightsError(
+                f"{weights.name}: weights sha256 {sha[:12]}... does not match the model card's "
+                f"{str(trained_sha256(card))[:12]}... (file truncated or modified)"
+            )
         out, npz, _ = convert(card, data, str(card.get("name", weights.stem)), f"weights {weights.name}")
         assert out["weights_sha256"] == sha256_bytes(npz)
         return Artifact("mlp", npz, out, policy_kind(out), sha)
@@ -208,18 +221,23 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
     if algo == "common" and "ActorCriticPolicy.__init__" in json.dumps(meta.get("policy_class", {})):
         algo = "ppo" if "clip_range" in meta else "a2c"  # SB3 >= 2.x: PPO and A2C share common's ActorCriticPolicy
     if algo not in SB3_ALGOS:
-        raise UserError(f"policy {path}: a Stable-Baselines3 {algo or 'policy of unknown algorithm'}: only "
-                        f"{', '.join(a.upper() for a in SB3_ALGOS)} with MlpPolicy are read")
+        raise UserError(
+            f"policy {path}: a Stable-Baselines3 {algo or 'policy of unknown algorithm'}: only "
+            f"{', '.join(a.upper() for a in SB3_ALGOS)} with MlpPolicy are read"
+        )
     kwargs = meta.get("policy_kwargs") or {}
     kwargs = kwargs if isinstance(kwargs, dict) else {}
     act_name = re.search(r"activation\.(\w+)'", str(kwargs.get("activation_fn", "")))
     activation = _ACTIVATIONS.get(act_name.group(1)) if act_name else _SB3_DEFAULT_ACTIVATION[algo]
     if activation is None:
-        raise UserError(f"policy {path}: activation {kwargs.get('activation_fn')}: only "
-                        f"{', '.join(_ACTIVATIONS)} are read")
+        raise UserError(
+            f"policy {path}: activation {kwargs.get('activation_fn')}: only {', '.join(_ACTIVATIONS)} are read"
+        )
     if "features_extractor_class" in kwargs and "FlattenExtractor" not in str(kwargs["features_extractor_class"]):
-        raise UserError(f"policy {path}: a custom features extractor ({kwargs['features_extractor_class']}) "
-                        "cannot be read as data; export the policy to ONNX instead")
+        raise UserError(
+            f"policy {path}: a custom features extractor ({kwargs['features_extractor_class']}) "
+            "cannot be read as data; export the policy to ONNX instead"
+        )
     from overtakezoo.zoo.train.export import linear_layers
 
     state = _torch_state(path, state_bytes, "policy.pth")
@@ -227,13 +245,15 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
         if algo == "dqn":
             layers = linear_layers(state, "q_net.q_net.")
         else:
-            layers = linear_layers(state, "mlp_extractor.policy_net.") + [(state["action_net.weight"],
-                                                                           state["action_net.bias"])]
+            layers = linear_layers(state, "mlp_extractor.policy_net.") + [
+                (state["action_net.weight"], state["action_net.bias"])
+            ]
     except KeyError:
         layers = []
     if not layers:
-        raise UserError(f"policy {path}: policy.pth lacks the {'q_net' if algo == 'dqn' else 'policy'} layers of an "
-                        "MlpPolicy")
+        raise UserError(
+            f"policy {path}: policy.pth lacks the {'q_net' if algo == 'dqn' else 'policy'} layers of an MlpPolicy"
+        )
     try:
         net = NumpyMLP(tuple((w.double().numpy(), b.double().numpy()) for w, b in layers), activation)
     except (ValueError, AttributeError, TypeError, RuntimeError) as exc:
@@ -241,12 +261,23 @@ def sb3_to_mlp(path: Path, data: bytes, sha: str, policy_card: dict[str, Any] | 
     if net.out_features != NUM_MODES:
         raise UserError(f"policy {path}: gives {net.out_features} actions, expected Discrete({NUM_MODES})")
     npz = npz_bytes(net.arrays())
-    card = {"name": f"sb3-{algo}", "version": "1", "action_repeat": 1, "action_mask": False,
-            "architecture": {"obs_dim": net.in_features, "num_actions": NUM_MODES, "activation": activation,
-                             "dueling": False, "kind": SB3_ALGOS[algo],
-                             "layers": [list(w.shape) for w, _ in net.layers]},
-            "converted_from": {"format": "stable-baselines3", "algorithm": algo.upper(), "sha256": sha},
-            "weights_file": "weights.npz", "weights_sha256": hashlib.sha256(npz).hexdigest()}
+    card = {
+        "name": f"sb3-{algo}",
+        "version": "1",
+        "action_repeat": 1,
+        "action_mask": False,
+        "architecture": {
+            "obs_dim": net.in_features,
+            "num_actions": NUM_MODES,
+            "activation": activation,
+            "dueling": False,
+            "kind": SB3_ALGOS[algo],
+            "layers": [list(w.shape) for w, _ in net.layers],
+        },
+        "converted_from": {"format": "stable-baselines3", "algorithm": algo.upper(), "sha256": sha},
+        "weights_file": "weights.npz",
+        "weights_sha256": hashlib.sha256(npz).hexdigest(),
+    }
     if policy_card is not None:  # (without one, the card is what it always was: stored rows stay identical)
         card["action_repeat"] = policy_card["action_repeat"]
         card["policy_card"] = policy_card
@@ -259,8 +290,10 @@ def zip_member(z: zipfile.ZipFile, name: str, cap: int, who: str) -> bytes:
     the cap) is refused after ``cap`` + 1 bytes, never inflated whole."""
     info = z.getinfo(name)
     if info.file_size > cap:
-        raise UserError(f"{who}: {name} declares {info.file_size} bytes uncompressed, at most {cap} are read "
-                        "(a zip bomb, or not a policy this reads)")
+        raise UserError(
+            f"{who}: {name} declares {info.file_size} bytes uncompressed, at most {cap} are read "
+            "(a zip bomb, or not a policy this reads)"
+        )
     with z.open(info) as f:
         out = f.read(min(info.file_size, cap) + 1)
     if len(out) > min(info.file_size, cap):
@@ -281,11 +314,15 @@ def _torch_file_bounded(path: Path, data: bytes, what: str) -> None:
         raise UserError(f"policy {path}: {what} is not a readable torch file ({exc})") from None
     packed = next((i for i in infos if i.compress_type != zipfile.ZIP_STORED), None)
     if packed is not None:
-        raise UserError(f"policy {path}: {what}: record {packed.filename} is compressed (torch.save stores records "
-                        "as they are): not a torch.save file")
+        raise UserError(
+            f"policy {path}: {what}: record {packed.filename} is compressed (torch.save stores records "
+            "as they are): not a torch.save file"
+        )
     if sum(i.file_size for i in infos) > MAX_SB3_STATE_BYTES:
-        raise UserError(f"policy {path}: {what}: records of {sum(i.file_size for i in infos)} bytes, at most "
-                        f"{MAX_SB3_STATE_BYTES} are read")
+        raise UserError(
+            f"policy {path}: {what}: records of {sum(i.file_size for i in infos)} bytes, at most "
+            f"{MAX_SB3_STATE_BYTES} are read"
+        )
 
 
 def _torch_why(exc: BaseException) -> str:
@@ -295,8 +332,9 @@ def _torch_why(exc: BaseException) -> str:
     unpickler = next((ln for ln in lines if ln.startswith("WeightsUnpickler error:")), None)
     if unpickler is not None:
         return unpickler[:200]
-    plain = [ln for ln in lines if "weights_only" not in ln and "still be loaded" not in ln
-             and "trust the source" not in ln]
+    plain = [
+        ln for ln in lines if "weights_only" not in ln and "still be loaded" not in ln and "trust the source" not in ln
+    ]
     return (plain or [type(exc).__name__])[0][:200]
 
 
@@ -336,10 +374,14 @@ def _check_policy_file(path: Path, data: bytes) -> None:
             doc = json.loads(data)
         except (ValueError, RecursionError):
             doc = None
-    if isinstance(doc, dict) and (str(doc.get("schema", "")).startswith("overtakezoo-results/")
-                                  or {"scenarios", "summary", "decider"} <= doc.keys()):
-        raise UserError(f"card {path}: a results file (of `overtakezoo eval`), not a policy file: give the policy "
-                        "file you trained (Stable-Baselines3 .zip, TorchScript .pt, .onnx)")
+    if isinstance(doc, dict) and (
+        str(doc.get("schema", "")).startswith("overtakezoo-results/")
+        or {"scenarios", "summary", "decider"} <= doc.keys()
+    ):
+        raise UserError(
+            f"card {path}: a results file (of `overtakezoo eval`), not a policy file: give the policy "
+            "file you trained (Stable-Baselines3 .zip, TorchScript .pt, .onnx)"
+        )
     what = "a JSON file" if isinstance(doc, (dict, list)) else "not a policy file"
     raise UserError(f"card {path}: {what}: expected a Stable-Baselines3 .zip, a TorchScript file or an ONNX model")
 
@@ -365,8 +407,10 @@ def self_contained_onnx(path: Path, data: bytes) -> bytes:
         raise UserError(f"policy {path}: not a readable ONNX model ({type(exc).__name__})") from None
     unused = _unused_initializers(model)
     if unused:
-        raise UserError(f"policy {path}: initializer {unused[0]!r} is used by no node ({len(unused)} unused): a "
-                        "policy file carries only the weights its graph computes with; export it again")
+        raise UserError(
+            f"policy {path}: initializer {unused[0]!r} is used by no node ({len(unused)} unused): a "
+            "policy file carries only the weights its graph computes with; export it again"
+        )
     tensors = [t for t in _all_tensors(model) if uses_external_data(t)]
     if not tensors:
         return data
@@ -376,13 +420,15 @@ def self_contained_onnx(path: Path, data: bytes) -> bytes:
         info = {e.key: e.value for e in t.external_data}
         loc = PurePosixPath(info.get("location", ""))
         if not loc.parts or loc.is_absolute() or ".." in loc.parts:
-            raise UserError(f"policy {path}: external data {str(loc)!r} of tensor {t.name!r} is not a file beside "
-                            "the model")
+            raise UserError(
+                f"policy {path}: external data {str(loc)!r} of tensor {t.name!r} is not a file beside the model"
+            )
         try:
             offset, length = int(info.get("offset") or 0), int(info["length"]) if info.get("length") else -1
         except ValueError:
-            raise UserError(f"policy {path}: external data of tensor {t.name!r}: offset/length are not integers") \
-                from None
+            raise UserError(
+                f"policy {path}: external data of tensor {t.name!r}: offset/length are not integers"
+            ) from None
         chunk = _external_bytes(path, base, loc, t.name, offset, length, MAX_ONNX_EXTERNAL_BYTES - total)
         total += len(chunk)
         t.raw_data = chunk
@@ -391,17 +437,20 @@ def self_contained_onnx(path: Path, data: bytes) -> bytes:
     return model.SerializeToString()
 
 
-def _external_bytes(path: Path, base: Path, loc: PurePosixPath, tensor: str, offset: int, length: int,
-                    room: int) -> bytes:
+def _external_bytes(
+    path: Path, base: Path, loc: PurePosixPath, tensor: str, offset: int, length: int, room: int
+) -> bytes:
     """``length`` bytes (-1: to the end) at ``offset`` of the external data file ``loc`` under ``base``:
     a regular file reached from ``base`` without any symlink on the way (each component opened with
     ``O_NOFOLLOW``), inside ``base`` once resolved, and of at most ``room`` bytes; :class:`UserError` otherwise."""
     import os
     import stat
 
-    missing = (f"policy {path}: external data {loc} of tensor {tensor!r} is missing, or not a regular file inside "
-               "the model's folder reached without a symlink; export with torch.onnx.export(..., external_data=False) "
-               "or onnx.save_model(..., save_as_external_data=False)")
+    missing = (
+        f"policy {path}: external data {loc} of tensor {tensor!r} is missing, or not a regular file inside "
+        "the model's folder reached without a symlink; export with torch.onnx.export(..., external_data=False) "
+        "or onnx.save_model(..., save_as_external_data=False)"
+    )
     resolved = base.joinpath(*loc.parts).resolve()
     if base.resolve() not in resolved.parents:
         raise UserError(missing)
@@ -416,11 +465,15 @@ def _external_bytes(path: Path, base: Path, loc: PurePosixPath, tensor: str, off
             raise UserError(missing)
         want = st.st_size - offset if length < 0 else length
         if offset < 0 or want < 0 or offset + want > st.st_size:
-            raise UserError(f"policy {path}: external data {loc} of tensor {tensor!r}: bytes {offset}..{offset + want} "
-                            f"are not inside the file ({st.st_size} bytes)")
+            raise UserError(
+                f"policy {path}: external data {loc} of tensor {tensor!r}: bytes {offset}..{offset + want} "
+                f"are not inside the file ({st.st_size} bytes)"
+            )
         if want > room:
-            raise UserError(f"policy {path}: external data of more than {MAX_ONNX_EXTERNAL_BYTES} bytes in all "
-                            f"(tensor {tensor!r}: {want} bytes): not a policy this reads")
+            raise UserError(
+                f"policy {path}: external data of more than {MAX_ONNX_EXTERNAL_BYTES} bytes in all "
+                f"(tensor {tensor!r}: {want} bytes): not a policy this reads"
+            )
         with os.fdopen(os.dup(fds[-1]), "rb") as f:
             f.seek(offset)
             chunk = f.read(want)
@@ -507,8 +560,9 @@ def parse_card(raw: bytes | str, where: str = "policy card") -> dict[str, Any]:
         raise CardError(f"{where}: {name} is not a JSON number")
 
     if safe_json.depth(raw) > safe_json.MAX_JSON_DEPTH:  # before the decoder recurses into it
-        raise CardError(f"{where}: not JSON (nested {safe_json.depth(raw)} levels deep, at most "
-                        f"{safe_json.MAX_JSON_DEPTH})")
+        raise CardError(
+            f"{where}: not JSON (nested {safe_json.depth(raw)} levels deep, at most {safe_json.MAX_JSON_DEPTH})"
+        )
     try:
         card = json.loads(raw.decode("utf-8"), object_pairs_hook=pairs, parse_constant=constant)
     except CardError:
@@ -518,8 +572,10 @@ def parse_card(raw: bytes | str, where: str = "policy card") -> dict[str, Any]:
         raise CardError(f"{where}: not JSON ({why})") from None
     if not isinstance(card, dict):
         raise CardError(f"{where}: expected a JSON object, got {type(card).__name__}")
-    errors = sorted(jsonschema.Draft202012Validator(_card_schema()).iter_errors(card),
-                    key=lambda e: (list(e.absolute_path), e.message))
+    errors = sorted(
+        jsonschema.Draft202012Validator(_card_schema()).iter_errors(card),
+        key=lambda e: (list(e.absolute_path), e.message),
+    )
     if errors:
         e = errors[0]
         key = ".".join(str(p) for p in e.absolute_path)
@@ -565,8 +621,10 @@ def card_contract(config: Any) -> dict[str, Any]:
     """The observation contract of ``config`` as a card records it."""
     from overtakezoo.envs import observation_layout, observation_size
 
-    return {"observation_size": int(observation_size(config)),
-            "observation_layout": {k: [int(s.start), int(s.stop)] for k, s in observation_layout(config).items()}}
+    return {
+        "observation_size": int(observation_size(config)),
+        "observation_layout": {k: [int(s.start), int(s.stop)] for k, s in observation_layout(config).items()},
+    }
 
 
 def check_card(card: dict[str, Any] | None, config: Any, who: str) -> None:
@@ -577,14 +635,24 @@ def check_card(card: dict[str, Any] | None, config: Any, who: str) -> None:
     size = card.get("observation_size")
     trained = f" (trained on {card['suite']})" if card.get("suite") else ""
     if size is not None and size != now["observation_size"]:
-        raise UserError(f"{who}: its policy card's observation_size is {size}{trained}, this suite's observations "
-                        f"have {now['observation_size']} features (another planner / observation configuration)")
+        raise UserError(
+            f"{who}: its policy card's observation_size is {size}{trained}, this suite's observations "
+            f"have {now['observation_size']} features (another planner / observation configuration)"
+        )
     layout = card.get("observation_layout")
     if layout is not None and layout != now["observation_layout"]:
-        part = next((k for k in [*now["observation_layout"], *sorted(layout)]  # in the observation's order
-                     if layout.get(k) != now["observation_layout"].get(k)), "?")
-        raise UserError(f"{who}: its policy card's observation_layout.{part} is {layout.get(part)}{trained}, this "
-                        f"suite's is {now['observation_layout'].get(part)} (another observation layout)")
+        part = next(
+            (
+                k
+                for k in [*now["observation_layout"], *sorted(layout)]  # in the observation's order
+                if layout.get(k) != now["observation_layout"].get(k)
+            ),
+            "?",
+        )
+        raise UserError(
+            f"{who}: its policy card's observation_layout.{part} is {layout.get(part)}{trained}, this "
+            f"suite's is {now['observation_layout'].get(part)} (another observation layout)"
+        )
 
 
 def onnx_card(model: bytes, path: Path | str) -> dict[str, Any] | None:
@@ -617,13 +685,22 @@ def legacy_repeat(props: dict[str, str], card: dict[str, Any] | None) -> Any:
         return props.get("action_repeat", "1")
     old = props.get("action_repeat")
     if old is not None and str(old).strip() != str(card["action_repeat"]):
-        raise CardError(f"ONNX metadata: action_repeat {old!r} differs from its {CARD_KEY} card's "
-                        f"{card['action_repeat']} (remove one)")
+        raise CardError(
+            f"ONNX metadata: action_repeat {old!r} differs from its {CARD_KEY} card's "
+            f"{card['action_repeat']} (remove one)"
+        )
     return card["action_repeat"]
 
 
-def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *, name: str | None = None,
-               version: str | None = None, observation_size: int | None = None) -> Path:
+def write_card(
+    path: str | Path,
+    action_repeat: int,
+    suite: str | None = None,
+    *,
+    name: str | None = None,
+    version: str | None = None,
+    observation_size: int | None = None,
+) -> Path:
     """Write the policy card of the policy file ``path`` (a Stable-Baselines3 ``.zip``, given with or
     without its suffix as ``model.save`` takes it; a TorchScript file; an ONNX file) and return where it
     went: ``<stem>.card.json`` beside it, or into an ONNX file's metadata (external data untouched).
@@ -641,8 +718,10 @@ def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *
     if not path.is_file():
         raise UserError(f"card {path}: no such policy file")
     if model_card(path) is not None:
-        raise UserError(f"card {path}: weights of `overtakezoo train`: their model card {model_card(path).name} "
-                        "already holds the hold and the observation contract")
+        raise UserError(
+            f"card {path}: weights of `overtakezoo train`: their model card {model_card(path).name} "
+            "already holds the hold and the observation contract"
+        )
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -659,8 +738,9 @@ def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *
         card.update(suite=str(suite), **card_contract(config))
     if observation_size is not None:
         if "observation_size" in card and card["observation_size"] != observation_size:
-            raise UserError(f"card {path}: observation_size {observation_size} is not suite {suite}'s "
-                            f"{card['observation_size']}")
+            raise UserError(
+                f"card {path}: observation_size {observation_size} is not suite {suite}'s {card['observation_size']}"
+            )
         card["observation_size"] = observation_size
     card.update({k: v for k, v in (("name", name), ("version", version)) if v is not None})
     text = json.dumps(card, indent=1, sort_keys=True) + "\n"
@@ -672,7 +752,9 @@ def write_card(path: str | Path, action_repeat: int, suite: str | None = None, *
         try:
             import onnx
         except ImportError:
-            raise UserError(f"card {path}: writing into an ONNX file needs onnx (pip install 'overtakezoo[onnx]')") from None
+            raise UserError(
+                f"card {path}: writing into an ONNX file needs onnx (pip install 'overtakezoo[onnx]')"
+            ) from None
         try:
             model = onnx.load_model_from_string(data)  # external data stays where it is (referenced, not read)
         except Exception as exc:

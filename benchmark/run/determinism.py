@@ -19,7 +19,8 @@ and then fails a later sample, blocking every verification after it. So before a
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +28,12 @@ from overtakezoo.benchmark.errors import UserError
 
 # The random ops of the ONNX standard (onnx.ai/onnx/operators): each draws new values on every call.
 RANDOM_OPS = ("RandomNormal", "RandomNormalLike", "RandomUniform", "RandomUniformLike", "Multinomial", "Bernoulli")
-_RANDOM_WORDS = ("random", "multinomial", "bernoulli", "dropout")  # in an op of another domain (com.microsoft's BiasDropout)
+_RANDOM_WORDS = (
+    "random",
+    "multinomial",
+    "bernoulli",
+    "dropout",
+)  # in an op of another domain (com.microsoft's BiasDropout)
 _STANDARD = ("", "ai.onnx")
 PROBE_SCENARIOS = 16  # the suite's first scenarios whose observations are probed
 PROBE_CHUNK = 3
@@ -44,20 +50,24 @@ def random_ops(model: bytes) -> list[str]:
     opset = next((o.version for o in m.opset_import if o.domain in _STANDARD), 0)
     found: list[str] = []
     bodies: list[tuple[Any, set[str], dict[str, Any]]] = [
-        (m.graph.node, {i.name for i in m.graph.input}, _constants(m.graph.initializer, m.graph.node))]
+        (m.graph.node, {i.name for i in m.graph.input}, _constants(m.graph.initializer, m.graph.node))
+    ]
     bodies += [(f.node, set(f.input), _constants((), f.node)) for f in m.functions]
     while bodies:
         nodes, inputs, consts = bodies.pop(0)
         for node in nodes:
             label = f"{node.op_type} (node {node.name!r})" if node.name else node.op_type
             if node.domain in _STANDARD:
-                if node.op_type in RANDOM_OPS or (node.op_type == "Dropout" and _may_train(node, opset, inputs, consts)):
+                if node.op_type in RANDOM_OPS or (
+                    node.op_type == "Dropout" and _may_train(node, opset, inputs, consts)
+                ):
                     found.append(label)
             elif any(w in node.op_type.lower() for w in _RANDOM_WORDS):
                 found.append(f"{node.domain}.{label}")
             for g in subgraphs(node):  # If / Loop / Scan bodies see the outer graph's names
-                bodies.append((g.node, inputs | {i.name for i in g.input},
-                               {**consts, **_constants(g.initializer, g.node)}))
+                bodies.append(
+                    (g.node, inputs | {i.name for i in g.input}, {**consts, **_constants(g.initializer, g.node)})
+                )
     return found
 
 
@@ -101,15 +111,18 @@ def check_onnx_ops(model: bytes, who: str) -> None:
     try:
         found = random_ops(model)
     except ImportError:
-        raise UserError(f"{who}: checking an ONNX policy for random ops needs onnx "
-                        "(pip install 'overtakezoo[onnx]')") from None
+        raise UserError(
+            f"{who}: checking an ONNX policy for random ops needs onnx (pip install 'overtakezoo[onnx]')"
+        ) from None
     except Exception as exc:  # noqa: BLE001 (a protobuf decode error, of any class)
         line = (str(exc).splitlines() or [type(exc).__name__])[0][:200]
         raise UserError(f"{who}: not a readable ONNX model: {line}") from None
     if found:
         more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
-        raise UserError(f"{who}: the ONNX graph uses the random op {found[0]}{more}: a policy on the leaderboard "
-                        "must decide the same on every run; remove it (export in eval mode, without sampling)")
+        raise UserError(
+            f"{who}: the ONNX graph uses the random op {found[0]}{more}: a policy on the leaderboard "
+            "must decide the same on every run; remove it (export in eval mode, without sampling)"
+        )
 
 
 def probe_observations(suite: Any, k: int = PROBE_SCENARIOS) -> np.ndarray:
@@ -127,8 +140,9 @@ def probe_observations(suite: Any, k: int = PROBE_SCENARIOS) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate(obs), np.float32)
 
 
-def check_deterministic(act: Callable[[np.ndarray], np.ndarray], suite: Any, who: str,
-                        obs: np.ndarray | None = None) -> None:
+def check_deterministic(
+    act: Callable[[np.ndarray], np.ndarray], suite: Any, who: str, obs: np.ndarray | None = None
+) -> None:
     """:class:`UserError` when ``act`` (observations -> modes, the sandboxed policy) decides the
     probe observations differently by batch size, row order or call, or fails on some of those
     calls only (``obs``: :func:`probe_observations` of ``suite``, when already drawn). A policy that
@@ -143,8 +157,10 @@ def check_deterministic(act: Callable[[np.ndarray], np.ndarray], suite: Any, who
     try:
         _compare_calls(act, obs, ref, who)
     except PolicyFailure as exc:
-        raise UserError(f"{who}: not deterministic: decides the observations of the suite's first scenarios all at "
-                        f"once but fails on them in other batches: {exc}") from None
+        raise UserError(
+            f"{who}: not deterministic: decides the observations of the suite's first scenarios all at "
+            f"once but fails on them in other batches: {exc}"
+        ) from None
 
 
 def _compare_calls(act: Callable[[np.ndarray], np.ndarray], obs: np.ndarray, ref: np.ndarray, who: str) -> None:
@@ -152,8 +168,8 @@ def _compare_calls(act: Callable[[np.ndarray], np.ndarray], obs: np.ndarray, ref
     perm = np.random.default_rng(0).permutation(n)  # a fixed shuffle
     inverse = np.argsort(perm)
     tries = [
-        ("in chunks of 3", lambda: np.concatenate([act(obs[i:i + PROBE_CHUNK]) for i in range(0, n, PROBE_CHUNK)])),
-        ("one at a time", lambda: np.concatenate([act(obs[i:i + 1]) for i in range(n)])),
+        ("in chunks of 3", lambda: np.concatenate([act(obs[i : i + PROBE_CHUNK]) for i in range(0, n, PROBE_CHUNK)])),
+        ("one at a time", lambda: np.concatenate([act(obs[i : i + 1]) for i in range(n)])),
         ("in another row order", lambda: np.asarray(act(obs[perm]))[inverse]),
         ("all at once, called again", lambda: np.asarray(act(obs))),
     ]
@@ -162,7 +178,9 @@ def _compare_calls(act: Callable[[np.ndarray], np.ndarray], obs: np.ndarray, ref
         bad = np.flatnonzero(got != ref)
         if bad.size:
             i = int(bad[0])
-            raise UserError(f"{who}: not deterministic: observation {i} of {n} (of the suite's first scenarios) is "
-                            f"decided {int(ref[i])} when all {n} are decided at once and {int(got[i])} {how} "
-                            f"({bad.size} of {n} differ): a policy must decide each observation on its own, the same "
-                            "on every call, or its row fails later verifications (batch statistics, random ops)")
+            raise UserError(
+                f"{who}: not deterministic: observation {i} of {n} (of the suite's first scenarios) is "
+                f"decided {int(ref[i])} when all {n} are decided at once and {int(got[i])} {how} "
+                f"({bad.size} of {n} differ): a policy must decide each observation on its own, the same "
+                "on every call, or its row fails later verifications (batch statistics, random ops)"
+            )

@@ -32,8 +32,9 @@ def _run_shard(suite_bytes: bytes, suite_path: str, decider_name: str, shard: tu
     return run_suite(suite, decider, shard=shard, progress=False).to_json()
 
 
-def run_suite_ray(suite: Suite, decider_name: str, shards: int, address: str | None = None,
-                  num_cpus: int | None = None) -> Results:
+def run_suite_ray(
+    suite: Suite, decider_name: str, shards: int, address: str | None = None, num_cpus: int | None = None
+) -> Results:
     """Run ``suite`` as ``shards`` Ray tasks and merge them. ``address`` None starts a local Ray."""
     try:
         import ray
@@ -44,8 +45,13 @@ def run_suite_ray(suite: Suite, decider_name: str, shards: int, address: str | N
     started_here = not ray.is_initialized()
     if started_here:
         try:
-            ray.init(address=address, num_cpus=num_cpus if address is None else None, include_dashboard=False,
-                     log_to_driver=False, configure_logging=False)
+            ray.init(
+                address=address,
+                num_cpus=num_cpus if address is None else None,
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise UserError(f"cannot reach Ray at {address or 'a local instance'}: {exc}") from None
     try:

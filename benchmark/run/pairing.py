@@ -11,13 +11,13 @@ acts at exactly the steps it would act at alone.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.hold import hold_steps
-
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs.hold import hold_steps
 
 
 class Pairing:
@@ -31,11 +31,14 @@ class Pairing:
             raise UserError("a pairing needs one decider per AV (at least two)")
         for d in by_av:
             if getattr(d, "privileged", False):
-                raise UserError(f"{d.name}: privileged deciders bind the whole core; they cannot share a road "
-                                "in a pairing")
+                raise UserError(
+                    f"{d.name}: privileged deciders bind the whole core; they cannot share a road in a pairing"
+                )
         if len({id(d) for d in by_av}) != len(by_av):
-            raise UserError("a pairing needs its own decider object per AV (deciders keep per-row state): load "
-                            "the same member once per AV")
+            raise UserError(
+                "a pairing needs its own decider object per AV (deciders keep per-row state): load "
+                "the same member once per AV"
+            )
         self.by_av = list(by_av)
         holds = [hold_steps(decision_interval, int(getattr(d, "action_repeat", 1))) for d in self.by_av]
         self.action_repeat = math.gcd(*holds)  # a multiple of decision_interval: the runner holds exactly this
@@ -56,7 +59,7 @@ class Pairing:
         if rows.shape[0] % k:
             raise ValueError(f"{rows.shape[0]} rows are not {k} AVs per road (a pairing needs the core's AV rows)")
         n = rows.shape[0] // k
-        return rows[e * n:(e + 1) * n]
+        return rows[e * n : (e + 1) * n]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)

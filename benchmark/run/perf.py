@@ -25,7 +25,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -153,8 +154,9 @@ def eval_process_runs(suite: str, decider: str, runs: int) -> tuple[list[float],
     """(wall s, user + sys CPU s) of each of ``runs`` ``overtakezoo eval`` processes: the CPU time
     is the figure that a shared, loaded machine disturbs least."""
     with tempfile.TemporaryDirectory() as tmp:
-        done = [_cli(["eval", "--suite", suite, "--decider", decider, "--out", "results.json"], tmp)
-                for _ in range(runs)]
+        done = [
+            _cli(["eval", "--suite", suite, "--decider", decider, "--out", "results.json"], tmp) for _ in range(runs)
+        ]
     return [w for w, _ in done], [c for _, c in done]
 
 
@@ -188,8 +190,22 @@ def replay_gif_times(runs: int) -> list[float]:
     """Wall time of ``overtakezoo replay --episode 29 --out ep.gif`` as a process: episode 29 of
     rule-fsm on table1-reactive's first 30 scenarios, 246 frames."""
     with tempfile.TemporaryDirectory() as tmp:
-        _cli(["eval", "--suite", "table1-reactive", "--decider", "rule-fsm", "--shard", "0/100", "--out", "r.json",
-              "--archive", "run.mcap"], tmp)
+        _cli(
+            [
+                "eval",
+                "--suite",
+                "table1-reactive",
+                "--decider",
+                "rule-fsm",
+                "--shard",
+                "0/100",
+                "--out",
+                "r.json",
+                "--archive",
+                "run.mcap",
+            ],
+            tmp,
+        )
         return [_cli(["replay", "run.mcap", "--episode", "29", "--out", "ep.gif"], tmp)[0] for _ in range(runs)]
 
 
@@ -220,8 +236,14 @@ def machine() -> dict[str, Any]:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return {"host": platform.node(), "cpu": cpu, "cores": os.cpu_count(), "os": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__}
+    return {
+        "host": platform.node(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "os": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
 
 
 def load_average() -> list[float] | None:
@@ -248,10 +270,23 @@ class Report:
         self.rows: list[dict[str, Any]] = []
         self.progress = progress
 
-    def add(self, id: str, what: str, unit: str, values: list[float], sim_s_per_unit: float | None = None,
-            digits: int = 0, **extra: Any) -> dict[str, Any]:
-        row = {"id": id, "what": what, "unit": unit, **spread([round(v, digits) if digits else round(v)
-                                                                for v in values]), **extra}
+    def add(
+        self,
+        id: str,
+        what: str,
+        unit: str,
+        values: list[float],
+        sim_s_per_unit: float | None = None,
+        digits: int = 0,
+        **extra: Any,
+    ) -> dict[str, Any]:
+        row = {
+            "id": id,
+            "what": what,
+            "unit": unit,
+            **spread([round(v, digits) if digits else round(v) for v in values]),
+            **extra,
+        }
         if sim_s_per_unit is not None:
             row["sim_s_per_wall_s"] = round(row["median"] * sim_s_per_unit, 1)
         self.rows.append(row)
@@ -265,18 +300,31 @@ class Report:
         a, b = self.get(ours), self.get(theirs)
         if a and b:
             value = round(a["sim_s_per_wall_s"] / b["sim_s_per_wall_s"], 1)
-            self.rows.append({"id": id, "what": what, "unit": "x (simulated s per wall s)", "median": value,
-                              "of": [ours, theirs]})
+            self.rows.append(
+                {"id": id, "what": what, "unit": "x (simulated s per wall s)", "median": value, "of": [ours, theirs]}
+            )
             self.progress(f"{id:<28} {value}x")
 
 
-def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, eval_runs: int = 5,
-            suites: bool = True, progress: Callable[[str], None] = print, training: bool = True,
-            only_training: bool = False) -> dict[str, Any]:
+def measure(
+    sizes: list[int],
+    seconds: float,
+    repeats: int = 3,
+    batch: int = 8,
+    eval_runs: int = 5,
+    suites: bool = True,
+    progress: Callable[[str], None] = print,
+    training: bool = True,
+    only_training: bool = False,
+) -> dict[str, Any]:
     started = time.perf_counter()
-    meta: dict[str, Any] = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
-                            "load_average_at_start": load_average(), "repeats": repeats,
-                            "seconds_per_window": seconds}
+    meta: dict[str, Any] = {
+        "machine": machine(),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+        "load_average_at_start": load_average(),
+        "repeats": repeats,
+        "seconds_per_window": seconds,
+    }
     r = Report(progress)
     if not only_training:
         _simulation_rows(r, meta, sizes, seconds, repeats, batch, eval_runs, suites, progress)
@@ -289,35 +337,85 @@ def measure(sizes: list[int], seconds: float, repeats: int = 3, batch: int = 8, 
     return {**meta, "figures": r.rows}
 
 
-def _simulation_rows(r: Report, meta: dict[str, Any], sizes: list[int], seconds: float, repeats: int, batch: int,
-                     eval_runs: int, suites: bool, progress: Callable[[str], None]) -> None:
+def _simulation_rows(
+    r: Report,
+    meta: dict[str, Any],
+    sizes: list[int],
+    seconds: float,
+    repeats: int,
+    batch: int,
+    eval_runs: int,
+    suites: bool,
+    progress: Callable[[str], None],
+) -> None:
     """Every row but the training ones: the core, the faces, highway-env, table1 runs, archives."""
     dt = EnvConfig().dt
     for n in sizes:
-        r.add(f"core-{n}", f"batched core, N = {n}, planner included", "env-steps/s",
-              core_rates(n, seconds, repeats), dt, n=n)
-    r.add("pettingzoo-1", "one PettingZoo parallel_env() (one ego, N = 1)", "steps/s",
-          pettingzoo_rates(seconds, repeats), dt, n=1)
-    r.add("gym-1", f"one Gymnasium env of ours, gymnasium.make({OUR_ID!r})", "steps/s",
-          gym_rates(OUR_ID, OVERTAKE, seconds, repeats), dt, n=1)
-    r.add(f"gym-vec-{batch}", f"our gymnasium.make_vec batch, N = {batch} (one process)", "env-steps/s",
-          vec_rates(OUR_ID, batch, None, OVERTAKE, seconds, repeats), dt, n=batch)
+        r.add(
+            f"core-{n}",
+            f"batched core, N = {n}, planner included",
+            "env-steps/s",
+            core_rates(n, seconds, repeats),
+            dt,
+            n=n,
+        )
+    r.add(
+        "pettingzoo-1",
+        "one PettingZoo parallel_env() (one ego, N = 1)",
+        "steps/s",
+        pettingzoo_rates(seconds, repeats),
+        dt,
+        n=1,
+    )
+    r.add(
+        "gym-1",
+        f"one Gymnasium env of ours, gymnasium.make({OUR_ID!r})",
+        "steps/s",
+        gym_rates(OUR_ID, OVERTAKE, seconds, repeats),
+        dt,
+        n=1,
+    )
+    r.add(
+        f"gym-vec-{batch}",
+        f"our gymnasium.make_vec batch, N = {batch} (one process)",
+        "env-steps/s",
+        vec_rates(OUR_ID, batch, None, OVERTAKE, seconds, repeats),
+        dt,
+        n=batch,
+    )
     hw = highway_version()
     meta["highway_env"] = hw
     if hw:
         import gymnasium as gym
 
         per_decision = 1.0 / gym.make(HIGHWAY_ID).unwrapped.config["policy_frequency"]
-        r.add("highway-1", f"one highway-env {hw} {HIGHWAY_ID}, gymnasium.make", "steps/s",
-              gym_rates(HIGHWAY_ID, HIGHWAY_IDLE, seconds, repeats), per_decision, digits=1, n=1)
+        r.add(
+            "highway-1",
+            f"one highway-env {hw} {HIGHWAY_ID}, gymnasium.make",
+            "steps/s",
+            gym_rates(HIGHWAY_ID, HIGHWAY_IDLE, seconds, repeats),
+            per_decision,
+            digits=1,
+            n=1,
+        )
         for mode in ("sync", "async"):
-            r.add(f"highway-vec-{mode}-{batch}", f"highway-env {HIGHWAY_ID} make_vec, N = {batch}, {mode}",
-                  "env-steps/s", vec_rates(HIGHWAY_ID, batch, mode, HIGHWAY_IDLE, seconds, repeats), per_decision,
-                  digits=1, n=batch)
+            r.add(
+                f"highway-vec-{mode}-{batch}",
+                f"highway-env {HIGHWAY_ID} make_vec, N = {batch}, {mode}",
+                "env-steps/s",
+                vec_rates(HIGHWAY_ID, batch, mode, HIGHWAY_IDLE, seconds, repeats),
+                per_decision,
+                digits=1,
+                n=batch,
+            )
         r.ratio("ratio-1", "one env: ours (gym-1) / highway-env (highway-1)", "gym-1", "highway-1")
         for mode in ("sync", "async"):
-            r.ratio(f"ratio-vec-{mode}-{batch}", f"batch of N = {batch}: ours (gym-vec-{batch}) / highway-env "
-                    f"{mode} (highway-vec-{mode}-{batch})", f"gym-vec-{batch}", f"highway-vec-{mode}-{batch}")
+            r.ratio(
+                f"ratio-vec-{mode}-{batch}",
+                f"batch of N = {batch}: ours (gym-vec-{batch}) / highway-env {mode} (highway-vec-{mode}-{batch})",
+                f"gym-vec-{batch}",
+                f"highway-vec-{mode}-{batch}",
+            )
     else:
         progress("highway-env not installed (the [compare] extra): its rows are left out")
     if suites:
@@ -327,28 +425,62 @@ def _simulation_rows(r: Report, meta: dict[str, Any], sizes: list[int], seconds:
             except Exception as exc:  # a member missing from this install is reported, not fatal
                 progress(f"runner-table1-{decider}: not measured: {str(exc).splitlines()[0]}")
                 continue
-            r.add(f"runner-table1-{decider}", f"table1 ({t['scenarios']} scenarios) with {decider}, whole run in "
-                  "the runner (scenarios, decider, simulation; no process start-up)", "s", t["runs"], digits=2)
+            r.add(
+                f"runner-table1-{decider}",
+                f"table1 ({t['scenarios']} scenarios) with {decider}, whole run in "
+                "the runner (scenarios, decider, simulation; no process start-up)",
+                "s",
+                t["runs"],
+                digits=2,
+            )
         try:
             walls, cpus = eval_process_runs("table1", "dqn", eval_runs)
-            r.add("eval-table1-dqn", "`overtakezoo eval --suite table1 --decider dqn` as a process, start to exit "
-                  f"(median of {eval_runs} runs; start-up included; numpy inference, no torch)", "s", walls, digits=2)
+            r.add(
+                "eval-table1-dqn",
+                "`overtakezoo eval --suite table1 --decider dqn` as a process, start to exit "
+                f"(median of {eval_runs} runs; start-up included; numpy inference, no torch)",
+                "s",
+                walls,
+                digits=2,
+            )
             r.add("eval-table1-dqn-cpu", "the same processes' user + sys CPU time", "s", cpus, digits=2)
         except RuntimeError as exc:
             progress(f"eval-table1-dqn: not measured: {exc}")
-        r.add("memory-table1", "peak memory of a table1 run (rule-fsm), per 1000 scenarios", "MiB",
-              [peak_memory_per_1000_scenarios()], digits=2)
+        r.add(
+            "memory-table1",
+            "peak memory of a table1 run (rule-fsm), per 1000 scenarios",
+            "MiB",
+            [peak_memory_per_1000_scenarios()],
+            digits=2,
+        )
         try:
             a = archive_costs()
-            r.add("archive-table1-1000", "MCAP archive of 1000 table1 episodes (rule-fsm, scene at every step)", "MB",
-                  [a["mb"]], digits=1)
-            r.add("archive-cpu-ratio", "CPU time of that run with the archive / without it", "x", [a["cpu_ratio"]],
-                  digits=1)
-            r.add("replay-gif-246", "`overtakezoo replay --episode 29 --out ep.gif` as a process, a 246-frame "
-                  f"episode (median of {repeats} runs; start-up included)", "s", replay_gif_times(repeats), digits=2)
+            r.add(
+                "archive-table1-1000",
+                "MCAP archive of 1000 table1 episodes (rule-fsm, scene at every step)",
+                "MB",
+                [a["mb"]],
+                digits=1,
+            )
+            r.add(
+                "archive-cpu-ratio",
+                "CPU time of that run with the archive / without it",
+                "x",
+                [a["cpu_ratio"]],
+                digits=1,
+            )
+            r.add(
+                "replay-gif-246",
+                "`overtakezoo replay --episode 29 --out ep.gif` as a process, a 246-frame "
+                f"episode (median of {repeats} runs; start-up included)",
+                "s",
+                replay_gif_times(repeats),
+                digits=2,
+            )
         except RuntimeError as exc:
             progress(f"archive and replay rows: not measured: {exc}")
         from overtakezoo.benchmark.failures.perf_rows import add_failure_search_rows  # failure search (issue 23)
+
         add_failure_search_rows(r, progress)
 
 
@@ -358,20 +490,24 @@ def _fmt(x: float) -> str:
 
 def to_markdown(report: dict[str, Any]) -> str:
     m = report["machine"]
-    lines = ["# Performance report", "",
-             f"Written by `overtakezoo perf` on {report['date']}: {m['cpu']}, {m['cores']} cores, {m['os']}, "
-             f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.",
-             f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
-             f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
-             f"windows of {report['seconds_per_window']} s (whole runs for the `runner-`, `eval-`, `train-` and "
-             f"`time-to-` rows) with "
-             f"the range; the report took {report['report_wall_time_s']} s."]
+    lines = [
+        "# Performance report",
+        "",
+        f"Written by `overtakezoo perf` on {report['date']}: {m['cpu']}, {m['cores']} cores, {m['os']}, "
+        f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.",
+        f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
+        f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
+        f"windows of {report['seconds_per_window']} s (whole runs for the `runner-`, `eval-`, `train-` and "
+        f"`time-to-` rows) with "
+        f"the range; the report took {report['report_wall_time_s']} s.",
+    ]
     loads = [x for key in ("load_average_at_start", "load_average_at_end") for x in (report[key] or [])[:1]]
     if loads and max(loads) > m["cores"]:
-        lines.append(f"The machine was busy (load above its {m['cores']} cores): absolute figures are low; "
-                     "ratios of figures measured in this run are the robust part.")
-    lines += ["",
-              "| id | measurement | median | range | simulated s per wall s |", "|---|---|---|---|---|"]
+        lines.append(
+            f"The machine was busy (load above its {m['cores']} cores): absolute figures are low; "
+            "ratios of figures measured in this run are the robust part."
+        )
+    lines += ["", "| id | measurement | median | range | simulated s per wall s |", "|---|---|---|---|---|"]
     for row in report["figures"]:
         if "of" in row:  # a ratio of two rows' medians
             lines.append(f"| `{row['id']}` | {row['what']} | {row['median']}x | | |")

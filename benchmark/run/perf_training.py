@@ -31,8 +31,9 @@ from __future__ import annotations
 import json
 import math
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 SEEDS = (0, 1, 2)
 PAPER_SUCCESS, PAPER_CRASH = 0.922, 0.05
@@ -67,12 +68,17 @@ def _paper_level(out: Path, tmp: str) -> tuple[bool, str, float, float]:
     from overtakezoo.benchmark.run.perf import _cli
 
     results = out / "table1.results.json"
-    wall, cpu = _cli(["eval", "--suite", "table1", "--policy", str(out / "ppo.npz"), "--out", str(results),
-                      "--no-safety"], tmp)
+    wall, cpu = _cli(
+        ["eval", "--suite", "table1", "--policy", str(out / "ppo.npz"), "--out", str(results), "--no-safety"], tmp
+    )
     summary = json.loads(results.read_text())["summary"]
     success, crash = summary["success_rate"]["value"], summary["crash_rate"]["value"]
-    return (success >= PAPER_SUCCESS and crash <= PAPER_CRASH, f"{100 * success:.1f} % / {100 * crash:.1f} %",
-            wall, cpu)
+    return (
+        success >= PAPER_SUCCESS and crash <= PAPER_CRASH,
+        f"{100 * success:.1f} % / {100 * crash:.1f} %",
+        wall,
+        cpu,
+    )
 
 
 def _shown(args: list[str]) -> str:
@@ -88,15 +94,25 @@ def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], re
             wall, cpu, _ = _train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
             runs[row].append((wall, cpu))
     for row, who, args, steps in trainers:
-        report.add(row, f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none{_shown(args)}`, "
-                   f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
-                   f"with the other trainer's runs)", "env-steps/s", [steps * HOLD / cpu for _, cpu in runs[row]])
-        report.add(f"{row}-wall", "the same processes, env-steps per wall second", "env-steps/s",
-                   [steps * HOLD / wall for wall, _ in runs[row]])
+        report.add(
+            row,
+            f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none{_shown(args)}`, "
+            f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
+            f"with the other trainer's runs)",
+            "env-steps/s",
+            [steps * HOLD / cpu for _, cpu in runs[row]],
+        )
+        report.add(
+            f"{row}-wall",
+            "the same processes, env-steps per wall second",
+            "env-steps/s",
+            [steps * HOLD / wall for wall, _ in runs[row]],
+        )
 
 
-def _ladder(ladder: tuple[int, ...], attempt: Callable[[int, int], tuple[bool, float, float, float, str]]
-            ) -> tuple[list[float], list[float], list[float], list[str]]:
+def _ladder(
+    ladder: tuple[int, ...], attempt: Callable[[int, int], tuple[bool, float, float, float, str]]
+) -> tuple[list[float], list[float], list[float], list[str]]:
     """Per seed, the budgets of ``ladder`` in turn until ``attempt(seed, k)`` -> (reached, wall, CPU,
     extra wall, note) gets there: the walls, CPU times and walls plus extra of the first that does
     (``inf`` where none does), and a note per seed."""
@@ -117,24 +133,38 @@ def _ladder(ladder: tuple[int, ...], attempt: Callable[[int, int], tuple[bool, f
     return walls, cpus, totals, reached
 
 
-def _time_to_level(report: Any, row: str, who: str, args: list[str], iteration: int, ladder: tuple[int, ...],
-                   tmp: str, progress: Callable[[str], None]) -> None:
+def _time_to_level(
+    report: Any,
+    row: str,
+    who: str,
+    args: list[str],
+    iteration: int,
+    ladder: tuple[int, ...],
+    tmp: str,
+    progress: Callable[[str], None],
+) -> None:
     def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
-        w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed),
-                            *args], tmp)
+        w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed), *args], tmp)
         ok, summary, ew, _ = _paper_level(out, tmp)
         progress(f"{row}: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; table1 {summary}")
         return ok, w, c, ew, f"{summary}, {w:.2f} s"
 
     walls, cpus, with_eval, reached = _ladder(ladder, attempt)
-    what = (f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
-            f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
-            f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
-            f"policy gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds")
+    what = (
+        f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
+        f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
+        f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
+        f"policy gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds"
+    )
     report.add(row, what + ", wall time of the training process", "s", walls, digits=2)
     report.add(f"{row}-cpu", "the same processes' user + sys CPU time", "s", cpus, digits=2)
-    report.add(f"{row}-with-eval", "the same plus the `overtakezoo eval --suite table1 --policy` process that "
-               "checks it, wall", "s", with_eval, digits=2)
+    report.add(
+        f"{row}-with-eval",
+        "the same plus the `overtakezoo eval --suite table1 --policy` process that checks it, wall",
+        "s",
+        with_eval,
+        digits=2,
+    )
 
 
 def _held_back_score(decider: Any, sets: list) -> float:
@@ -161,23 +191,29 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
     shipped = load_pretrained("ppo", suites[0].config)
     recipe = {k: shipped.model_card[k] for k in DEPLOYED if k in shipped.model_card}
     target = _held_back_score(shipped, sets)
+
     def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
-        w, c, out = _train(["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed),
-                            *ZOO_ARGS], tmp)
+        w, c, out = _train(
+            ["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed), *ZOO_ARGS], tmp
+        )
         card = {**read_card(out / "ppo.json", "ppo"), **recipe}
         got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card), sets)
-        progress(f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
-                 f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})")
+        progress(
+            f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
+            f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})"
+        )
         return got >= target, w, c, 0.0, f"{100 * got:.1f}, {c:.1f} CPU s"
 
     walls, cpus, _, reached = _ladder(ZOO_LADDER, attempt)
-    what = (f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
-            f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
-            f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process "
-            "`overtakezoo train ppo --suite core-train --eval-suite none"
-            f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
-            f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
-            "CPU time of the training process")
+    what = (
+        f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
+        f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
+        f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process "
+        "`overtakezoo train ppo --suite core-train --eval-suite none"
+        f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
+        f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
+        "CPU time of the training process"
+    )
     report.add("time-to-zoo-quality", what, "s", cpus, digits=1)
     report.add("time-to-zoo-quality-wall", "the same processes, wall", "s", walls, digits=1)
 
@@ -185,14 +221,21 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
 def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], None] = print) -> None:
     try:
         import torch  # noqa: F401  (the [train] extra: rsl-rl)
+
         rsl_rl = True
     except ImportError:
         progress("rsl-rl rows: not measured: torch is not installed (pip install -e '.[train]')")
         rsl_rl = False
     fast, rsl = "numpy PPO (zoo/train/fastppo.py)", "rsl-rl PPO (zoo/train/ppo.py, ppo.toml)"
     with tempfile.TemporaryDirectory() as tmp:
-        trainers = [("train-throughput-core-train", fast, [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
-                     FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV)]
+        trainers = [
+            (
+                "train-throughput-core-train",
+                fast,
+                [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
+                FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV,
+            )
+        ]
         if rsl_rl:
             trainers.append(("train-throughput-core-train-rsl-rl", rsl, [], THROUGHPUT_ITERATIONS * RSL_ITERATION))
         _throughput(report, trainers, repeats, tmp)

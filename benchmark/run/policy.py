@@ -43,17 +43,17 @@ import importlib
 import os
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from overtakezoo import zoo
-from overtakezoo.envs import ConfigError, EnvConfig, observation_size, safe_json
-
-from overtakezoo.benchmark.run.artifacts import Artifact, check_card, read_policy_file
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.run.artifacts import Artifact, check_card, read_policy_file
 from overtakezoo.benchmark.run.sandbox import BadAnswer, PolicyFailure, SandboxedPolicy, check_modes
+from overtakezoo.envs import ConfigError, EnvConfig, observation_size, safe_json
 
 NUM_MODES = 3
 FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
@@ -62,9 +62,17 @@ FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 class PolicyDecider(zoo.Decider):
     """A decider around a batch function ``(N, D) float32 -> (N,) modes`` (a loaded policy)."""
 
-    def __init__(self, act_batch: Callable[[np.ndarray], np.ndarray], name: str, config: EnvConfig | None,
-                 policy: dict[str, Any], action_repeat: int = 1, version: str = "1",
-                 weights_sha256: str | None = None, inner: Any = None) -> None:
+    def __init__(
+        self,
+        act_batch: Callable[[np.ndarray], np.ndarray],
+        name: str,
+        config: EnvConfig | None,
+        policy: dict[str, Any],
+        action_repeat: int = 1,
+        version: str = "1",
+        weights_sha256: str | None = None,
+        inner: Any = None,
+    ) -> None:
         super().__init__(config)
         self._act_batch, self.name, self.version, self.policy = act_batch, name, version, policy
         self.action_repeat, self.weights_sha256, self.inner = int(action_repeat), weights_sha256, inner
@@ -78,8 +86,10 @@ class PolicyDecider(zoo.Decider):
             self.inner.reset(mask)
 
     def card(self) -> str:
-        return (f"{self.name}: a {self.policy.get('kind', 'file')} policy loaded from "
-                f"{self.policy.get('spec', self.policy.get('file'))}.")
+        return (
+            f"{self.name}: a {self.policy.get('kind', 'file')} policy loaded from "
+            f"{self.policy.get('spec', self.policy.get('file'))}."
+        )
 
 
 def load_policy(spec: str, config: EnvConfig | None = None) -> zoo.Decider:
@@ -98,8 +108,9 @@ def load_policy(spec: str, config: EnvConfig | None = None) -> zoo.Decider:
     return load_zoo(spec, config, hint="; or give a policy file (.pt, .onnx, .zip) or package.module:factory")
 
 
-def load_zoo(name: str, config: EnvConfig | None = None,
-             hint: str = "; for a policy file or package.module:factory use --policy") -> zoo.Decider:
+def load_zoo(
+    name: str, config: EnvConfig | None = None, hint: str = "; for a policy file or package.module:factory use --policy"
+) -> zoo.Decider:
     """A zoo member by registry name; :class:`UserError` for an unknown name or unusable weights."""
     try:
         return zoo.load(name, config=config)
@@ -139,11 +150,21 @@ def _load_factory(spec: str, config: EnvConfig) -> zoo.Decider:
     if not callable(getattr(obj, "act", None)):
         raise UserError(f"policy {spec}: {attr}(config) returned {type(obj).__name__}, which has no act(obs)")
     name = str(getattr(obj, "name", "") or attr)
-    dec = PolicyDecider(obj.act, name, config, {"kind": "module", "spec": spec},
-                        action_repeat=getattr(obj, "action_repeat", 1), version=str(getattr(obj, "version", "1")),
-                        weights_sha256=getattr(obj, "weights_sha256", None), inner=obj)
-    dec.hold_from = (f"from the action_repeat of {attr}(config)'s {type(obj).__name__}" if hasattr(obj, "action_repeat")
-                     else f"the default: {attr}(config)'s {type(obj).__name__} has no action_repeat")
+    dec = PolicyDecider(
+        obj.act,
+        name,
+        config,
+        {"kind": "module", "spec": spec},
+        action_repeat=getattr(obj, "action_repeat", 1),
+        version=str(getattr(obj, "version", "1")),
+        weights_sha256=getattr(obj, "weights_sha256", None),
+        inner=obj,
+    )
+    dec.hold_from = (
+        f"from the action_repeat of {attr}(config)'s {type(obj).__name__}"
+        if hasattr(obj, "action_repeat")
+        else f"the default: {attr}(config)'s {type(obj).__name__} has no action_repeat"
+    )
     dec.privileged = bool(getattr(obj, "privileged", False))
     if dec.privileged:
         dec.bind = obj.bind
@@ -181,7 +202,9 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
             raise ValueError
     except (TypeError, ValueError):
         box.close()
-        raise UserError(f"policy {who}: action_repeat {box.info.get('action_repeat')!r} is not a positive int") from None
+        raise UserError(
+            f"policy {who}: action_repeat {box.info.get('action_repeat')!r} is not a positive int"
+        ) from None
     try:
         check_card(box.info.get("card"), config, f"policy {who}")  # (a stored ONNX file's card is read there)
     except UserError:
@@ -200,8 +223,10 @@ def _trained_weights(path: Path) -> Path:
     if path.is_dir():
         cards = sorted(p for p in path.glob("*.json") if p.with_suffix(".npz").is_file())
         if len(cards) != 1:
-            raise UserError(f"policy {path}: expected one <name>.npz beside its model card <name>.json in the "
-                            f"directory, found {', '.join(p.stem for p in cards) or 'none'}")
+            raise UserError(
+                f"policy {path}: expected one <name>.npz beside its model card <name>.json in the "
+                f"directory, found {', '.join(p.stem for p in cards) or 'none'}"
+            )
         return cards[0].with_suffix(".npz")
     try:
         weights = safe_json.load_file(path).get("weights_file")
@@ -228,8 +253,9 @@ def _probe(dec: zoo.Decider, config: EnvConfig, who: str) -> None:
         dec.act(np.zeros((2, d), np.float32))
     except BadAnswer as exc:  # it took the observations: its output is wrong, not this suite's observations
         dec.inner.close()
-        raise UserError(f"policy {who}: its output does not give modes: on observations of shape (2, {d}) it "
-                        f"{exc}") from None
+        raise UserError(
+            f"policy {who}: its output does not give modes: on observations of shape (2, {d}) it {exc}"
+        ) from None
     except PolicyFailure as exc:
         dec.inner.close()
         raise UserError(f"policy {who}: does not accept observations of shape (N, {d}): {exc}") from None
@@ -279,8 +305,10 @@ def _decider_hold_from(decider: Any) -> str:
             name = card.get("name", d.name)
             held = card.get("action_repeat", 1)
             if "decide_every" in card:
-                return (f"from {name}'s model card: decide_every {card['decide_every']}, its decision rate when "
-                        f"deployed; trained at a hold of {held}")
+                return (
+                    f"from {name}'s model card: decide_every {card['decide_every']}, its decision rate when "
+                    f"deployed; trained at a hold of {held}"
+                )
             return f"from {name}'s model card: action_repeat {held}, its training hold"
     if "action_repeat" in vars(decider) or type(decider).action_repeat != zoo.Decider.action_repeat:
         return f"from {decider.name}'s own action_repeat"
@@ -299,12 +327,15 @@ def hold_lines(decider: Any, config: EnvConfig, suite: str | None = None) -> lis
     how = "" if steps == repeat else f"action_repeat {repeat} at decision_interval {config.decision_interval}, "
     src = _decider_hold_from(decider)
     lines = [f"hold: {steps} core step{'s' if steps != 1 else ''} per decision ({how}{src})"]
-    filed = next((d for d in (decider, getattr(decider, "inner", None))
-                  if getattr(d, "hold_card", None) is False), None)
+    filed = next(
+        (d for d in (decider, getattr(decider, "inner", None)) if getattr(d, "hold_card", None) is False), None
+    )
     if filed is not None:  # a policy file (or shielded:file) without a card
         file = getattr(filed, "hold_file", None) or filed.name
-        lines.append(f"warning: policy {file} has no policy card: nothing says how long its decisions were held in "
-                     f"training, so each is held {steps} core step{'s' if steps != 1 else ''}. If it was trained at "
-                     "another hold (gymnasium.make(\"overtakezoo/Overtake-v1\") and the suite ids hold 10, the zoo's "
-                     f"1 s), write its card: overtakezoo card {file} --action-repeat 10 --suite {suite or 'SUITE'}")
+        lines.append(
+            f"warning: policy {file} has no policy card: nothing says how long its decisions were held in "
+            f"training, so each is held {steps} core step{'s' if steps != 1 else ''}. If it was trained at "
+            'another hold (gymnasium.make("overtakezoo/Overtake-v1") and the suite ids hold 10, the zoo\'s '
+            f"1 s), write its card: overtakezoo card {file} --action-repeat 10 --suite {suite or 'SUITE'}"
+        )
     return lines

@@ -19,26 +19,33 @@ from __future__ import annotations
 import math
 import sys
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
+from overtakezoo.benchmark.results.schema import recorded_keys
+from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
+from overtakezoo.benchmark.safety import SafetyMonitor
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold_steps, run_to_end
 from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
-
-from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
-from overtakezoo.benchmark.results.schema import recorded_keys
-from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.safety import SafetyMonitor
-from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
 from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
 
 
-def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, chunk_size: int = CHUNK_SIZE,
-              progress: bool = True, recorder: Any = None, limit: int | None = None, safety: bool = True) -> Results:
+def run_suite(
+    suite: Suite,
+    decider: Any,
+    shard: tuple[int, int] | None = None,
+    chunk_size: int = CHUNK_SIZE,
+    progress: bool = True,
+    recorder: Any = None,
+    limit: int | None = None,
+    safety: bool = True,
+) -> Results:
     """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
 
     ``recorder`` (optional) gets ``begin_chunk(core, scenario_index)``, ``record_step(core, modes,
@@ -52,17 +59,21 @@ def run_suite(suite: Suite, decider: Any, shard: tuple[int, int] | None = None, 
     if limit is not None:
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
-    t0, started = time.perf_counter(), datetime.now(timezone.utc)
-    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder,
-                            safety)
-    timing = {"wall_time_s": round(time.perf_counter() - t0, 3),
-              "started": started.isoformat(timespec="seconds"), "steps": total_steps}
-    return Results.create(suite, decider, per, start=start, stop=stop, shard=shard, timing=timing,
-                          num_avs=scenarios.num_avs)
+    t0, started = time.perf_counter(), datetime.now(UTC)
+    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder, safety)
+    timing = {
+        "wall_time_s": round(time.perf_counter() - t0, 3),
+        "started": started.isoformat(timespec="seconds"),
+        "steps": total_steps,
+    }
+    return Results.create(
+        suite, decider, per, start=start, stop=stop, shard=shard, timing=timing, num_avs=scenarios.num_avs
+    )
 
 
-def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE,
-                safety: bool = True) -> dict[str, np.ndarray]:
+def run_indices(
+    suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE, safety: bool = True
+) -> dict[str, np.ndarray]:
     """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
 
     The whole suite is drawn and the rows taken, and rows never interact, so each value equals the
@@ -73,8 +84,9 @@ def run_indices(suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int
     return run_scenarios(suite, decider, suite.scenarios().take(indices), indices, chunk_size, safety)
 
 
-def run_scenarios(suite: Suite, decider: Any, scenarios: Any, labels: np.ndarray, chunk_size: int = CHUNK_SIZE,
-                  safety: bool = True) -> dict[str, np.ndarray]:
+def run_scenarios(
+    suite: Suite, decider: Any, scenarios: Any, labels: np.ndarray, chunk_size: int = CHUNK_SIZE, safety: bool = True
+) -> dict[str, np.ndarray]:
     """Per-scenario arrays of ``decider`` on ``scenarios`` (any batch drawn from ``suite``'s distribution,
     run with its settings; ``labels`` name the rows in errors): what verify runs on a public sample, a
     fresh draw and its own draw at once."""
@@ -89,15 +101,27 @@ def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -
     if getattr(decider, "privileged", False):
         # The oracle simulates clones of its rows assuming nobody else decides; beside another AV it
         # would have to predict that AV's decider, so it is no upper bound there (README: Multi-agent suites).
-        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: privileged "
-                        f"deciders ({decider.name}) run on single-ego suites only")
+        raise UserError(
+            f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: privileged "
+            f"deciders ({decider.name}) run on single-ego suites only"
+        )
     if recorder is not None:
-        raise UserError(f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: archives "
-                        "record single-ego suites only")
+        raise UserError(
+            f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: archives "
+            "record single-ego suites only"
+        )
 
 
-def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_size: int, progress: bool,
-         recorder: Any, safety: bool = True) -> tuple[dict[str, np.ndarray], int]:
+def _run(
+    suite: Suite,
+    decider: Any,
+    scenarios: Any,
+    index: np.ndarray,
+    chunk_size: int,
+    progress: bool,
+    recorder: Any,
+    safety: bool = True,
+) -> tuple[dict[str, np.ndarray], int]:
     """Step ``scenarios`` (suite rows ``index``) in chunks; returns (per-scenario arrays, steps)."""
     if chunk_size < 1:
         raise ValueError("chunk_size must be >= 1")
@@ -108,10 +132,18 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
     keys = recorded_keys(scenarios.num_avs, safety)
     parts: list[dict[str, np.ndarray]] = [_per_scenario_empty()]
     total_steps = 0
-    compact = (scenarios.num_avs == 1 and getattr(decider, "row_state", None) is not None
-               and (recorder is None or hasattr(recorder, "keep_rows")))
-    bar = tqdm(total=scenarios.num * scenarios.num_avs, unit="AV", desc=f"{suite.name}/{decider.name}", leave=False,
-               disable=not progress or not sys.stderr.isatty())
+    compact = (
+        scenarios.num_avs == 1
+        and getattr(decider, "row_state", None) is not None
+        and (recorder is None or hasattr(recorder, "keep_rows"))
+    )
+    bar = tqdm(
+        total=scenarios.num * scenarios.num_avs,
+        unit="AV",
+        desc=f"{suite.name}/{decider.name}",
+        leave=False,
+        disable=not progress or not sys.stderr.isatty(),
+    )
     try:
         for lo in range(0, scenarios.num, chunk_size):
             chunk = scenarios.take(slice(lo, lo + chunk_size))
@@ -121,22 +153,30 @@ def _run(suite: Suite, decider: Any, scenarios: Any, index: np.ndarray, chunk_si
             if getattr(decider, "privileged", False):
                 decider.bind(core)
             if recorder is not None:
-                recorder.begin_chunk(core, index[lo:lo + chunk.num])
+                recorder.begin_chunk(core, index[lo : lo + chunk.num])
             monitor = SafetyMonitor() if safety else None
             if monitor is not None:
                 monitor.begin_chunk(core)
-            live = Compaction(core, index[lo:lo + chunk.num], decider, recorder, monitor, compact)
-            total_steps += run_to_end(core, obs, lambda o, k: _decide(decider, o, live.rows, k, cfg.dt), held,
-                                      on_step=live.on_step, max_steps=max_steps, compact=live.compact,
-                                      on_hold=lambda res: bar.update(int(np.count_nonzero(res.finished))))
+            live = Compaction(core, index[lo : lo + chunk.num], decider, recorder, monitor, compact)
+            total_steps += run_to_end(
+                core,
+                obs,
+                lambda o, k, live=live: _decide(decider, o, live.rows, k, cfg.dt),
+                held,
+                on_step=live.on_step,
+                max_steps=max_steps,
+                compact=live.compact,
+                on_hold=lambda res: bar.update(int(np.count_nonzero(res.finished))),
+            )
             if recorder is not None:
                 recorder.end_chunk(live.core)
             parts.append(live.finish())
     finally:
         bar.close()
     e = scenarios.num_avs  # AV-major: join each AV's part of every chunk
-    per = round_per_scenario({k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1)
-                              for k in keys})
+    per = round_per_scenario(
+        {k: np.concatenate([p[k].reshape(e, -1) for p in parts], axis=1).reshape(-1) for k in keys}
+    )
     return per, total_steps
 
 
@@ -147,8 +187,9 @@ class Compaction:
     """One chunk's rows while they run: the core stepping them (smaller once finished rows are
     dropped), which suite rows they are, and the per-scenario values of the rows already dropped."""
 
-    def __init__(self, core: OvertakeCore, rows: np.ndarray, decider: Any, recorder: Any, monitor: Any,
-                 enabled: bool) -> None:
+    def __init__(
+        self, core: OvertakeCore, rows: np.ndarray, decider: Any, recorder: Any, monitor: Any, enabled: bool
+    ) -> None:
         self.core, self.rows, self.decider, self.recorder, self.monitor = core, rows, decider, recorder, monitor
         self.enabled, self.size = enabled, core.num
         self.pos = np.arange(core.num)  # chunk position of each current row
@@ -211,10 +252,16 @@ def _decide(decider: Any, obs: np.ndarray, scenarios: np.ndarray, step: int, dt:
         return check_modes(decider.act(obs), obs.shape[0])
     except PolicyFailure as exc:
         rows = np.tile(scenarios, max(1, obs.shape[0] // max(1, scenarios.size)))
-        where = (f"scenario {int(rows[exc.rows[0]])}" if exc.rows is not None and exc.rows.size
-                 else f"scenarios {int(scenarios.min())}-{int(scenarios.max())}" if scenarios.size else "no scenario")
-        raise RunFailure(f"{decider.name}: {where}, step {step} (t = {step * dt:.1f} s): {exc.reason}",
-                         getattr(exc, "part", None)) from None
+        where = (
+            f"scenario {int(rows[exc.rows[0]])}"
+            if exc.rows is not None and exc.rows.size
+            else f"scenarios {int(scenarios.min())}-{int(scenarios.max())}"
+            if scenarios.size
+            else "no scenario"
+        )
+        raise RunFailure(
+            f"{decider.name}: {where}, step {step} (t = {step * dt:.1f} s): {exc.reason}", getattr(exc, "part", None)
+        ) from None
 
 
 def _per_scenario_empty() -> dict[str, np.ndarray]:
@@ -227,12 +274,20 @@ def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
         return _per_av(core, info, sc)
     npc1_speed, npc2_speed = npc1_npc2_speeds(sc)
     return {
-        "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
-        "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
-        "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
-        "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
+        "outcome": info["outcome"],
+        "crash_npc": info["crash_npc"],
+        "crash_lane": info["crash_lane"],
+        "completion_time": info["completion_time"],
+        "episode_time": info["t"],
+        "aborts": info["aborts"],
+        "switches": info["switches"],
+        "opposite_time": info["opposite_time"],
+        "min_ttc": info["min_ttc"],
+        "peak_lat_accel": info["peak_lat_accel"],
+        "peak_jerk": info["peak_jerk"],
         # Initial NPC speeds, for the paper's "mean NPC speed in failed scenarios" rows.
-        "npc1_speed": npc1_speed, "npc2_speed": npc2_speed,
+        "npc1_speed": npc1_speed,
+        "npc2_speed": npc2_speed,
     }
 
 
@@ -241,15 +296,22 @@ def _per_av(core: OvertakeCore, info: dict[str, np.ndarray], sc: Any) -> dict[st
     e, n = core.num_avs, sc.num
     # Each AV's own lead (its NPC1): the ego's is NPC1's slot, the others' are av_lead.
     ego_lead = sc.npc_present[:, NPC1_SLOT] & (sc.npc_lane[:, NPC1_SLOT] == EGO_LANE)
-    lead = np.concatenate([np.where(ego_lead, NPC1_SLOT, -1)[None],
-                           sc.av_lead.T.astype(np.int64)]).reshape(-1)
+    lead = np.concatenate([np.where(ego_lead, NPC1_SLOT, -1)[None], sc.av_lead.T.astype(np.int64)]).reshape(-1)
     lead_v = np.take_along_axis(np.tile(sc.npc_v, (e, 1)), np.maximum(lead, 0)[:, None], 1)[:, 0]
     return {
-        "outcome": info["outcome"], "crash_npc": info["crash_npc"], "crash_lane": info["crash_lane"],
-        "crash_av": info["crash_av"], "lead_npc": lead,
-        "completion_time": info["completion_time"], "episode_time": info["t"], "aborts": info["aborts"],
-        "switches": info["switches"], "opposite_time": info["opposite_time"], "min_ttc": info["min_ttc"],
-        "peak_lat_accel": info["peak_lat_accel"], "peak_jerk": info["peak_jerk"],
+        "outcome": info["outcome"],
+        "crash_npc": info["crash_npc"],
+        "crash_lane": info["crash_lane"],
+        "crash_av": info["crash_av"],
+        "lead_npc": lead,
+        "completion_time": info["completion_time"],
+        "episode_time": info["t"],
+        "aborts": info["aborts"],
+        "switches": info["switches"],
+        "opposite_time": info["opposite_time"],
+        "min_ttc": info["min_ttc"],
+        "peak_lat_accel": info["peak_lat_accel"],
+        "peak_jerk": info["peak_jerk"],
         "npc1_speed": np.where(lead >= 0, lead_v, np.nan),
         "npc2_speed": np.full(e * n, np.nan),  # no single "first oncoming car" beside other AVs
     }

@@ -76,7 +76,7 @@ class Limits:
     open_files: int = 256
 
     @classmethod
-    def from_env(cls) -> "Limits":
+    def from_env(cls) -> Limits:
         """Defaults, overridden by ``OVERTAKEZOO_SANDBOX_CALL_S`` / ``_CPU_S`` / ``_MEMORY_MB``."""
         env, d = os.environ, cls()
 
@@ -87,10 +87,12 @@ class Limits:
                 return default  # (a malformed override falls back to the default, never a traceback)
             return value if value > 0 else default
 
-        return cls(call_s=read("OVERTAKEZOO_SANDBOX_CALL_S", d.call_s, float),
-                   load_s=read("OVERTAKEZOO_SANDBOX_LOAD_S", d.load_s, float),
-                   cpu_s=read("OVERTAKEZOO_SANDBOX_CPU_S", d.cpu_s, int),
-                   memory_bytes=read("OVERTAKEZOO_SANDBOX_MEMORY_MB", d.memory_bytes >> 20, int) << 20)
+        return cls(
+            call_s=read("OVERTAKEZOO_SANDBOX_CALL_S", d.call_s, float),
+            load_s=read("OVERTAKEZOO_SANDBOX_LOAD_S", d.load_s, float),
+            cpu_s=read("OVERTAKEZOO_SANDBOX_CPU_S", d.cpu_s, int),
+            memory_bytes=read("OVERTAKEZOO_SANDBOX_MEMORY_MB", d.memory_bytes >> 20, int) << 20,
+        )
 
 
 def check_modes(modes: Any, n: int) -> np.ndarray:
@@ -118,8 +120,10 @@ def modes_of(out: Any, n: int) -> np.ndarray:
     finite), modes (n,) or (n, 1) checked by :func:`check_modes`."""
     out = np.asarray(out)
     if out.shape not in ((n,), (n, 1), (n, NUM_MODES)):  # e.g. (n, 5): not the 3 modes' scores
-        raise BadAnswer(f"returned shape {out.shape} for {n} observation(s), expected {NUM_MODES} mode scores "
-                        f"per observation ({n}, {NUM_MODES}) or one mode per observation ({n},) or ({n}, 1)")
+        raise BadAnswer(
+            f"returned shape {out.shape} for {n} observation(s), expected {NUM_MODES} mode scores "
+            f"per observation ({n}, {NUM_MODES}) or one mode per observation ({n},) or ({n}, 1)"
+        )
     if out.shape == (n, NUM_MODES) and out.dtype.kind != "f":
         raise BadAnswer(f"returned {NUM_MODES} scores per observation of dtype {out.dtype}, expected floats")
     if out.ndim == 2 and out.shape[1] == NUM_MODES and out.dtype.kind == "f":
@@ -137,8 +141,16 @@ class SandboxedPolicy:
     its policy card, if any); ``config``: the EnvConfig the observations come from. ``info`` is what
     the child reported after loading: the action repeat, and ``card``, the policy card it read."""
 
-    def __init__(self, kind: str, data: bytes, config: Any, card: bytes | None = None, who: str = "policy",
-                 limits: Limits | None = None, allow_code: bool = False) -> None:
+    def __init__(
+        self,
+        kind: str,
+        data: bytes,
+        config: Any,
+        card: bytes | None = None,
+        who: str = "policy",
+        limits: Limits | None = None,
+        allow_code: bool = False,
+    ) -> None:
         if kind not in DATA_KINDS and not (allow_code and kind == "torchscript"):
             # Loading TorchScript runs its code (boxed all the same): only a user's own file, by request
             # (eval --policy, submit's conversion), never a stored artifact a verifier re-runs.
@@ -146,16 +158,37 @@ class SandboxedPolicy:
         self.who, self.limits = who, limits or Limits.from_env()
         self._tmp = tempfile.TemporaryDirectory(prefix="overtakezoo-sandbox-", ignore_cleanup_errors=True)
         # The child imports what this process imports (its sys.path: user installs, checkouts), nothing else.
-        env = {"PATH": os.defpath, "HOME": self._tmp.name, "TMPDIR": self._tmp.name, "LANG": "C.UTF-8",
-               "PYTHONPATH": os.pathsep.join(p for p in sys.path if p), "PYTHONNOUSERSITE": "1",
-               "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-               "OVERTAKEZOO_SANDBOX_LANDLOCK": os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK", "1")}
+        env = {
+            "PATH": os.defpath,
+            "HOME": self._tmp.name,
+            "TMPDIR": self._tmp.name,
+            "LANG": "C.UTF-8",
+            "PYTHONPATH": os.pathsep.join(p for p in sys.path if p),
+            "PYTHONNOUSERSITE": "1",
+            "OMP_NUM_THREADS": "1",
+            "OPENBLAS_NUM_THREADS": "1",
+            "MKL_NUM_THREADS": "1",
+            "OVERTAKEZOO_SANDBOX_LANDLOCK": os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK", "1"),
+        }
         lim = self.limits
         self._proc = subprocess.Popen(
-            [sys.executable, "-B", "-m", "overtakezoo.benchmark.run.sandbox", str(lim.cpu_s),
-             str(lim.memory_bytes), str(lim.open_files)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=self._tmp.name,
-            env=env, start_new_session=True, close_fds=True)
+            [
+                sys.executable,
+                "-B",
+                "-m",
+                "overtakezoo.benchmark.run.sandbox",
+                str(lim.cpu_s),
+                str(lim.memory_bytes),
+                str(lim.open_files),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            cwd=self._tmp.name,
+            env=env,
+            start_new_session=True,
+            close_fds=True,
+        )
         header = json.dumps({"kind": kind, "config": config.to_dict()}).encode()
         try:
             self._send(b"L", header)
@@ -234,8 +267,7 @@ class SandboxedPolicy:
             ready, _, _ = select.select([fd], [], [], timeout)
             if not ready:
                 self.close()
-                raise PolicyFailure(f"did not {'load' if what == 'load' else 'answer'} within {timeout:g} s "
-                                    "(killed)")
+                raise PolicyFailure(f"did not {'load' if what == 'load' else 'answer'} within {timeout:g} s (killed)")
             chunk = os.read(fd, n - len(out))
             if not chunk:
                 raise PolicyFailure(self._died(f"while {'loading' if what == 'load' else 'acting'}"))
@@ -251,8 +283,12 @@ class SandboxedPolicy:
         self.close()
         if code < 0:
             name = signal.Signals(-code).name
-            why = {"SIGXCPU": "CPU time limit", "SIGKILL": "killed (memory or time limit)",
-                   "SIGSEGV": "crashed", "SIGXFSZ": "tried to write a file"}.get(name, name)
+            why = {
+                "SIGXCPU": "CPU time limit",
+                "SIGKILL": "killed (memory or time limit)",
+                "SIGSEGV": "crashed",
+                "SIGXFSZ": "tried to write a file",
+            }.get(name, name)
             return f"process ended {when}: {why} ({name})"
         return f"process ended {when} (exit status {code})"
 
@@ -296,8 +332,17 @@ def readable_paths() -> tuple[list[str], list[str]]:
     for sub in ("envs", "zoo", "benchmark"):  # an editable install maps these from a checkout
         spec = importlib.util.find_spec(f"overtakezoo.{sub}")
         dirs |= set(spec.submodule_search_locations or []) if spec else set()
-    dirs |= {"/usr/lib", "/usr/lib64", "/lib", "/lib64", "/usr/local/lib", "/usr/share/zoneinfo",
-             "/sys/devices/system/cpu", "/sys/fs/cgroup", f"/proc/{os.getpid()}"}
+    dirs |= {
+        "/usr/lib",
+        "/usr/lib64",
+        "/lib",
+        "/lib64",
+        "/usr/local/lib",
+        "/usr/share/zoneinfo",
+        "/sys/devices/system/cpu",
+        "/sys/fs/cgroup",
+        f"/proc/{os.getpid()}",
+    }
     files = {"/etc/ld.so.cache", "/dev/null", "/dev/urandom", "/proc/cpuinfo", "/proc/meminfo", "/proc/stat"}
     return sorted(d for d in dirs if os.path.isdir(d)), sorted(f for f in files if os.path.exists(f))
 
@@ -329,8 +374,10 @@ def _restrict(writable: str) -> int:
         os.close(handle)
         if not added and path == writable:
             return 0
-    if libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0 or libc.syscall(_SYS_RESTRICT_SELF, fd,
-                                                                         ctypes.c_uint32(0)) != 0:
+    if (
+        libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0
+        or libc.syscall(_SYS_RESTRICT_SELF, fd, ctypes.c_uint32(0)) != 0
+    ):
         return 0
     os.close(fd)
     return abi
@@ -338,10 +385,14 @@ def _restrict(writable: str) -> int:
 
 def _confine(cpu_s: int, memory: int, open_files: int) -> int:
     landlock = _restrict(os.getcwd()) if os.environ.get("OVERTAKEZOO_SANDBOX_LANDLOCK") != "0" else 0
-    for res, value in ((resource.RLIMIT_CPU, cpu_s), (resource.RLIMIT_AS, memory),
-                       (resource.RLIMIT_NOFILE, open_files), (resource.RLIMIT_CORE, 0),
-                       # Without Landlock no file may grow at all (a backstop, not a wall).
-                       (resource.RLIMIT_FSIZE, 64 << 20 if landlock else 0)):
+    for res, value in (
+        (resource.RLIMIT_CPU, cpu_s),
+        (resource.RLIMIT_AS, memory),
+        (resource.RLIMIT_NOFILE, open_files),
+        (resource.RLIMIT_CORE, 0),
+        # Without Landlock no file may grow at all (a backstop, not a wall).
+        (resource.RLIMIT_FSIZE, 64 << 20 if landlock else 0),
+    ):
         resource.setrlimit(res, (value, value))
     return landlock
 
@@ -385,8 +436,10 @@ def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[s
 
             info["card"] = parse_card(json.dumps(meta["policy_card"]), "policy card")
             if info["card"]["action_repeat"] != dec.action_repeat:
-                raise ValueError(f"the model card's action_repeat {dec.action_repeat} differs from its policy card's "
-                                 f"{info['card']['action_repeat']}")
+                raise ValueError(
+                    f"the model card's action_repeat {dec.action_repeat} differs from its policy card's "
+                    f"{info['card']['action_repeat']}"
+                )
         return dec.act_batch, info
     if kind == "onnx":
         import onnxruntime as ort
@@ -401,11 +454,13 @@ def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[s
         card = parse_card(props[CARD_KEY], f"ONNX metadata {CARD_KEY}") if CARD_KEY in props else None
         info = {"action_repeat": legacy_repeat(props, card), **({"card": card} if card else {})}
         if (session.get_inputs()[0].shape or [None])[0] == 1:  # a fixed batch of 1 (rsl-rl's export): row by row
+
             def act(obs: np.ndarray) -> np.ndarray:
                 if obs.shape[0] == 0:
                     return np.zeros((0,), np.int64)
-                return np.concatenate([np.asarray(session.run(None, {name: obs[i:i + 1]})[0])
-                                       for i in range(obs.shape[0])], axis=0)
+                return np.concatenate(
+                    [np.asarray(session.run(None, {name: obs[i : i + 1]})[0]) for i in range(obs.shape[0])], axis=0
+                )
 
             return act, info
         return (lambda obs: session.run(None, {name: obs})[0]), info
@@ -425,9 +480,11 @@ def _load(kind: str, data: bytes, card: bytes, config: Any) -> tuple[Any, dict[s
         from overtakezoo.benchmark.run.artifacts import parse_card
 
         info = {"action_repeat": parse_card(card, "policy card")["action_repeat"], "card": parse_card(card)}
-        if hasattr(module, "action_repeat") and str(getattr(module, "action_repeat")) != str(info["action_repeat"]):
-            raise ValueError(f"the module's action_repeat {getattr(module, 'action_repeat')!r} differs from its "
-                             f"policy card's {info['action_repeat']} (remove one)")
+        if hasattr(module, "action_repeat") and str(module.action_repeat) != str(info["action_repeat"]):
+            raise ValueError(
+                f"the module's action_repeat {module.action_repeat!r} differs from its "
+                f"policy card's {info['action_repeat']} (remove one)"
+            )
         return act, info
     raise ValueError(f"unknown policy kind {kind!r}")
 
@@ -442,8 +499,15 @@ def _to_onnx(act: Any, obs_dim: int, info: dict[str, Any]) -> bytes:
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(act.module, (torch.zeros(2, obs_dim),), buf, input_names=["obs"], output_names=["out"],
-                          dynamic_axes={"obs": {0: "n"}, "out": {0: "n"}}, dynamo=False)
+        torch.onnx.export(
+            act.module,
+            (torch.zeros(2, obs_dim),),
+            buf,
+            input_names=["obs"],
+            output_names=["out"],
+            dynamic_axes={"obs": {0: "n"}, "out": {0: "n"}},
+            dynamo=False,
+        )
     model = onnx.load_model_from_string(buf.getvalue())
     entry = model.metadata_props.add()
     entry.key, entry.value = "action_repeat", str(int(info.get("action_repeat", 1)))

@@ -23,13 +23,12 @@ from typing import Any
 import numpy as np
 
 from overtakezoo import zoo
-from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
-from overtakezoo.envs.config import ConfigError
-from overtakezoo.envs.suites import Suite, load_suite, load_training
-
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.metrics import wilson
 from overtakezoo.benchmark.run.runner import run_suite
+from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
+from overtakezoo.envs.config import ConfigError
+from overtakezoo.envs.suites import Suite, load_suite, load_training
 
 
 def trainer(member: str) -> Any:
@@ -39,8 +38,9 @@ def trainer(member: str) -> Any:
     except zoo.UnknownDecider as exc:
         raise UserError(str(exc)) from None
     if entry.kind != "learned" or not entry.trainer:
-        raise UserError(f"{member} is a {entry.kind} member, not trained (learned members: "
-                        f"{', '.join(zoo.names('learned'))})")
+        raise UserError(
+            f"{member} is a {entry.kind} member, not trained (learned members: {', '.join(zoo.names('learned'))})"
+        )
     try:
         return importlib.import_module(f"overtakezoo.zoo.train.{entry.trainer}")
     except ModuleNotFoundError as exc:
@@ -49,24 +49,45 @@ def trainer(member: str) -> Any:
         raise UserError(f"training {member} needs {exc.name} (pip install -e '.[train]')") from None
 
 
-def train(member: str, *, suite: str = "table1-train", dataset: str | None = None, steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          eval_suite: str | None = "table1", progress: bool = True) -> Any:
+def train(
+    member: str,
+    *,
+    suite: str = "table1-train",
+    dataset: str | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    eval_suite: str | None = "table1",
+    progress: bool = True,
+) -> Any:
     """Train ``member`` on ``suite`` (dqn, double-dqn, ps-dqn, ppo) or ``dataset`` (bc, cql), then
     (unless ``eval_suite`` is None) evaluate it; returns the trainer's ``Trained``, its card with
     the results. Files go into ``out`` (the module docstring)."""
     module = trainer(member)
-    common: dict[str, Any] = {"member": member, "steps": steps, "seed": seed, "out": out, "resume": resume,
-                              "hyperparams": hyperparams, "overrides": overrides, "progress": progress}
+    common: dict[str, Any] = {
+        "member": member,
+        "steps": steps,
+        "seed": seed,
+        "out": out,
+        "resume": resume,
+        "hyperparams": hyperparams,
+        "overrides": overrides,
+        "progress": progress,
+    }
     if module.LEARNS_FROM == "dataset":
         if not dataset:
             raise UserError(f"{member} learns from a dataset: give --dataset NAME (see `overtakezoo dataset list`)")
         from overtakezoo.benchmark.datasets import store as datasets
 
         data = datasets.load(dataset)
-        about = {"name": dataset, "content_sha256": datasets.content_sha256(data),
-                 "content_hash": f"{datasets.content_sha256.__module__}.{datasets.content_sha256.__qualname__}"}
+        about = {
+            "name": dataset,
+            "content_sha256": datasets.content_sha256(data),
+            "content_hash": f"{datasets.content_sha256.__module__}.{datasets.content_sha256.__qualname__}",
+        }
         trained = module.train(data, about, **common)
     else:
         if dataset:
@@ -84,14 +105,21 @@ def train(member: str, *, suite: str = "table1-train", dataset: str | None = Non
     return trained
 
 
-def evaluate(decider: Any, suite: Suite, progress: bool = False, limit: int | None = None
-             ) -> tuple[dict[str, Any], Any]:
+def evaluate(
+    decider: Any, suite: Suite, progress: bool = False, limit: int | None = None
+) -> tuple[dict[str, Any], Any]:
     """Run ``decider`` on ``suite`` with the benchmark runner: the card's summary and the Results."""
     res = run_suite(suite, decider, progress=progress, limit=limit)
-    summary = outcome_summary(np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]),
-                              np.asarray(res.per["completion_time"], float))
-    summary.update({"suite_version": suite.version, "suite_sha256": suite.hash,
-                    "measured_with": f"{run_suite.__module__}.{run_suite.__qualname__}"})
+    summary = outcome_summary(
+        np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]), np.asarray(res.per["completion_time"], float)
+    )
+    summary.update(
+        {
+            "suite_version": suite.version,
+            "suite_sha256": suite.hash,
+            "measured_with": f"{run_suite.__module__}.{run_suite.__qualname__}",
+        }
+    )
     return summary, res
 
 
@@ -100,9 +128,16 @@ def outcome_summary(outcome: np.ndarray, crash_lane: np.ndarray, completion_time
     n = len(outcome)
     succ, crash, tout = (int((outcome == k).sum()) for k in (SUCCESS, CRASH, TIMEOUT))
     return {
-        "count": n, "success": succ, "crash": crash, "timeout": tout, "offroad": n - succ - crash - tout,
-        "success_rate": succ / n, "success_ci": list(wilson(succ, n)),
-        "crash_rate": crash / n, "crash_ci": list(wilson(crash, n)), "timeout_rate": tout / n,
+        "count": n,
+        "success": succ,
+        "crash": crash,
+        "timeout": tout,
+        "offroad": n - succ - crash - tout,
+        "success_rate": succ / n,
+        "success_ci": list(wilson(succ, n)),
+        "crash_rate": crash / n,
+        "crash_ci": list(wilson(crash, n)),
+        "timeout_rate": tout / n,
         # Lane 0 is the ego's lane (the lead, NPC1, in table1); lane 1 the opposite lane.
         "crash_lead_lane": int(((outcome == CRASH) & (crash_lane == 0)).sum()),
         "crash_opposite_lane": int(((outcome == CRASH) & (crash_lane == 1)).sum()),
@@ -123,8 +158,15 @@ def _train_one(member: str, seed: int, out: str, kwargs: dict[str, Any]) -> dict
     return train(member, seed=seed, out=out, **kwargs).card
 
 
-def train_seeds(member: str, seeds: list[int], out: str | Path, engine: str = "auto", num_cpus: int | None = None,
-                say: Any = print, **kwargs: Any) -> list[dict[str, Any]]:
+def train_seeds(
+    member: str,
+    seeds: list[int],
+    out: str | Path,
+    engine: str = "auto",
+    num_cpus: int | None = None,
+    say: Any = print,
+    **kwargs: Any,
+) -> list[dict[str, Any]]:
     """Train ``member`` once per seed into :func:`seed_dirs`; returns the cards in seed order.
 
     ``engine``: ``ray`` runs the seeds as parallel Ray tasks on a local instance (``num_cpus`` of
@@ -138,7 +180,7 @@ def train_seeds(member: str, seeds: list[int], out: str | Path, engine: str = "a
         engine = "ray" if importlib.util.find_spec("ray") is not None else "sequential"
     if engine == "sequential":
         cards = []
-        for seed, where in zip(seeds, dirs):
+        for seed, where in zip(seeds, dirs, strict=True):
             say(f"seed {seed}: training into {where}")
             cards.append(_train_one(member, seed, str(where), kwargs))
         return cards
@@ -155,7 +197,7 @@ def train_seeds(member: str, seeds: list[int], out: str | Path, engine: str = "a
         task = ray.remote(num_cpus=1)(_train_one)
         quiet = {**kwargs, "progress": False}  # (bars from parallel workers would interleave)
         say(f"training {len(seeds)} seeds of {member} on Ray ({int(ray.cluster_resources().get('CPU', 0))} CPUs)")
-        refs = [task.remote(member, seed, str(where.resolve()), quiet) for seed, where in zip(seeds, dirs)]
+        refs = [task.remote(member, seed, str(where.resolve()), quiet) for seed, where in zip(seeds, dirs, strict=True)]
         pending, cards = list(refs), {}
         while pending:
             done, pending = ray.wait(pending)

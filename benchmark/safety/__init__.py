@@ -2,8 +2,7 @@
 RSS distances (overtakezoo.envs.rss, shared with the shield) and the per-step monitor the runner drives
 (monitor.py)."""
 
-from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
-
 from overtakezoo.benchmark.safety.monitor import SafetyMonitor
+from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
 __all__ = ["RSSParams", "SafetyMonitor", "safe_distance_opposite_direction", "safe_distance_same_direction"]

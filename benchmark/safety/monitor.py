@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-
 from overtakezoo.envs.config import ABORT, OVERTAKE
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction, safe_distance_same_direction
 
@@ -152,8 +151,9 @@ class SafetyMonitor:
         at_last = steps == last
         self.last_ponr[rows[at_last]] = ponr[at_last]
 
-    def _opposite(self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray, y: np.ndarray, t: np.ndarray,
-                  mode: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _opposite(
+        self, rows: np.ndarray, geo: dict[str, Any], v_e: np.ndarray, y: np.ndarray, t: np.ndarray, mode: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Def. 2, head-on TTC, the point of no return and the unsafe-overtake check of AV rows in the
         opposite lane, one column per (row, step) (``geo`` and the arrays hold just those): the worst
         RSS margin, the least head-on TTC, unsafe to complete, the point-of-no-return margin."""
@@ -166,8 +166,9 @@ class SafetyMonitor:
         # Oncoming vehicles in their own (correct) lane, the AV's opposite lane, not yet passed.
         onc = geo["present"] & ~geo["same_dir"] & (geo["d"] > w / 2) & (dx > -half_len)
         v_o = -geo["v_along"]  # towards the AV
-        d_min = safe_distance_opposite_direction(v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min,
-                                                 p.other_accel_max, p.other_brake_min_correct)
+        d_min = safe_distance_opposite_direction(
+            v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min, p.other_accel_max, p.other_brake_min_correct
+        )
         margin = np.where(onc, gap - d_min, INF)
         worst = np.min(margin, axis=0, initial=INF)
         closing = v_e + v_o
@@ -187,18 +188,28 @@ class SafetyMonitor:
         if near.any():
             sub = (lambda a: a[..., cols]) if isinstance(cols, np.ndarray) else (lambda a: a)  # noqa: E731
             lane = _slots({k: sub(v) for k, v in full.items()}, sub(full["same_dir"]))
-            t_complete, t_abort = self._return_times(lane, lane["dx"], lane["half_len"], sub(v_e), sub(y), sub(w),
-                                                     sub(self.y_exit[rows]))
+            t_complete, t_abort = self._return_times(
+                lane, lane["dx"], lane["half_len"], sub(v_e), sub(y), sub(w), sub(self.y_exit[rows])
+            )
             # Unsafe to complete while a threatening oncoming vehicle is visible.
-            unsafe[cols] = (sub(mode) == OVERTAKE) & np.any(sub(geo["visible"]) & sub(onc) & (sub(t_rss) < t_complete),
-                                                            axis=0)
+            unsafe[cols] = (sub(mode) == OVERTAKE) & np.any(
+                sub(geo["visible"]) & sub(onc) & (sub(t_rss) < t_complete), axis=0
+            )
             with np.errstate(invalid="ignore"):
                 gap_t = sub(t_rss_min) - np.minimum(t_complete, t_abort)
             ponr[cols] = np.where(sub(near), np.maximum(np.nan_to_num(gap_t, neginf=PONR_FLOOR), PONR_FLOOR), np.nan)
         return worst, ttc, unsafe, ponr
 
-    def _return_times(self, geo: dict[str, Any], dx: np.ndarray, half_len: np.ndarray, v_e: np.ndarray,
-                      y: np.ndarray, w: np.ndarray, y_exit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _return_times(
+        self,
+        geo: dict[str, Any],
+        dx: np.ndarray,
+        half_len: np.ndarray,
+        v_e: np.ndarray,
+        y: np.ndarray,
+        w: np.ndarray,
+        y_exit: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Time back in the own lane by completing the pass / by aborting now, at constant speeds
         (aborting: braking at ego_brake_min), each plus the lateral return."""
         p = self.p
@@ -211,14 +222,14 @@ class SafetyMonitor:
         pick = lambda a: np.take_along_axis(a, j[None], 0)[0] if a.shape[0] else np.zeros(a.shape[1])  # noqa: E731
         lx, lhl, lv = pick(dx), pick(half_len), pick(geo["v_along"])
         # Completing: the AV's rear ahead of the lead's front by the lead's Def.-1 distance behind it.
-        c = safe_distance_same_direction(lv, v_e, p.response_time, p.other_accel_max, p.other_brake_min,
-                                         p.ego_brake_max)
+        c = safe_distance_same_direction(
+            lv, v_e, p.response_time, p.other_accel_max, p.other_brake_min, p.ego_brake_max
+        )
         ahead_by = lx + lhl + c  # relative distance still to gain
         rel = v_e - lv
         t_c = np.where(ahead_by <= 0, 0.0, np.where(rel > 1e-9, ahead_by / np.where(rel > 1e-9, rel, 1.0), INF))
         # Aborting: brake at ego_brake_min until the AV's front is the AV's Def.-1 distance behind the lead.
-        c_a = safe_distance_same_direction(lv, lv, p.response_time, p.ego_accel_max, p.ego_brake_min,
-                                           p.other_brake_max)
+        c_a = safe_distance_same_direction(lv, lv, p.response_time, p.ego_accel_max, p.ego_brake_min, p.other_brake_max)
         t_a = _drop_back_time(-lx + lhl + c_a, rel, v_e, lv, p.ego_brake_min)
         t_c, t_a = np.where(has, t_c, 0.0), np.where(has, t_a, 0.0)
         return t_c + lat, t_a + lat
@@ -232,15 +243,18 @@ class SafetyMonitor:
         lane0 = geo["present"] & geo["same_dir"] & (geo["d"] <= w / 2)
         gap = np.abs(dx) - half_len
         ahead, behind = lane0 & (dx >= 0), lane0 & (dx < 0)
-        d_ahead = safe_distance_same_direction(v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min,
-                                               p.other_brake_max)
-        d_behind = safe_distance_same_direction(v_o, v_e, p.response_time, p.other_accel_max, p.other_brake_min,
-                                                p.ego_brake_max)
+        d_ahead = safe_distance_same_direction(
+            v_e, v_o, p.response_time, p.ego_accel_max, p.ego_brake_min, p.other_brake_max
+        )
+        d_behind = safe_distance_same_direction(
+            v_o, v_e, p.response_time, p.other_accel_max, p.other_brake_min, p.ego_brake_max
+        )
         # The nearest one each side decides (Def. 1 is checked pairwise; nearer cars need more room).
         g_a = np.where(ahead, gap, INF)
         g_b = np.where(behind, gap, INF)
         viol = np.any(ahead & (g_a <= np.min(g_a, 0, initial=INF)) & (gap < d_ahead), axis=0) | np.any(
-            behind & (g_b <= np.min(g_b, 0, initial=INF)) & (gap < d_behind), axis=0)
+            behind & (g_b <= np.min(g_b, 0, initial=INF)) & (gap < d_behind), axis=0
+        )
         # Post-encroachment time: the vehicle behind reaches the point the AV's rear left, at its speed.
         nearest_b = behind & (g_b <= np.min(g_b, 0, initial=INF)) & geo["visible"] & (v_o > 1e-9)
         pet = np.where(nearest_b, np.maximum(gap, 0.0) / np.where(nearest_b, v_o, 1.0), INF)

@@ -53,9 +53,11 @@ def single_ego(config: EnvConfig, face: str) -> EnvConfig:
     """The Gymnasium faces drive one AV per scenario and no NPC agents: say so instead of ignoring."""
     dist = ScenarioDistribution.from_dict(config.scenario)
     if dist.platoon_size > 1 or dist.oncoming_av:
-        raise ConfigError(f"scenario: {face} drives one automated vehicle per road, this distribution has "
-                          f"{dist.platoon_size + dist.oncoming_av} (platoon_size, oncoming_av); "
-                          "use parallel_env, whose agents are the road's AVs")
+        raise ConfigError(
+            f"scenario: {face} drives one automated vehicle per road, this distribution has "
+            f"{dist.platoon_size + dist.oncoming_av} (platoon_size, oncoming_av); "
+            "use parallel_env, whose agents are the road's AVs"
+        )
     if config.npc_agents:
         raise ConfigError(f"npc_agents: {face} has no NPC agents; use parallel_env(npc_agents=True)")
     return config

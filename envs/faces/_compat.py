@@ -14,6 +14,7 @@ from enum import Enum
 
 try:
     from gymnasium.vector import AutoresetMode
+
     HAS_AUTORESET_MODE = True
 except ImportError:  # gymnasium 1.0.x
     HAS_AUTORESET_MODE = False
@@ -24,5 +25,6 @@ except ImportError:  # gymnasium 1.0.x
         NEXT_STEP = "NextStep"
         SAME_STEP = "SameStep"
         DISABLED = "Disabled"
+
 
 __all__ = ["AutoresetMode", "HAS_AUTORESET_MODE"]

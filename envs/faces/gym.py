@@ -41,12 +41,19 @@ from gymnasium import spaces
 
 from overtakezoo.envs.config import MODE_NAMES, EnvConfig
 from overtakezoo.envs.core import OvertakeCore
+from overtakezoo.envs.faces._common import (
+    as_config,
+    check_action,
+    env_hold,
+    is_suite,
+    row_info,
+    single_ego,
+    suite_config,
+)
 from overtakezoo.envs.faces.rendering import RendersFirstRow
-from overtakezoo.envs.hold import hold
-from overtakezoo.envs.faces._common import (as_config, check_action, env_hold, is_suite, row_info, single_ego,
-                                            suite_config)
-from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 from overtakezoo.envs.faces.spaces import ego_observation_space
+from overtakezoo.envs.hold import hold
+from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
 ENV_ID = "overtakezoo/Overtake-v1"  # the training world: table1-train's kwargs, the zoo's 1 s hold
 ENV_ID_V0 = "overtakezoo/Overtake-v0"  # the env's defaults, one core step per env step (out of date)
@@ -74,8 +81,14 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
-    def __init__(self, config: EnvConfig | dict[str, Any] | None = None, *, suite: Any = None,
-                 hold_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        config: EnvConfig | dict[str, Any] | None = None,
+        *,
+        suite: Any = None,
+        hold_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         self.config = single_ego(as_config(suite_config(config, suite), **overrides), "OvertakeEnv")
         self.hold_steps = env_hold(hold_steps, self.config, is_suite(config, suite))  # core steps per env step
         self.render_mode = self.config.render_mode
@@ -113,8 +126,13 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
         res = hold(self.core, np.array([action], dtype=np.int64), self.hold_steps)
         if self.render_mode == "human":
             self.render()
-        return (self._clip(res.obs[0]), float(res.reward[0]), bool(res.terminated[0]), bool(res.truncated[0]),
-                row_info(res.info, 0))
+        return (
+            self._clip(res.obs[0]),
+            float(res.reward[0]),
+            bool(res.terminated[0]),
+            bool(res.truncated[0]),
+            row_info(res.info, 0),
+        )
 
     def _clip(self, obs: np.ndarray) -> np.ndarray:
         # A no-op for scenarios of the config's distribution; only a scenario given through
@@ -133,11 +151,13 @@ def register_envs() -> None:
     (module docstring) with Gymnasium (single env + vector entry point; the single-ego suites) and with
     PettingZoo (parallel and AEC; every suite). A multi-AV suite's id is registered with Gymnasium
     too, but only to refuse: ``gymnasium.make`` / ``make_vec`` of it raise a ``NameNotFound`` that
-    shows the PettingZoo call (:func:`~.pettingzoo.gymnasium_refusal`). Idempotent; run by ``import overtakezoo.envs``."""
+    shows the PettingZoo call (:func:`~.pettingzoo.gymnasium_refusal`). Idempotent; run by
+    ``import overtakezoo.envs``."""
     from overtakezoo.envs.suites import suite_env_ids
 
-    suites = {env_id: ({"suite": s.name, "hold_steps": s.hold_steps}, s.multi_av)
-              for env_id, s in suite_env_ids().items()}
+    suites = {
+        env_id: ({"suite": s.name, "hold_steps": s.hold_steps}, s.multi_av) for env_id, s in suite_env_ids().items()
+    }
     train = next(kw for env_id, (kw, _) in suites.items() if kw["suite"] == ENV_SUITE)
     ids = {ENV_ID: (dict(train), False), ENV_ID_V0: ({}, False), **suites}
     for env_id, (kwargs, multi_av) in ids.items():
@@ -147,8 +167,12 @@ def register_envs() -> None:
             refusal = "overtakezoo.envs.faces.pettingzoo:gymnasium_refusal"
             gymnasium.register(id=env_id, entry_point=refusal, vector_entry_point=refusal, kwargs=kwargs)
         else:
-            gymnasium.register(id=env_id, entry_point="overtakezoo.envs.faces.gym:OvertakeEnv",
-                               vector_entry_point="overtakezoo.envs.faces.vector:make_vec", kwargs=kwargs)
+            gymnasium.register(
+                id=env_id,
+                entry_point="overtakezoo.envs.faces.gym:OvertakeEnv",
+                vector_entry_point="overtakezoo.envs.faces.vector:make_vec",
+                kwargs=kwargs,
+            )
     try:
         import pettingzoo
     except ImportError:  # pragma: no cover - pettingzoo is a dependency, but the gym face does not need it
@@ -156,7 +180,8 @@ def register_envs() -> None:
     if hasattr(pettingzoo, "register"):  # the registry exists from PettingZoo 1.27
         for env_id, (kwargs, _) in ids.items():
             if env_id not in pettingzoo.parallel_registry:
-                pettingzoo.register("parallel", env_id, entry_point="overtakezoo.envs.faces.pettingzoo:parallel_env",
-                                    kwargs=kwargs)
+                pettingzoo.register(
+                    "parallel", env_id, entry_point="overtakezoo.envs.faces.pettingzoo:parallel_env", kwargs=kwargs
+                )
             if env_id not in pettingzoo.aec_registry:
                 pettingzoo.register("aec", env_id, entry_point="overtakezoo.envs.faces.pettingzoo:env", kwargs=kwargs)

@@ -79,12 +79,11 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
 from overtakezoo.envs.config import MODE_NAMES
 from overtakezoo.envs.core import OUTCOME_NAMES, OvertakeCore
+from overtakezoo.envs.faces._common import as_config, check_action, env_hold, is_suite, row_info, suite_config
 from overtakezoo.envs.faces.rendering import RendersFirstRow
+from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios
-from overtakezoo.envs.faces.spaces import ego_observation_space, npc_observation_space, npc_start_extent
-from overtakezoo.envs.faces._common import as_config, check_action, env_hold, is_suite, row_info, suite_config
-
 
 NPC_ACCELERATIONS = np.array([-4.0, -2.0, 0.0, 1.0])  # m/s^2, the NPC agents' discrete choices
 
@@ -96,19 +95,23 @@ def av_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
     """:func:`row_info` of AV ``row`` plus ``crashed_into``: the agent name of whom it hit, or None."""
     out = row_info(info, row)
     other = out.get("crash_av", -1)
-    out["crashed_into"] = (f"av_{other}" if other >= 0 else
-                           f"npc_{out['crash_npc']}" if out["crash_npc"] >= 0 else None)
+    out["crashed_into"] = f"av_{other}" if other >= 0 else f"npc_{out['crash_npc']}" if out["crash_npc"] >= 0 else None
     return out
 
 
 class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
     """The automated vehicles of one road (and optionally its NPCs) as agents; see the module docstring."""
 
-    metadata = {"name": "overtake_v1", "render_modes": ["rgb_array", "human"], "render_fps": 10,
-                "is_parallelizable": True}
+    metadata = {
+        "name": "overtake_v1",
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
 
-    def __init__(self, config: Any = None, *, suite: Any = None, hold_steps: int | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: Any = None, *, suite: Any = None, hold_steps: int | None = None, **overrides: Any
+    ) -> None:
         self.config = as_config(suite_config(config, suite), **overrides)
         self.hold_steps = env_hold(hold_steps, self.config, is_suite(config, suite))  # core steps per env step
         self.render_mode = self.config.render_mode
@@ -152,11 +155,14 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         elif not isinstance(scen, Scenarios) or scen.num != 1:
             raise ValueError("options['scenarios'] must be a Scenarios batch of one road (one row)")
         elif scen.num_avs != self.num_avs:
-            raise ValueError(f"options['scenarios'] has {scen.num_avs} automated vehicles; this env's agents are "
-                             f"{', '.join(self._avs)} (build the env from a distribution with that many)")
+            raise ValueError(
+                f"options['scenarios'] has {scen.num_avs} automated vehicles; this env's agents are "
+                f"{', '.join(self._avs)} (build the env from a distribution with that many)"
+            )
         elif self._npcs and scen.num_npcs > self.num_npcs:
-            raise ValueError(f"options['scenarios'] has {scen.num_npcs} NPC slots; "
-                             f"this env has {self.num_npcs} NPC agents")
+            raise ValueError(
+                f"options['scenarios'] has {scen.num_npcs} NPC slots; this env has {self.num_npcs} NPC agents"
+            )
         obs = self._clip_avs(self.core.reset(scen))
         self._truncated[:] = False
         self.agents = list(self._avs)
@@ -167,7 +173,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         infos = {a: av_info(info, e) for e, a in enumerate(self._avs)}
         if self._npcs:
             npc_obs = self._npc_observations()
-            for a in self.agents[self.num_avs:]:
+            for a in self.agents[self.num_avs :]:
                 j = int(a[4:])
                 observations[a] = npc_obs[j]
                 infos[a] = {"slot": j, "lane": int(scen.npc_lane[0, j])}
@@ -181,10 +187,12 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             raise RuntimeError("step() before reset(): call reset() first")
         unknown = [a for a in actions if a not in self.observation_spaces]
         if unknown:
-            hint = ("; agents are the road's automated vehicles av_0 .. (ego_<i> was renamed av_<i>)"
-                    if str(unknown[0]).startswith("ego_") else "")
-            raise KeyError(f"action for unknown agent {unknown[0]!r} "
-                           f"(agents: {', '.join(self.possible_agents)}){hint}")
+            hint = (
+                "; agents are the road's automated vehicles av_0 .. (ego_<i> was renamed av_<i>)"
+                if str(unknown[0]).startswith("ego_")
+                else ""
+            )
+            raise KeyError(f"action for unknown agent {unknown[0]!r} (agents: {', '.join(self.possible_agents)}){hint}")
         live = self.agents
         if not live:
             if any(v is not None for v in actions.values()):
@@ -213,6 +221,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
             def keep_last(_: np.ndarray, step: Any) -> None:
                 if step.finished.any():
                     last[step.finished] = step.obs[step.finished]
+
         res = hold(self.core, modes, self.hold_steps, npc_accel, on_step=None if last is None else keep_last)
         self._truncated |= res.truncated
 
@@ -260,9 +269,17 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         closing = v - npc_dir * av_v[nearest]  # rate at which that distance shrinks
         lateral = (av_d[nearest] - lane * w) / w
         oc = self.config.observation
-        obs = np.stack([v / oc.speed_scale, lane.astype(float), gap / oc.position_scale,
-                        closing / oc.speed_scale, lateral, sc.npc_present[0].astype(float)],
-                       axis=1).astype(np.float32)
+        obs = np.stack(
+            [
+                v / oc.speed_scale,
+                lane.astype(float),
+                gap / oc.position_scale,
+                closing / oc.speed_scale,
+                lateral,
+                sc.npc_present[0].astype(float),
+            ],
+            axis=1,
+        ).astype(np.float32)
         space = self.observation_spaces[self._npcs[0]]
         return np.clip(obs, space.low, space.high)  # a no-op but for scenarios outside the distribution
 
@@ -282,8 +299,9 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         return self._render_first_row()
 
 
-def parallel_env(config: Any = None, *, suite: Any = None, hold_steps: int | None = None,
-                 **overrides: Any) -> OvertakeParallelEnv:
+def parallel_env(
+    config: Any = None, *, suite: Any = None, hold_steps: int | None = None, **overrides: Any
+) -> OvertakeParallelEnv:
     """The PettingZoo ``ParallelEnv`` of one road: ``config`` an :class:`EnvConfig`, a dict, a loaded
     suite, a built-in suite's name or a suite file's path (or ``suite=``); ``hold_steps`` core steps
     per env step: an explicit value wins, else the zoo's 1 s (10 at dt = 0.1 s) for a suite, as its
@@ -315,9 +333,10 @@ def gymnasium_refusal(*, suite: str = "", **_: Any) -> Any:
     env_id = ids[0] if ids else f"overtakezoo/{suite}"
     raise MultiAVSuiteError(
         f"{env_id} is a multi-AV suite (several automated vehicles share each road, one agent each), so it "
-        f"is a PettingZoo env, not a Gymnasium one: use pettingzoo.make(\"parallel\", \"{env_id}\") or "
-        f"overtakezoo.envs.parallel_env(\"{suite}\") (one shared policy with Stable-Baselines3: "
-        f"overtakezoo.envs.sb3_vec_env(parallel_env(\"{suite}\"), num_roads=k))")
+        f'is a PettingZoo env, not a Gymnasium one: use pettingzoo.make("parallel", "{env_id}") or '
+        f'overtakezoo.envs.parallel_env("{suite}") (one shared policy with Stable-Baselines3: '
+        f'overtakezoo.envs.sb3_vec_env(parallel_env("{suite}"), num_roads=k))'
+    )
 
 
 def sb3_vec_env(par: Any, num_roads: int = 1, base_class: str = "stable_baselines3", num_cpus: int = 0) -> Any:
@@ -343,7 +362,9 @@ def sb3_vec_env(par: Any, num_roads: int = 1, base_class: str = "stable_baseline
     try:
         import supersuit
     except ImportError:
-        raise ImportError("sb3_vec_env needs SuperSuit and Stable-Baselines3: pip install 'overtakezoo[marl]'") from None
+        raise ImportError(
+            "sb3_vec_env needs SuperSuit and Stable-Baselines3: pip install 'overtakezoo[marl]'"
+        ) from None
     if base_class not in ("stable_baselines3", "gymnasium"):
         raise ValueError(f"base_class {base_class!r}: expected 'stable_baselines3' or 'gymnasium'")
     if isinstance(num_roads, bool) or not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
@@ -355,7 +376,7 @@ def sb3_vec_env(par: Any, num_roads: int = 1, base_class: str = "stable_baseline
     return _seeded_sb3_wrapper()(vec)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _seeded_sb3_wrapper() -> type:
     """SuperSuit's SB3 wrapper with SB3's seeding (built on first use: it imports Stable-Baselines3)."""
     try:

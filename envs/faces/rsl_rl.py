@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -32,8 +33,8 @@ os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython
 from rsl_rl.env import VecEnv  # noqa: E402
 
 from overtakezoo.envs.config import EnvConfig  # noqa: E402
-from overtakezoo.envs.faces._common import check_actions  # noqa: E402
 from overtakezoo.envs.core import CRASH, OFFROAD, SUCCESS, TIMEOUT, OvertakeCore  # noqa: E402
+from overtakezoo.envs.faces._common import check_actions  # noqa: E402
 from overtakezoo.envs.hold import hold  # noqa: E402
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, ScenarioDistribution, Scenarios  # noqa: E402
 
@@ -55,10 +56,18 @@ class OvertakeRslRlEnv(VecEnv):
     """``num_envs`` scenarios stepped as one batch; ``source`` is a pool of scenarios or a
     ``source(n, rng) -> Scenarios`` callable that refills finished rows."""
 
-    def __init__(self, num_envs: int, config: EnvConfig | None = None, source: Scenarios | Source | None = None,
-                 seed: int | None = None, device: str | torch.device = "cpu", bootstrap_timeouts: bool = True,
-                 action_repeat: int = 1, core: Any = None, transform: Callable[[np.ndarray], np.ndarray] | None = None
-                 ) -> None:
+    def __init__(
+        self,
+        num_envs: int,
+        config: EnvConfig | None = None,
+        source: Scenarios | Source | None = None,
+        seed: int | None = None,
+        device: str | torch.device = "cpu",
+        bootstrap_timeouts: bool = True,
+        action_repeat: int = 1,
+        core: Any = None,
+        transform: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.cfg = config or (core.cfg if core is not None else EnvConfig())  # the runner's logger reads env.cfg
@@ -90,8 +99,11 @@ class OvertakeRslRlEnv(VecEnv):
         self.episode_counts: dict[str, int] = {"episodes": 0}  # running totals, e.g. for a progress bar
 
     def _tensordict(self, obs: np.ndarray) -> TensorDict:
-        return TensorDict({"policy": torch.as_tensor(obs, dtype=torch.float32, device=self.device)},
-                          batch_size=[self.num_envs], device=self.device)
+        return TensorDict(
+            {"policy": torch.as_tensor(obs, dtype=torch.float32, device=self.device)},
+            batch_size=[self.num_envs],
+            device=self.device,
+        )
 
     def get_observations(self) -> TensorDict:
         return self._tensordict(self._obs)
@@ -127,14 +139,20 @@ class OvertakeRslRlEnv(VecEnv):
             # Per finished episode indicators: the runner's logger averages them over an iteration.
             out, lane = res.final_info["outcome"][finished], res.final_info["crash_lane"][finished]
             crash = out == CRASH
-            rates = {"success": out == SUCCESS, "crash": crash, "crash_ego_lane": crash & (lane != OPPOSITE_LANE),
-                     "crash_opposite_lane": crash & (lane == OPPOSITE_LANE), "timeout": out == TIMEOUT,
-                     "offroad": out == OFFROAD}
+            rates = {
+                "success": out == SUCCESS,
+                "crash": crash,
+                "crash_ego_lane": crash & (lane != OPPOSITE_LANE),
+                "crash_opposite_lane": crash & (lane == OPPOSITE_LANE),
+                "timeout": out == TIMEOUT,
+                "offroad": out == OFFROAD,
+            }
             self.episode_counts["episodes"] += int(finished.sum())
             for k, v in rates.items():
                 self.episode_counts[k] = self.episode_counts.get(k, 0) + int(v.sum())
-            extras["log"] = {f"Episode/{k}": torch.as_tensor(v, dtype=torch.float32, device=dev)
-                             for k, v in rates.items()}
+            extras["log"] = {
+                f"Episode/{k}": torch.as_tensor(v, dtype=torch.float32, device=dev) for k, v in rates.items()
+            }
         rewards = torch.as_tensor(reward, dtype=torch.float32, device=dev)
         dones = torch.as_tensor(finished, dtype=torch.long, device=dev)
         return self._tensordict(self._obs), rewards, dones, extras

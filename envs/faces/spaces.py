@@ -84,18 +84,40 @@ def ego_observation_space(cfg: EnvConfig, npc_agents: bool | None = None) -> spa
     d, oc, pc = lim.d, cfg.observation, cfg.planner
     yaw = lim.v * math.tan(pc.max_steer) / pc.wheelbase
     ego_front = d.ego_length / 2
-    low = [0.0, -yaw, lim.y_lo / d.lane_width, (d.goal - lim.x_hi - ego_front) / oc.position_scale,
-           d.speed_limit / oc.speed_scale, d.sensor_range / oc.position_scale]
-    high = [lim.v / oc.speed_scale, yaw, lim.y_hi / d.lane_width, (d.goal - lim.x_lo - ego_front) / oc.position_scale,
-            d.speed_limit / oc.speed_scale, d.sensor_range / oc.position_scale]
+    low = [
+        0.0,
+        -yaw,
+        lim.y_lo / d.lane_width,
+        (d.goal - lim.x_hi - ego_front) / oc.position_scale,
+        d.speed_limit / oc.speed_scale,
+        d.sensor_range / oc.position_scale,
+    ]
+    high = [
+        lim.v / oc.speed_scale,
+        yaw,
+        lim.y_hi / d.lane_width,
+        (d.goal - lim.x_lo - ego_front) / oc.position_scale,
+        d.speed_limit / oc.speed_scale,
+        d.sensor_range / oc.position_scale,
+    ]
     flags = 3 + pc.num_rollouts + 1  # mode one-hot and blocked flags
     low += [0.0] * flags
     high += [1.0] * flags
     # One slot: presence, x, y, vx, vy in the ego frame (vx = v_npc cos - v_ego, vy = -v_npc sin).
-    slot_low = [0.0, -lim.reach / oc.position_scale, -lim.reach / d.lane_width,
-                -(lim.npc_v + lim.v) / oc.speed_scale, -lim.npc_v / oc.speed_scale]
-    slot_high = [1.0, lim.reach / oc.position_scale, lim.reach / d.lane_width,
-                 lim.npc_v / oc.speed_scale, lim.npc_v / oc.speed_scale]
+    slot_low = [
+        0.0,
+        -lim.reach / oc.position_scale,
+        -lim.reach / d.lane_width,
+        -(lim.npc_v + lim.v) / oc.speed_scale,
+        -lim.npc_v / oc.speed_scale,
+    ]
+    slot_high = [
+        1.0,
+        lim.reach / oc.position_scale,
+        lim.reach / d.lane_width,
+        lim.npc_v / oc.speed_scale,
+        lim.npc_v / oc.speed_scale,
+    ]
     slots = 2 * oc.vehicles_per_lane
     low += slot_low * slots
     high += slot_high * slots
@@ -111,10 +133,22 @@ def npc_observation_space(cfg: EnvConfig, npc_s_max: float) -> spaces.Box:
     d, oc = lim.d, cfg.observation
     # |ego x - NPC s|: both start within their bounds and move at most their top speed for an episode.
     gap = max(lim.x_hi, -lim.x_lo) + npc_s_max + lim.npc_v * d.time_limit
-    low = [0.0, 0.0, -gap / oc.position_scale, -(lim.npc_v + lim.v) / oc.speed_scale,
-           (lim.y_lo - d.lane_width) / d.lane_width, 0.0]
-    high = [lim.npc_v / oc.speed_scale, 1.0, gap / oc.position_scale, (lim.npc_v + lim.v) / oc.speed_scale,
-            lim.y_hi / d.lane_width, 1.0]
+    low = [
+        0.0,
+        0.0,
+        -gap / oc.position_scale,
+        -(lim.npc_v + lim.v) / oc.speed_scale,
+        (lim.y_lo - d.lane_width) / d.lane_width,
+        0.0,
+    ]
+    high = [
+        lim.npc_v / oc.speed_scale,
+        1.0,
+        gap / oc.position_scale,
+        (lim.npc_v + lim.v) / oc.speed_scale,
+        lim.y_hi / d.lane_width,
+        1.0,
+    ]
     return _box(low, high)
 
 

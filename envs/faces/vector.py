@@ -37,12 +37,12 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from overtakezoo.envs.config import MODE_NAMES, EnvConfig
-from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium's own on 1.1+, a same-valued Enum on 1.0
 from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, is_suite, single_ego, suite_config
+from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium's own on 1.1+, a same-valued Enum on 1.0
+from overtakezoo.envs.faces.spaces import ego_observation_space
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
-from overtakezoo.envs.faces.spaces import ego_observation_space
 
 
 class OvertakeVectorEnv(VectorEnv):
@@ -50,9 +50,16 @@ class OvertakeVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
-                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, *, suite: Any = None,
-                 hold_steps: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: EnvConfig | dict[str, Any] | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        *,
+        suite: Any = None,
+        hold_steps: int | None = None,
+        **overrides: Any,
+    ) -> None:
         self._renderer = None  # first: close() runs on an instance whose __init__ raised, too
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -115,6 +122,7 @@ class OvertakeVectorEnv(VectorEnv):
             def keep_last(modes: np.ndarray, step: Any) -> None:
                 if step.finished.any():
                     last[step.finished] = step.obs[step.finished]
+
         res = hold(self.core, actions, self.hold_steps, on_step=None if last is None else keep_last)
         finished, obs, infos = res.finished, res.obs, res.info
         if last is not None and finished.any():
@@ -175,9 +183,15 @@ def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> 
     return out
 
 
-def make_vec(num_envs: int = 1, config: EnvConfig | dict[str, Any] | None = None,
-             autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, *, suite: Any = None,
-             hold_steps: int | None = None, **overrides: Any) -> OvertakeVectorEnv:
+def make_vec(
+    num_envs: int = 1,
+    config: EnvConfig | dict[str, Any] | None = None,
+    autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+    *,
+    suite: Any = None,
+    hold_steps: int | None = None,
+    **overrides: Any,
+) -> OvertakeVectorEnv:
     """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv`` (NEXT_STEP
     autoreset unless ``autoreset_mode`` says SAME_STEP); ``suite`` a suite's name, file path or
     loaded suite (its settings and distribution); ``hold_steps`` core steps per env step: an explicit

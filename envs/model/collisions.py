@@ -12,8 +12,18 @@ from __future__ import annotations
 from typing import Any
 
 
-def av_contacts(xp: Any, psi: Any, half_length: Any, half_width: Any, dx: Any, dy: Any, other_half_length: Any,
-                other_half_width: Any, present: Any, other_psi: Any = None) -> Any:
+def av_contacts(
+    xp: Any,
+    psi: Any,
+    half_length: Any,
+    half_width: Any,
+    dx: Any,
+    dy: Any,
+    other_half_length: Any,
+    other_half_width: Any,
+    present: Any,
+    other_psi: Any = None,
+) -> Any:
     """(M, B) bool: AV ``b`` (heading ``psi``, half sizes (B,)) touches vehicle ``m`` at relative
     position ``dx, dy`` in the AV's frame. ``other_psi`` (M, B) is the others' heading in that frame,
     None when every other vehicle is axis-aligned (the single-AV road: a cheaper test)."""

@@ -26,8 +26,9 @@ PLANNER, IDM, SCRIPTED_KIND, AGENT = 0, 1, 2, 3
 KIND_NAMES = ("planner", "idm", "scripted", "agent")
 
 
-def idm(v: Any, v0: Any, gap: Any, lead_v: Any, a_max: Any, min_gap: Any, headway: Any, brake_term: Any,
-        xp: Any = NP) -> Any:
+def idm(
+    v: Any, v0: Any, gap: Any, lead_v: Any, a_max: Any, min_gap: Any, headway: Any, brake_term: Any, xp: Any = NP
+) -> Any:
     """IDM acceleration (not clipped) at speed ``v`` towards desired speed ``v0``, ``gap`` (bumper, inf
     when nothing is ahead) behind a leader at ``lead_v``. ``brake_term`` is the caller's ``2 sqrt(a b)``
     (the planner's carries a tiny epsilon: its mode table may hold a zero acceleration)."""
@@ -37,8 +38,19 @@ def idm(v: Any, v0: Any, gap: Any, lead_v: Any, a_max: Any, min_gap: Any, headwa
     return a_max * (free - interaction)
 
 
-def npc_accelerations(s: Any, v: Any, T: dict[str, Any], aware: Any, boosted: Any, avs: dict[str, Any], dt: Any,
-                      npc_accel: Any, nc: Any, lane_mates: bool, xp: Any) -> tuple[Any, Any, Any, Any]:
+def npc_accelerations(
+    s: Any,
+    v: Any,
+    T: dict[str, Any],
+    aware: Any,
+    boosted: Any,
+    avs: dict[str, Any],
+    dt: Any,
+    npc_accel: Any,
+    nc: Any,
+    lane_mates: bool,
+    xp: Any,
+) -> tuple[Any, Any, Any, Any]:
     """(M, N) accelerations of every NPC (at ``s`` with speed ``v``, constants ``T``, under the NPC
     config ``nc``): IDM behind the nearest vehicle ahead in its lane, an NPC or an AV it has noticed
     (scripted NPCs never notice AVs); agents' accelerations where given.
@@ -86,8 +98,17 @@ def npc_accelerations(s: Any, v: Any, T: dict[str, Any], aware: Any, boosted: An
         passing = T["speedup"] & beside & (direction * dx - half_len < nc.speedup_trigger)
         boosted = boosted | (xp.any(passing & avs["present"][:, None], axis=0) & (dt > 0))
         v_des = v_des + xp.where(boosted, T["boost"], 0.0)
-    acc = idm(v, v_des, gap, lead_v, nc.max_acceleration, nc.min_gap, nc.time_headway,
-              2.0 * math.sqrt(nc.max_acceleration * nc.comfortable_braking), xp)
+    acc = idm(
+        v,
+        v_des,
+        gap,
+        lead_v,
+        nc.max_acceleration,
+        nc.min_gap,
+        nc.time_headway,
+        2.0 * math.sqrt(nc.max_acceleration * nc.comfortable_braking),
+        xp,
+    )
     if npc_accel is not None:
         override = xp.batch_last(npc_accel, xp.float)
         acc = xp.where(xp.isfinite(override), override, acc)

@@ -51,7 +51,9 @@ def track(m: AVMotion, p: Plan, dt: Any, pc: Any, step_dt: float, ego: dict[str,
     return AVMotion(x, y, m.psi + yaw_rate * dt, v_new, a, steer, yaw_rate), jerk
 
 
-def advance_npcs(s: Any, v: Any, acc: Any, dt: Any, direction: Any, present: Any, crashed: Any, xp: Any) -> tuple[Any, Any]:
+def advance_npcs(
+    s: Any, v: Any, acc: Any, dt: Any, direction: Any, present: Any, crashed: Any, xp: Any
+) -> tuple[Any, Any]:
     """NPC positions and speeds (M, N) after ``dt`` under ``acc``, each along its lane's
     ``direction``; absent NPCs and crashed ones (``crashed``, None when none has) stand still."""
     v = xp.maximum(v + acc * dt, 0.0) * present

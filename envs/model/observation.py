@@ -35,13 +35,26 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
     r = cfg.planner.num_rollouts + 1
     k = cfg.observation.vehicles_per_lane
     o = EGO_FEATURES
-    return {"ego": slice(0, o), "mode": slice(o, o + 3), "blocked": slice(o + 3, o + 3 + r),
-            "ego_lane": slice(o + 3 + r, o + 3 + r + k * SLOT_FEATURES),
-            "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES)}
+    return {
+        "ego": slice(0, o),
+        "mode": slice(o, o + 3),
+        "blocked": slice(o + 3, o + 3 + r),
+        "ego_lane": slice(o + 3 + r, o + 3 + r + k * SLOT_FEATURES),
+        "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES),
+    }
 
 
-def observe(cfg: EnvConfig, m: Any, mode: Any, blocked: Any, ego: dict[str, Any], view: dict[str, Any], geo: dict,
-            xp: Any, cols: Any = None) -> Any:
+def observe(
+    cfg: EnvConfig,
+    m: Any,
+    mode: Any,
+    blocked: Any,
+    ego: dict[str, Any],
+    view: dict[str, Any],
+    geo: dict,
+    xp: Any,
+    cols: Any = None,
+) -> Any:
     """The (N, D) float32 observation of the AV rows (motion ``m``, an ``AVMotion``; ``mode``; the
     planner's last ``blocked`` flags or None) from the batch-last geometry of the vehicles in their
     ``view`` (arrays (M, N)); only the rows ``cols`` when given (auto-reset rows). Features are
@@ -65,7 +78,7 @@ def observe(cfg: EnvConfig, m: Any, mode: Any, blocked: Any, ego: dict[str, Any]
     out[EGO_FEATURES + mode[sel], xp.arange(n)] = 1.0
     r = cfg.planner.num_rollouts + 1
     if blocked is not None:
-        out[EGO_FEATURES + 3:EGO_FEATURES + 3 + r] = blocked[sel].T
+        out[EGO_FEATURES + 3 : EGO_FEATURES + 3 + r] = blocked[sel].T
 
     # Slot of each vehicle: its rank by distance among the perceived vehicles of its lane (ties by
     # slot index, like a stable sort), from pairwise comparisons on (M, M, N) -- no sort, no loop.
@@ -74,7 +87,9 @@ def observe(cfg: EnvConfig, m: Any, mode: Any, blocked: Any, ego: dict[str, Any]
     if m:
         if view["lane_mates"][sel].any():
             j = xp.arange(m)
-            before = (dist[None, :] < dist[:, None]) | ((dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None]))
+            before = (dist[None, :] < dist[:, None]) | (
+                (dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None])
+            )
             same_lane = view["pair_same_lane"][..., sel]  # lanes equal, the other vehicle present (cached)
             rank = xp.sum(before & seen[None, :] & same_lane, axis=1)  # (M, N)
         else:  # (at most one vehicle per lane in these rows, e.g. table1: each is first in its lane)
@@ -85,9 +100,15 @@ def observe(cfg: EnvConfig, m: Any, mode: Any, blocked: Any, ego: dict[str, Any]
             c, s = xp.cos(psi)[vn], xp.sin(psi)[vn]
             ddx, ddy, vv = dx[vj, vn], dy[vj, vn], v[vn]
             rvx, rvy = v_along[vj, vn] - vv * c, -vv * s
-            feats = xp.stack([xp.ones_like(ddx), (ddx * c + ddy * s) / oc.position_scale,
-                              (-ddx * s + ddy * c) / lane_width[vn], (rvx * c + rvy * s) / oc.speed_scale,
-                              (-rvx * s + rvy * c) / oc.speed_scale])
+            feats = xp.stack(
+                [
+                    xp.ones_like(ddx),
+                    (ddx * c + ddy * s) / oc.position_scale,
+                    (-ddx * s + ddy * c) / lane_width[vn],
+                    (rvx * c + rvy * s) / oc.speed_scale,
+                    (-rvx * s + rvy * c) / oc.speed_scale,
+                ]
+            )
             row = EGO_FEATURES + 3 + r + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
             out[row[None, :] + xp.arange(SLOT_FEATURES)[:, None], vn[None, :]] = xp.astype(feats, np.float32)
     return rows_out

@@ -27,8 +27,20 @@ class Ending(NamedTuple):
     done: Any
 
 
-def resolve(x: Any, y: Any, t: Any, prev: Ending, ego: dict[str, Any], view: dict[str, Any], geo: dict[str, Any],
-            hit: Any, active: Any, num_npcs: int, others: Any, xp: Any) -> tuple[Any, Any, Ending]:
+def resolve(
+    x: Any,
+    y: Any,
+    t: Any,
+    prev: Ending,
+    ego: dict[str, Any],
+    view: dict[str, Any],
+    geo: dict[str, Any],
+    hit: Any,
+    active: Any,
+    num_npcs: int,
+    others: Any,
+    xp: Any,
+) -> tuple[Any, Any, Ending]:
     """Outcomes of this step for every AV row (position ``x``, ``y`` at time ``t``) from its
     contacts ``hit`` (M', B) with the vehicles of its ``view`` (the NPCs, then the AVs ``others``
     (E - 1, B) names: None on a single-AV road); returns (terminated, truncated, the new :class:`Ending`)."""
@@ -58,5 +70,8 @@ def resolve(x: Any, y: Any, t: Any, prev: Ending, ego: dict[str, Any], view: dic
     outcome = xp.astype(xp.where(crash, CRASH, outcome), xp.int8)
     completion_time = xp.where(success, t, prev.completion_time)
     terminated = crash | offroad | success
-    return terminated, timeout, Ending(outcome, crash_npc, crash_lane, crash_av, completion_time,
-                                       prev.done | terminated | timeout)
+    return (
+        terminated,
+        timeout,
+        Ending(outcome, crash_npc, crash_lane, crash_av, completion_time, prev.done | terminated | timeout),
+    )

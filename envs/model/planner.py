@@ -26,8 +26,9 @@ Per step and per scenario the planner (after OpenPlanner's ``TrajectoryEvaluator
 5. plans speed with IDM (controllers.idm) behind the nearest same-direction vehicle on the chosen
    path, keeping the mode's following distance. With ``emergency_braking`` an oncoming vehicle on
    the path counts too, as a standing obstacle where the two would meet, and braking beyond the
-   comfortable deceleration skips the jerk limit (dynamics.py). ABORT merges back only where the ego lane beside the ego is clear by
-   ``abort_clearance``; until then it holds its offset and drops back below the lead's speed.
+   comfortable deceleration skips the jerk limit (dynamics.py). ABORT merges back only where the ego
+   lane beside the ego is clear by ``abort_clearance``; until then it holds its offset and drops
+   back below the lead's speed.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ class ModeTable:
     rollout_id: np.ndarray
 
     @classmethod
-    def from_config(cls, cfg: PlannerConfig) -> "ModeTable":
+    def from_config(cls, cfg: PlannerConfig) -> ModeTable:
         modes = [cfg.modes[name] for name in MODE_NAMES]
         return cls(
             velocity=np.array([m.velocity for m in modes]),
@@ -64,7 +65,7 @@ class ModeTable:
             rollout_id=np.array([m.rollout_id for m in modes]),
         )
 
-    def to(self, xp) -> "ModeTable":
+    def to(self, xp) -> ModeTable:
         """The same table as arrays of backend ``xp``."""
         return ModeTable(**{k: xp.asarray(v) for k, v in self.__dict__.items()})
 
@@ -81,8 +82,9 @@ class Plan:
     emergency: np.ndarray | None = None  # (N,) bool: braking beyond comfort (emergency_braking only)
 
 
-def lateral_profile(y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_width: np.ndarray,
-                    roll_in: np.ndarray, tip: float, xp=NP) -> np.ndarray:
+def lateral_profile(
+    y: np.ndarray, target: np.ndarray, ahead: np.ndarray, lane_width: np.ndarray, roll_in: np.ndarray, tip: float, xp=NP
+) -> np.ndarray:
     """Lateral offset of a rollout ``ahead`` metres down the road: the current offset ``y`` held for
     ``tip``, then a straight roll-in with the slope of a full lane change over ``roll_in`` metres,
     then the end offset. Arrays broadcast; used by the evaluator and by the tracking controller."""
@@ -126,8 +128,9 @@ def _longitudinal_window(dx, rel_v, reach, xp):
     return t0, t1
 
 
-def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray,
-                     half_len: np.ndarray, xp=NP) -> dict:
+def rollout_geometry(
+    cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, half_wid: np.ndarray, half_len: np.ndarray, xp=NP
+) -> dict:
     """What the evaluator needs that is fixed for an episode (NPCs keep their lanes): rollout end
     offsets (R, N) and their priority, per vehicle (M, N) the longitudinal reach of the prediction
     and of the abort's clearance, and, per rollout and vehicle (R, M, N), the lateral distance,
@@ -137,13 +140,27 @@ def rollout_geometry(cfg: PlannerConfig, lane_width: np.ndarray, d: np.ndarray, 
     lat_margin = half_wid + cfg.horizontal_safety
     lat_end = xp.abs(offsets[:, None, :] - d)
     inside = lat_end < lat_margin
-    return {"offsets": offsets, "lat_margin": lat_margin, "lat_end": lat_end, "inside": inside,
-            "lat_cost": xp.where(inside, 2.0, 1.0 / xp.maximum(lat_end, 1e-3)), "priority": offsets / lane_width,
-            "lon_reach": half_len + cfg.vertical_safety, "beside_reach": half_len + cfg.abort_clearance}
+    return {
+        "offsets": offsets,
+        "lat_margin": lat_margin,
+        "lat_end": lat_end,
+        "inside": inside,
+        "lat_cost": xp.where(inside, 2.0, 1.0 / xp.maximum(lat_end, 1e-3)),
+        "priority": offsets / lane_width,
+        "lon_reach": half_len + cfg.vertical_safety,
+        "beside_reach": half_len + cfg.abort_clearance,
+    }
 
 
-def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout: np.ndarray,
-         ego: dict[str, np.ndarray], npc: dict[str, np.ndarray], xp=NP) -> Plan:
+def plan(
+    cfg: PlannerConfig,
+    table: ModeTable,
+    mode: np.ndarray,
+    current_rollout: np.ndarray,
+    ego: dict[str, np.ndarray],
+    npc: dict[str, np.ndarray],
+    xp=NP,
+) -> Plan:
     """One planning cycle for every row. ``ego`` holds (N,) arrays; ``npc`` the core's geometry in
     batch-last layout, (M, N). Internal arrays are (R, N) and (R, M, N): the batch is the
     contiguous axis, so reductions over rollouts and vehicles are fast elementwise passes."""
@@ -187,8 +204,12 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
     everywhere = allowed.all()  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
     cost = 0.0
-    for weight, term in ((cfg.weight_priority, priority), (cfg.weight_transition, transition),
-                         (cfg.weight_lateral, lateral), (cfg.weight_longitudinal, longitudinal)):
+    for weight, term in (
+        (cfg.weight_priority, priority),
+        (cfg.weight_transition, transition),
+        (cfg.weight_lateral, lateral),
+        (cfg.weight_longitudinal, longitudinal),
+    ):
         total = xp.sum(term if everywhere else xp.where(allowed, term, 0.0), axis=0)
         cost += weight * term / xp.maximum(total, 1e-9)
     if not everywhere:
@@ -240,9 +261,31 @@ def plan(cfg: PlannerConfig, table: ModeTable, mode: np.ndarray, current_rollout
     if head_on is not None:
         leader_v = xp.where(head_on[leader, cols], 0.0, leader_v)  # the meeting point does not move
     a_max = table.acceleration[mode]
-    accel = clip(idm(v, v0, leader_gap, leader_v, a_max, table.following_distance[mode], cfg.time_headway,
-                     2.0 * xp.sqrt(a_max * cfg.comfortable_braking) + 1e-9, xp), -cfg.max_braking, a_max, xp)
+    accel = clip(
+        idm(
+            v,
+            v0,
+            leader_gap,
+            leader_v,
+            a_max,
+            table.following_distance[mode],
+            cfg.time_headway,
+            2.0 * xp.sqrt(a_max * cfg.comfortable_braking) + 1e-9,
+            xp,
+        ),
+        -cfg.max_braking,
+        a_max,
+        xp,
+    )
     emergency = (accel < -cfg.comfortable_braking) if cfg.emergency_braking else None
     # Plan fields are (N, R) views, batch first like every public array.
-    return Plan(offsets=offsets.T, blocked=blocked.T, cost=cost.T, rollout=choice, target_d=target_d,
-                accel=accel, leader_gap=leader_gap, emergency=emergency)
+    return Plan(
+        offsets=offsets.T,
+        blocked=blocked.T,
+        cost=cost.T,
+        rollout=choice,
+        target_d=target_d,
+        accel=accel,
+        leader_gap=leader_gap,
+        emergency=emergency,
+    )

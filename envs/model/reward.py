@@ -5,8 +5,17 @@ from __future__ import annotations
 from typing import Any
 
 
-def step_reward(rc: Any, x: Any, outcome: Any, ego: dict[str, Any], terminated: Any, truncated: Any, switched: Any,
-                active: Any, xp: Any) -> Any:
+def step_reward(
+    rc: Any,
+    x: Any,
+    outcome: Any,
+    ego: dict[str, Any],
+    terminated: Any,
+    truncated: Any,
+    switched: Any,
+    active: Any,
+    xp: Any,
+) -> Any:
     """Per AV row (at ``x``, with ``outcome``) under the reward config ``rc``: progress towards the
     goal and a cost of time while running, a cost per switch into or out of OVERTAKE, and the
     terminal term of the outcome on the step the episode ends."""

@@ -28,7 +28,6 @@ import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
-
 from overtakezoo.zoo.base import Decider, register
 from overtakezoo.zoo.members.rule_fsm import lead_from_obs
 
@@ -68,7 +67,9 @@ INPUTS: dict[str, dict[str, tuple[float, ...]]] = {
 
 # Output "go-ness" on [0, 1]: abort / hold (follow) / go (overtake).
 OUTPUT: dict[str, tuple[float, ...]] = {
-    "abort": (0.0, 0.0, 0.1, 0.4), "hold": (0.2, 0.5, 0.8), "go": (0.6, 0.9, 1.0, 1.0),
+    "abort": (0.0, 0.0, 0.1, 0.4),
+    "hold": (0.2, 0.5, 0.8),
+    "go": (0.6, 0.9, 1.0, 1.0),
 }
 
 # The rule base: (antecedents {variable: term}, consequent). Antecedents are ANDed (min).
@@ -208,9 +209,17 @@ class FuzzyDecider(Decider):
         critical = np.where(has_lead, d_c / np.maximum(d_a, 1e-3), 0.0)
         progress = np.where(has_lead, (delta + L) / (Le + L + p.required_gap), 1.0)
         passing = (self.mode != FOLLOW).astype(float)
-        return {"lead_gap": lead_gap, "oncoming_gap": onc_gap, "closing_ttc": ttc, "time_margin": margin,
-                "complete_vs_abort": critical, "progress": progress, "passing": passing, "lateral": lateral,
-                "has_lead": has_lead}
+        return {
+            "lead_gap": lead_gap,
+            "oncoming_gap": onc_gap,
+            "closing_ttc": ttc,
+            "time_margin": margin,
+            "complete_vs_abort": critical,
+            "progress": progress,
+            "passing": passing,
+            "lateral": lateral,
+            "has_lead": has_lead,
+        }
 
     def _abort_distance(self, v_e, v_1, v_2, delta, L_1):
         """Glennon's distance needed to abort, D_a = ego travel + oncoming travel + C over the abort
@@ -221,14 +230,14 @@ class FuzzyDecider(Decider):
         v_ab = np.maximum(v_1 - pc.abort_drop_back, 0.0)
         s_need = np.maximum(delta + L_1 + pc.abort_clearance, 0.0)  # ego front back behind the lead
         t1 = np.maximum(v_e - v_ab, 0.0) / d  # braking phase
-        lost1 = (v_1 - v_e) * t1 + d * t1 ** 2 / 2  # relative distance lost while braking
+        lost1 = (v_1 - v_e) * t1 + d * t1**2 / 2  # relative distance lost while braking
         # Reached while braking: solve d t^2 / 2 - m t - s_need = 0 (Glennon's t_a).
         m = v_e - v_1
-        t_brake = (m + np.sqrt(np.maximum(m ** 2 + 2 * d * s_need, 0.0))) / d
+        t_brake = (m + np.sqrt(np.maximum(m**2 + 2 * d * s_need, 0.0))) / d
         rel = np.maximum(v_1 - v_ab, 1e-3)
         t_a = np.where(lost1 >= s_need, t_brake, t1 + (s_need - lost1) / rel)
         t_b = np.minimum(t_a, t1)
-        ego_travel = v_e * t_b - d * t_b ** 2 / 2 + v_ab * np.maximum(t_a - t1, 0.0)
+        ego_travel = v_e * t_b - d * t_b**2 / 2 + v_ab * np.maximum(t_a - t1, 0.0)
         return ego_travel + v_2 * t_a + p.clearance
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
@@ -258,11 +267,13 @@ class FuzzyDecider(Decider):
         return new.copy()
 
     def card(self) -> str:
-        return ("fuzzy v1: Mamdani fuzzy decider (Basjaruddin et al., TELKOMNIKA 2015 rule base, plus a "
-                "Glennon time margin, pass progress and mode; min/max inference, centroid on a "
-                f"{self.params.universe}-point universe); overtake when go-ness > {self.params.go_threshold}, "
-                f"abort when < {self.params.abort_threshold} early in a pass, follow otherwise. "
-                f"{len(RULES)} rules, vectorized in numpy.")
+        return (
+            "fuzzy v1: Mamdani fuzzy decider (Basjaruddin et al., TELKOMNIKA 2015 rule base, plus a "
+            "Glennon time margin, pass progress and mode; min/max inference, centroid on a "
+            f"{self.params.universe}-point universe); overtake when go-ness > {self.params.go_threshold}, "
+            f"abort when < {self.params.abort_threshold} early in a pass, follow otherwise. "
+            f"{len(RULES)} rules, vectorized in numpy."
+        )
 
 
 register("fuzzy", lambda config=None, **kw: FuzzyDecider(config, **kw))

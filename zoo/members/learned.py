@@ -42,7 +42,6 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size, safe_json
-
 from overtakezoo.zoo.base import Decider, member, names, register
 from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
 from overtakezoo.zoo.members.mlp import NumpyMLP, read_npz
@@ -84,8 +83,10 @@ def read_verified(weights: str | Path, card: dict[str, Any], who: str) -> bytes:
         raise WeightsError(f"{who}: cannot read weights {weights}: {exc.strerror or exc}") from None
     expected, actual = card.get("weights_sha256"), sha256_bytes(data)
     if expected != actual:
-        raise WeightsError(f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
-                           f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)")
+        raise WeightsError(
+            f"{who}: weights {weights.name} sha256 {actual[:12]}... does not match the model card's "
+            f"{str(expected)[:12]}... ({len(data)} bytes; file truncated or modified)"
+        )
     return data
 
 
@@ -124,8 +125,9 @@ def load_weights(weights: str | Path, card: dict[str, Any], who: str | None = No
     except Exception as exc:  # a hash-matching but unusable file: one line, not a traceback
         raise WeightsError(f"{who}: weights {weights.name}: cannot load ({type(exc).__name__}: {exc})") from None
     if "obs_dim" in arch and net.in_features != arch["obs_dim"]:
-        raise WeightsError(f"{who}: weights {weights.name} take {net.in_features} features, the model card says "
-                           f"{arch['obs_dim']}")
+        raise WeightsError(
+            f"{who}: weights {weights.name} take {net.in_features} features, the model card says {arch['obs_dim']}"
+        )
     return net
 
 
@@ -136,14 +138,17 @@ class MLPDecider(Decider):
     privileged = False
     row_state = ()
 
-    def __init__(self, net: NumpyMLP, name: str, config: EnvConfig | None = None,
-                 card: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self, net: NumpyMLP, name: str, config: EnvConfig | None = None, card: dict[str, Any] | None = None
+    ) -> None:
         super().__init__(config)
         self.stack = int((card or {}).get("frame_stack", 1))  # decisions of input (StackedMLPDecider)
         if net.in_features != self.stack * observation_size(self.config):
-            raise WeightsError(f"{name}: network expects {net.in_features} observation features, the configuration "
-                               f"gives {self.stack} x {observation_size(self.config)} (different planner/observation "
-                               "settings)")
+            raise WeightsError(
+                f"{name}: network expects {net.in_features} observation features, the configuration "
+                f"gives {self.stack} x {observation_size(self.config)} (different planner/observation "
+                "settings)"
+            )
         if net.out_features != NUM_MODES:
             raise WeightsError(f"{name}: network gives {net.out_features} scores, expected {NUM_MODES}")
         self.net, self.name = net, name
@@ -159,8 +164,9 @@ class MLPDecider(Decider):
         self.mask_version = int(card.get("action_mask_version", MASK_VERSION))
         self.features = card.get("features")  # None: the raw observation (weights from before the features)
         if self.features not in (None, FEATURES_VERSION):
-            raise WeightsError(f"{name}: unknown input features {self.features!r} (this version has "
-                               f"{FEATURES_VERSION!r})")
+            raise WeightsError(
+                f"{name}: unknown input features {self.features!r} (this version has {FEATURES_VERSION!r})"
+            )
 
     def scores(self, obs: np.ndarray) -> np.ndarray:
         """(N, D) observations -> (N, 3) float64 Q-values (dqn) or logits (ppo)."""
@@ -195,8 +201,9 @@ def deployed_repeat(name: str, card: dict[str, Any]) -> int:
     if isinstance(every, bool) or not isinstance(every, int) or not 1 <= every <= 1000:
         raise WeightsError(f"{name}: model card decide_every must be an integer in [1, 1000], got {every!r}")
     if int(card.get("frame_stack", 1)) > 1 and every != held:
-        raise WeightsError(f"{name}: a frame-stacked network decides at its training hold ({held} steps), "
-                           f"not every {every}")
+        raise WeightsError(
+            f"{name}: a frame-stacked network decides at its training hold ({held} steps), not every {every}"
+        )
     return every
 
 
@@ -242,42 +249,61 @@ def describe(name: str, c: dict[str, Any]) -> str:
     hidden = a.get("hidden")
     if a.get("kind") == "policy":
         version = (c.get("versions") or {}).get("rsl-rl-lib")
-        what = (f"{name} ({c.get('algorithm', 'PPO')}{f', rsl-rl-lib {version}' if version else ''}): MLP {hidden} "
-                f"{a.get('activation')} actor over the {a.get('obs_dim')}-feature input, categorical over the 3 "
-                "modes (argmax at test time)")
+        what = (
+            f"{name} ({c.get('algorithm', 'PPO')}{f', rsl-rl-lib {version}' if version else ''}): MLP {hidden} "
+            f"{a.get('activation')} actor over the {a.get('obs_dim')}-feature input, categorical over the 3 "
+            "modes (argmax at test time)"
+        )
     elif a.get("kind") == "classifier":  # bc: a classifier of the recorded modes
-        what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden} classifier over the {a.get('obs_dim')}-feature "
-                f"input, the most likely mode among those the action mask allows")
+        what = (
+            f"{name} ({c.get('algorithm', '?')}): MLP {hidden} classifier over the {a.get('obs_dim')}-feature "
+            f"input, the most likely mode among those the action mask allows"
+        )
     else:
         version = int(c.get("action_mask_version", MASK_VERSION))
-        what = (f"{name} ({c.get('algorithm', '?')}): MLP {hidden}{' dueling' if a.get('dueling') else ''} "
-                f"Q-network over the {a.get('obs_dim')}-feature input"
-                + (f"; mode-transition mask v{version} (abort only from overtake, follow only from follow or "
-                   f"in lane{', aborts carried through' if version >= 3 else ''})" if c.get("action_mask") else ""))
+        what = (
+            f"{name} ({c.get('algorithm', '?')}): MLP {hidden}{' dueling' if a.get('dueling') else ''} "
+            f"Q-network over the {a.get('obs_dim')}-feature input"
+            + (
+                f"; mode-transition mask v{version} (abort only from overtake, follow only from follow or "
+                f"in lane{', aborts carried through' if version >= 3 else ''})"
+                if c.get("action_mask")
+                else ""
+            )
+        )
     suite = (c.get("train_suite") or {}).get("name", "?")
     if c.get("dataset"):  # offline members (bc, cql) learn from a recorded dataset, not a suite
         ds = c["dataset"]
-        trained = (f"  trained offline on dataset {ds.get('name', '?')} (content sha256 "
-                   f"{str(ds.get('content_sha256'))[:12]}), {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, "
-                   f"seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s.")
+        trained = (
+            f"  trained offline on dataset {ds.get('name', '?')} (content sha256 "
+            f"{str(ds.get('content_sha256'))[:12]}), {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, "
+            f"seed {c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s."
+        )
     else:
-        trained = (f"  trained on {suite}, {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, seed "
-                   f"{c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')}).")
+        trained = (
+            f"  trained on {suite}, {c.get('steps', '?')} {c.get('steps_unit', 'steps')}, seed "
+            f"{c.get('seed', '?')}, {c.get('wall_time_s', 0):.0f} s wall ({hp.get('file', '?')})."
+        )
     held = c.get("action_repeat", 1)
     every = c.get("decide_every", held)
-    rate = (f"decision held {held} steps" if every == held else
-            f"decision held {held} steps in training, re-decided every {every} when deployed (chosen on the "
-            "training splits)")
+    rate = (
+        f"decision held {held} steps"
+        if every == held
+        else f"decision held {held} steps in training, re-decided every {every} when deployed (chosen on the "
+        "training splits)"
+    )
     if c.get("overtake_offset"):
         rate += f", {c['overtake_offset']:+g} on the OVERTAKE score (a threshold chosen on the training splits)"
     lines = [f"{what}, {rate}.", trained]
     res = c.get("results", {}).get("table1") or {}
     if res:
-        lines.append(f"  table1: success {100 * res['success_rate']:.1f} % "
-                     f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], crash "
-                     f"{100 * res['crash_rate']:.1f} % [{100 * res['crash_ci'][0]:.1f}, "
-                     f"{100 * res['crash_ci'][1]:.1f}] ({res['success']} successes, {res['crash']} crashes "
-                     f"of {res['count']}).")
+        lines.append(
+            f"  table1: success {100 * res['success_rate']:.1f} % "
+            f"[{100 * res['success_ci'][0]:.1f}, {100 * res['success_ci'][1]:.1f}], crash "
+            f"{100 * res['crash_rate']:.1f} % [{100 * res['crash_ci'][0]:.1f}, "
+            f"{100 * res['crash_ci'][1]:.1f}] ({res['success']} successes, {res['crash']} crashes "
+            f"of {res['count']})."
+        )
     lines.append(f"  weights sha256 {str(c.get('weights_sha256'))[:16]}...; reproduce: {c.get('reproduce', '?')}")
     if c.get("selection_note"):
         lines.append(f"  {c['selection_note']}")

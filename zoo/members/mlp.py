@@ -70,20 +70,28 @@ class NumpyMLP:
         return out
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray], activation: str = "relu", dueling: bool = False) -> "NumpyMLP":
+    def from_arrays(cls, arrays: dict[str, np.ndarray], activation: str = "relu", dueling: bool = False) -> NumpyMLP:
         n = sum(1 for k in arrays if k.endswith(".weight"))
         try:
-            layers = tuple((np.asarray(arrays[f"layer{i}.weight"], np.float64),
-                            np.asarray(arrays[f"layer{i}.bias"], np.float64)) for i in range(n))
+            layers = tuple(
+                (np.asarray(arrays[f"layer{i}.weight"], np.float64), np.asarray(arrays[f"layer{i}.bias"], np.float64))
+                for i in range(n)
+            )
         except KeyError as exc:
             raise ValueError(f"weights lack {exc.args[0]}") from None
         return cls(layers, activation, dueling)
 
     @classmethod
-    def from_linears(cls, linears: list[Any], activation: str = "relu", dueling: bool = False) -> "NumpyMLP":
+    def from_linears(cls, linears: list[Any], activation: str = "relu", dueling: bool = False) -> NumpyMLP:
         """From torch ``nn.Linear`` modules in order (at export time, where torch is loaded)."""
-        return cls(tuple((lin.weight.detach().cpu().double().numpy(), lin.bias.detach().cpu().double().numpy())
-                         for lin in linears), activation, dueling)
+        return cls(
+            tuple(
+                (lin.weight.detach().cpu().double().numpy(), lin.bias.detach().cpu().double().numpy())
+                for lin in linears
+            ),
+            activation,
+            dueling,
+        )
 
 
 _BLAS: Any = None

@@ -1,9 +1,9 @@
 """``oracle``: a privileged upper bound that searches the future by simulating it.
 
-Every ``replan_s`` seconds (its ``action_repeat``: the runner holds each decision that long), for the rows where a decision is still open, the oracle clones those
-rows of the live core (``OvertakeCore.clone``: every state array, the NPCs' hidden state
-included) and simulates candidate policies forward in one batch (all rows x all candidates, no
-loop over scenarios):
+Every ``replan_s`` seconds (its ``action_repeat``: the runner holds each decision that long), for
+the rows where a decision is still open, the oracle clones those rows of the live core
+(``OvertakeCore.clone``: every state array, the NPCs' hidden state included) and simulates candidate
+policies forward in one batch (all rows x all candidates, no loop over scenarios):
 
 - ``overtake``: OVERTAKE now and hold it to the end of the episode;
 - ``retreat``: drop back (ABORT while in the opposite lane, FOLLOW once back), checked for
@@ -23,7 +23,6 @@ import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_size
 from overtakezoo.envs.core import CRASH, SUCCESS
-
 from overtakezoo.zoo.base import Decider, ObservationError, register
 
 CAND_OVERTAKE, CAND_RETREAT = 0, 1
@@ -55,8 +54,13 @@ class Oracle(Decider):
     privileged = True
     row_state = ("decision", "verified")
 
-    def __init__(self, config: EnvConfig | None = None, replan_s: float = 1.0, retreat_horizon_s: float = 8.0,
-                 trust_verified: bool = True) -> None:
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        replan_s: float = 1.0,
+        retreat_horizon_s: float = 8.0,
+        trust_verified: bool = True,
+    ) -> None:
         super().__init__(config)
         self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
         self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
@@ -73,8 +77,10 @@ class Oracle(Decider):
         # The oracle reads the core, not the observation, yet takes the same input as every member:
         # a core whose observations its act would refuse (another width) is refused here.
         if core.obs_size != observation_size(self.config):
-            raise ObservationError(f"{self.name}: the bound core's observations have {core.obs_size} features, "
-                                   f"expected {observation_size(self.config)} (observation_size of the oracle's config)")
+            raise ObservationError(
+                f"{self.name}: the bound core's observations have {core.obs_size} features, "
+                f"expected {observation_size(self.config)} (observation_size of the oracle's config)"
+            )
         self.core = core
         self._size(core.num)
 
@@ -134,10 +140,12 @@ class Oracle(Decider):
         self.verified[rows] = ot_ok
 
     def card(self) -> str:
-        return ("oracle v1 (privileged): every 1 s clones the live simulator rows and simulates 'overtake now "
-                "and hold' to the end of the episode and 'drop back / follow' for 8 s, all rows in one batch; "
-                "overtakes only when the simulated overtake succeeds. An upper bound on follow-then-overtake "
-                "deciders at 1 s resolution; never train on it.")
+        return (
+            "oracle v1 (privileged): every 1 s clones the live simulator rows and simulates 'overtake now "
+            "and hold' to the end of the episode and 'drop back / follow' for 8 s, all rows in one batch; "
+            "overtakes only when the simulated overtake succeeds. An upper bound on follow-then-overtake "
+            "deciders at 1 s resolution; never train on it."
+        )
 
 
 register("oracle", lambda config=None, **kw: Oracle(config, **kw))

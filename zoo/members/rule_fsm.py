@@ -33,14 +33,14 @@ import numpy as np
 
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
-
 from overtakezoo.zoo.base import Decider, register
 
 EVIDENCE_TRUST_NUMBER = 3  # OpenPlanner launch default (op_behavior_selector/evidence_trust_number)
 
 
-def lead_from_obs(obs: np.ndarray, cfg: EnvConfig, layout: dict[str, Any] | None = None,
-                  dist: ScenarioDistribution | None = None) -> dict[str, np.ndarray]:
+def lead_from_obs(
+    obs: np.ndarray, cfg: EnvConfig, layout: dict[str, Any] | None = None, dist: ScenarioDistribution | None = None
+) -> dict[str, np.ndarray]:
     """The nearest perceived ego-lane vehicle ahead of the ego (OpenPlanner's ``distanceToNext``):
     bumper gap (inf if none), relative speed (m/s, ego frame) and slot index (-1 if none).
     ``layout`` and ``dist``: ``cfg``'s, built once by a decider (validating the distribution at every
@@ -119,11 +119,13 @@ class RuleFSM(Decider):
         return self.mode.copy()
 
     def card(self) -> str:
-        return ("rule-fsm v1: OpenPlanner's behaviour selector (BehaviorStateMachine.cpp ForwardStateII/"
-                "FollowStateII/SwerveStateII, evidence_trust_number = 3) acting on the shared planner's "
-                "blocked flags and the lead gap; swerves when the lead is within minDistanceToAvoid "
-                f"({self.avoid:g} m) and a side rollout is free, falls back to follow when every rollout "
-                "is blocked; no abort, no look-ahead past the planner's horizon. The paper's OP-only baseline.")
+        return (
+            "rule-fsm v1: OpenPlanner's behaviour selector (BehaviorStateMachine.cpp ForwardStateII/"
+            "FollowStateII/SwerveStateII, evidence_trust_number = 3) acting on the shared planner's "
+            "blocked flags and the lead gap; swerves when the lead is within minDistanceToAvoid "
+            f"({self.avoid:g} m) and a side rollout is free, falls back to follow when every rollout "
+            "is blocked; no abort, no look-ahead past the planner's horizon. The paper's OP-only baseline."
+        )
 
 
 register("rule-fsm", lambda config=None, **kw: RuleFSM(config, **kw))

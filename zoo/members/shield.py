@@ -27,7 +27,6 @@ import numpy as np
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, ScenarioDistribution, observation_layout
 from overtakezoo.envs.model.observation import SLOT_FEATURES
 from overtakezoo.envs.rss import RSSParams, safe_distance_opposite_direction
-
 from overtakezoo.zoo.base import Decider
 
 REQUIRED_GAP = 5.0  # m the ego's rear clears the lead's front before it merges back (Glennon's g, as fuzzy)
@@ -101,27 +100,36 @@ class Shielded(Decider):
         need = np.where(has_lead, lead_dx + self.half_lengths + REQUIRED_GAP, 0.0)
         a, b = max(self.accel, 1e-6), v_e - v_lead
         t1 = np.maximum(v_cap - v_e, 0.0) / a
-        gain1 = b * t1 + a * t1 ** 2 / 2
-        t_accel = (-b + np.sqrt(np.maximum(b ** 2 + 2 * a * need, 0.0))) / a
+        gain1 = b * t1 + a * t1**2 / 2
+        t_accel = (-b + np.sqrt(np.maximum(b**2 + 2 * a * need, 0.0))) / a
         cruise = np.where(v_cap - v_lead > 0.1, (need - gain1) / np.maximum(v_cap - v_lead, 0.1), np.inf)
         t_pass = np.where(gain1 >= need, t_accel, t1 + cruise)
         t_b = np.minimum(t_pass, t1)
         with np.errstate(invalid="ignore"):  # inf - inf where the lead cannot be passed (masked below)
-            ego_travel = v_e * t_b + a * t_b ** 2 / 2 + v_cap * np.maximum(t_pass - t1, 0.0)
+            ego_travel = v_e * t_b + a * t_b**2 / 2 + v_cap * np.maximum(t_pass - t1, 0.0)
             t_out = t_pass + self.p.lateral_return_time
             left = gap - ego_travel - v_cap * self.p.lateral_return_time - v_onc * t_out
         p = self.p
-        need_rss = safe_distance_opposite_direction(v_cap, v_onc, p.response_time, p.ego_accel_max, p.ego_brake_min,
-                                                    p.other_accel_max, p.other_brake_min_correct)
+        need_rss = safe_distance_opposite_direction(
+            v_cap,
+            v_onc,
+            p.response_time,
+            p.ego_accel_max,
+            p.ego_brake_min,
+            p.other_accel_max,
+            p.other_brake_min_correct,
+        )
         unsafe = has_lead & has_onc & ~(left >= need_rss)  # (NaN / -inf: cannot complete)
         passing = has_lead & (lead_dx > -self.half_lengths)
         return unsafe, passing
 
     def card(self) -> str:
-        return (f"{self.name}: {self.inner.name} behind an RSS shield (Alshiekh et al. 2018): an overtake that "
-                "cannot keep the RSS opposite-direction distance (Shalev-Shwartz et al. 2017, Def. 2) to the "
-                "nearest visible oncoming vehicle until back in lane is vetoed, or aborted while the lead is "
-                "not yet passed.")
+        return (
+            f"{self.name}: {self.inner.name} behind an RSS shield (Alshiekh et al. 2018): an overtake that "
+            "cannot keep the RSS opposite-direction distance (Shalev-Shwartz et al. 2017, Def. 2) to the "
+            "nearest visible oncoming vehicle until back in lane is vetoed, or aborted while the lead is "
+            "not yet passed."
+        )
 
 
 def load_shielded(name: str, config: EnvConfig | None = None, **kwargs: Any) -> Shielded:

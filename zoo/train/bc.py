@@ -50,7 +50,7 @@ def split(data: Transitions, holdout: float, seed: int) -> tuple[np.ndarray, np.
     """Row indices of the training and held-out transitions, split by whole episodes."""
     episodes = np.unique(data.episode)
     rng = np.random.default_rng(seed)
-    held = rng.permutation(episodes)[:int(round(holdout * len(episodes)))]
+    held = rng.permutation(episodes)[: int(round(holdout * len(episodes)))]
     out = np.isin(data.episode, held)
     return np.flatnonzero(~out), np.flatnonzero(out)
 
@@ -62,8 +62,14 @@ def accuracy(net: nn.Module, x: np.ndarray, y: np.ndarray) -> float | None:
         return float((net(torch.from_numpy(x)).argmax(1).numpy() == y).mean())
 
 
-def cross_entropy_step(net: nn.Module, optim: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor,
-                       rng: np.random.Generator, batch_size: int) -> torch.Tensor:
+def cross_entropy_step(
+    net: nn.Module,
+    optim: torch.optim.Optimizer,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    rng: np.random.Generator,
+    batch_size: int,
+) -> torch.Tensor:
     """One Adam step of cross-entropy on a minibatch drawn (with replacement) by ``rng``: the
     supervised update of bc and of dagger's classifier; returns the minibatch loss."""
     idx = torch.from_numpy(rng.integers(0, len(y), batch_size))
@@ -94,22 +100,49 @@ def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn
     if bar is not None:
         bar.close()
     net.eval()
-    stats = {"train_accuracy": accuracy(net, data.obs[train_rows], data.action[train_rows]),
-             "heldout_accuracy": accuracy(net, data.obs[held_rows], data.action[held_rows]),
-             "heldout_episodes": int(len(np.unique(data.episode[held_rows]))),
-             "gradient_steps": hp.steps, "transitions": len(data), "cpu_time_s": round(time.process_time() - cpu0, 1),
-             "wall_time_s": time.perf_counter() - t0}
+    stats = {
+        "train_accuracy": accuracy(net, data.obs[train_rows], data.action[train_rows]),
+        "heldout_accuracy": accuracy(net, data.obs[held_rows], data.action[held_rows]),
+        "heldout_episodes": int(len(np.unique(data.episode[held_rows]))),
+        "gradient_steps": hp.steps,
+        "transitions": len(data),
+        "cpu_time_s": round(time.process_time() - cpu0, 1),
+        "wall_time_s": time.perf_counter() - t0,
+    }
     return net, stats
 
 
-def train(dataset: Any, about: dict[str, Any], *, member: str = "bc", steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          progress: bool = True) -> Trained:
+def train(
+    dataset: Any,
+    about: dict[str, Any],
+    *,
+    member: str = "bc",
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> Trained:
     """Train bc on the loaded Minari ``dataset`` (``about``: its registry name and content hash,
     :func:`.offline.identity`); ``out`` receives ``bc.npz`` + ``bc.json``. ``seed`` and ``steps``
     (gradient steps) override the hyperparameter file (default ``zoo/hyperparams/bc.toml``)."""
     if member != "bc":
         raise TrainError(f"train/bc.py trains bc, not {member!r}")
-    return train_offline("bc", BCHyperparams, fit, ALGORITHM, "classifier", dataset, about, steps=steps, seed=seed,
-                         out=out, resume=resume, hyperparams=hyperparams, overrides=overrides, progress=progress)
+    return train_offline(
+        "bc",
+        BCHyperparams,
+        fit,
+        ALGORITHM,
+        "classifier",
+        dataset,
+        about,
+        steps=steps,
+        seed=seed,
+        out=out,
+        resume=resume,
+        hyperparams=hyperparams,
+        overrides=overrides,
+        progress=progress,
+    )

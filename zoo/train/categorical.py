@@ -30,8 +30,9 @@ class CategoricalDistribution(Distribution):
 
     def __init__(self, output_dim: int, num_categories: int = 3, init_logit_scale: float = 0.01) -> None:
         if output_dim != 1:
-            raise ValueError(f"CategoricalDistribution samples one index per row: num_actions must be 1, "
-                             f"got {output_dim}")
+            raise ValueError(
+                f"CategoricalDistribution samples one index per row: num_actions must be 1, got {output_dim}"
+            )
         if num_categories < 2:
             raise ValueError(f"num_categories must be >= 2, got {num_categories}")
         super().__init__(output_dim)

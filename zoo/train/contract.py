@@ -32,7 +32,6 @@ from typing import Any, TypeVar
 
 from overtakezoo.envs.config import ConfigError
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
-
 from overtakezoo.zoo.members.features import FEATURES_VERSION
 from overtakezoo.zoo.members.learned import MASK_VERSION, MLPDecider, sha256_bytes
 from overtakezoo.zoo.members.mlp import NumpyMLP
@@ -49,8 +48,13 @@ class TrainError(ConfigError):
 
 # What each trainer (its module under zoo/train) writes into the run directory beside the outputs of
 # write_outputs (the trainers use these names; `overtakezoo train --help` lists them).
-RUN_FILES = {"dqn": ("log.csv", "checkpoint.pt"), "ppo": ("train_log.csv", "checkpoints/ppo_<iteration>.pt"),
-             "bc": (), "cql": (), "dagger": ("log.csv",)}
+RUN_FILES = {
+    "dqn": ("log.csv", "checkpoint.pt"),
+    "ppo": ("train_log.csv", "checkpoints/ppo_<iteration>.pt"),
+    "bc": (),
+    "cql": (),
+    "dagger": ("log.csv",),
+}
 TORCH_WEIGHTS = ("dqn", "ppo")  # trainers whose member is exported from torch weights, <name>.pt
 
 
@@ -68,8 +72,7 @@ def hyperparams_file(member: str) -> Path:
     return HYPERPARAMS / f"{member}.toml"
 
 
-def load_hyperparams(schema: type[T], path: str | Path, overrides: Mapping[str, Any] | None = None
-                     ) -> tuple[T, str]:
+def load_hyperparams(schema: type[T], path: str | Path, overrides: Mapping[str, Any] | None = None) -> tuple[T, str]:
     """Schema ``schema`` from the TOML file ``path`` with ``overrides`` merged (tables key by key),
     and the file's name. Errors name ``path: key``."""
     path, overrides = Path(path), overrides or {}
@@ -99,8 +102,10 @@ def reject_reward_keys(hp: Mapping[str, Any], where: str) -> None:
     table): a hyperparameter that would change it for training only is refused, not ignored."""
     for key in ("reward", "time_penalty"):
         if key in hp:
-            raise HyperparameterError(f"{where}: {key!r} is not a training setting: every trainer uses the env's "
-                                      "reward (RewardConfig); change it in the suite's [sim.reward] table")
+            raise HyperparameterError(
+                f"{where}: {key!r} is not a training setting: every trainer uses the env's "
+                "reward (RewardConfig); change it in the suite's [sim.reward] table"
+            )
 
 
 def merged(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
@@ -140,9 +145,10 @@ def parse_overrides(items: list[str] | tuple[str, ...], where: str = "--set") ->
 # ----------------------------------------------------------------------------- the model card
 def suite_source(suites: list[Any], name: str | None = None) -> dict[str, Any]:
     """The card's record of training suites (``name``: the spec they were loaded from)."""
-    return {"train_suite": {"name": name or "+".join(s.name for s in suites),
-                            "suites": {s.name: s.hash for s in suites}},
-            "training_reward": dataclasses.asdict(suites[0].config.reward)}
+    return {
+        "train_suite": {"name": name or "+".join(s.name for s in suites), "suites": {s.name: s.hash for s in suites}},
+        "training_reward": dataclasses.asdict(suites[0].config.reward),
+    }
 
 
 def dataset_source(identity: dict[str, Any], config: Any) -> dict[str, Any]:
@@ -153,8 +159,11 @@ def dataset_source(identity: dict[str, Any], config: Any) -> dict[str, Any]:
 
 def reproduce(name: str, source: dict[str, Any], steps: int, seed: int) -> str:
     """The ``overtakezoo train`` command line that trains the same weights."""
-    what = (f"--suite {source['train_suite']['name']}" if "train_suite" in source
-            else f"--dataset {source['dataset']['name']}")
+    what = (
+        f"--suite {source['train_suite']['name']}"
+        if "train_suite" in source
+        else f"--dataset {source['dataset']['name']}"
+    )
     return f"overtakezoo train {name} {what} --steps {steps} --seed {seed}"
 
 
@@ -179,14 +188,32 @@ def set_flags(hp: Any, hp_file: str) -> list[str]:
         return {prefix[:-1]: d}
 
     now, was = leaves(as_dict(hp)), leaves(as_dict(base))
-    return [shlex.quote(f"{key}={json.dumps(value, separators=(',', ':'))}") for key, value in sorted(now.items())
-            if key.rsplit(".", 1)[-1] not in ("steps", "seed") and was.get(key) != value]
+    return [
+        shlex.quote(f"{key}={json.dumps(value, separators=(',', ':'))}")
+        for key, value in sorted(now.items())
+        if key.rsplit(".", 1)[-1] not in ("steps", "seed") and was.get(key) != value
+    ]
 
 
-def model_card(name: str, *, algorithm: str, architecture: dict[str, Any], hp: Any, hp_file: str, action_repeat: int,
-               action_mask: bool, source: dict[str, Any], steps: int, steps_unit: str, seed: int,
-               wall_time_s: float, training: dict[str, Any], reproduce: str,
-               versions: dict[str, str] | None = None, torch: bool = True) -> dict[str, Any]:
+def model_card(
+    name: str,
+    *,
+    algorithm: str,
+    architecture: dict[str, Any],
+    hp: Any,
+    hp_file: str,
+    action_repeat: int,
+    action_mask: bool,
+    source: dict[str, Any],
+    steps: int,
+    steps_unit: str,
+    seed: int,
+    wall_time_s: float,
+    training: dict[str, Any],
+    reproduce: str,
+    versions: dict[str, str] | None = None,
+    torch: bool = True,
+) -> dict[str, Any]:
     """The keys every model card has (``card.schema.json`` says what each means). ``architecture``
     holds ``kind`` (and ``dueling``: how to read a dqn's torch weights); :func:`finish` adds the rest,
     read from the network, and the weights' names and hashes. ``torch``: the trainer trained with
@@ -200,13 +227,24 @@ def model_card(name: str, *, algorithm: str, architecture: dict[str, Any], hp: A
         reproduce += f" --hyperparams zoo/hyperparams/{hp_file}"
     reproduce += "".join(f" --set {flag}" for flag in set_flags(hp, hp_file) if f" --set {flag}" not in reproduce)
     return {
-        "name": name, "version": "1", "algorithm": algorithm, "architecture": dict(architecture),
-        "features": FEATURES_VERSION, "action_repeat": int(action_repeat), "action_mask": bool(action_mask),
+        "name": name,
+        "version": "1",
+        "algorithm": algorithm,
+        "architecture": dict(architecture),
+        "features": FEATURES_VERSION,
+        "action_repeat": int(action_repeat),
+        "action_mask": bool(action_mask),
         **({"action_mask_version": MASK_VERSION} if action_mask else {}),
-        "hyperparameters": {"file": hp_file, **as_dict(hp)}, **source,
-        "steps": int(steps), "steps_unit": steps_unit, "seed": int(seed), "wall_time_s": round(float(wall_time_s), 1),
-        "training": training, "versions": {**used, **(versions or {})},
-        "results": {}, "reproduce": reproduce,
+        "hyperparameters": {"file": hp_file, **as_dict(hp)},
+        **source,
+        "steps": int(steps),
+        "steps_unit": steps_unit,
+        "seed": int(seed),
+        "wall_time_s": round(float(wall_time_s), 1),
+        "training": training,
+        "versions": {**used, **(versions or {})},
+        "results": {},
+        "reproduce": reproduce,
     }
 
 
@@ -221,6 +259,7 @@ def _validator() -> Any:
 
 def card_errors(card: Any) -> list[str]:
     """Where ``card`` departs from ``card.schema.json`` (``path: message``), in a stable order."""
+
     def message(e: Any) -> str:
         if e.validator == "oneOf" and not e.absolute_path:  # the message would quote the whole card
             return "needs exactly one of train_suite (with training_reward) and dataset"
@@ -263,8 +302,9 @@ class Trained:
         return cls(self.net, self.name, config, self.card)
 
 
-def finish(card: dict[str, Any], *, weights: bytes | None = None, module: Any = None,
-           out: str | Path | None = None) -> Trained:
+def finish(
+    card: dict[str, Any], *, weights: bytes | None = None, module: Any = None, out: str | Path | None = None
+) -> Trained:
     """The trained network as the zoo loads it: from the torch weights file ``weights`` (dqn, ppo:
     converted by :func:`.export.convert`, the card keeping their sha256 as provenance) or from a
     torch ``module`` of ``nn.Linear`` layers with ReLU between (bc, cql); written into ``out``

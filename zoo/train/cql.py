@@ -61,8 +61,9 @@ class CQLHyperparams:
     threads: int = param(1, 1, 256)
 
 
-def cql_loss(net: nn.Module, target: nn.Module, b: dict[str, torch.Tensor], hp: CQLHyperparams
-             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def cql_loss(
+    net: nn.Module, target: nn.Module, b: dict[str, torch.Tensor], hp: CQLHyperparams
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(total, TD, conservative) losses on a minibatch ``b``."""
     q = net(b["obs"])
     q_data = q.gather(1, b["action"][:, None])[:, 0]
@@ -77,9 +78,13 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
     torch.manual_seed(hp.seed)
     torch.set_num_threads(hp.threads)
     rng = np.random.default_rng(hp.seed)
-    tensors = {"obs": torch.from_numpy(data.obs), "action": torch.from_numpy(data.action),
-               "reward": torch.from_numpy(data.reward), "next_obs": torch.from_numpy(data.next_obs),
-               "done": torch.from_numpy(data.done)}
+    tensors = {
+        "obs": torch.from_numpy(data.obs),
+        "action": torch.from_numpy(data.action),
+        "reward": torch.from_numpy(data.reward),
+        "next_obs": torch.from_numpy(data.next_obs),
+        "done": torch.from_numpy(data.done),
+    }
     if hp.action_mask:  # the mask reads the observation layout, which the features keep
         tensors["next_mask"] = torch.from_numpy(action_mask(data.next_obs, data.config))
     net = QNetwork(data.obs.shape[1], hp.hidden, dueling=False)
@@ -106,21 +111,49 @@ def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[n
     net.eval()
     with torch.no_grad():
         q = net(tensors["obs"][:: max(1, len(data) // 20000)])
-    stats = {"final_td_loss": float(td.detach()), "final_conservative_loss": float(conservative.detach()),
-             "mean_q": float(q.mean()), "gradient_steps": hp.steps, "transitions": len(data),
-             "cpu_time_s": round(time.process_time() - cpu0, 1),
-             "wall_time_s": time.perf_counter() - t0}
+    stats = {
+        "final_td_loss": float(td.detach()),
+        "final_conservative_loss": float(conservative.detach()),
+        "mean_q": float(q.mean()),
+        "gradient_steps": hp.steps,
+        "transitions": len(data),
+        "cpu_time_s": round(time.process_time() - cpu0, 1),
+        "wall_time_s": time.perf_counter() - t0,
+    }
     return net, stats
 
 
-def train(dataset: Any, about: dict[str, Any], *, member: str = "cql", steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          progress: bool = True) -> Trained:
+def train(
+    dataset: Any,
+    about: dict[str, Any],
+    *,
+    member: str = "cql",
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> Trained:
     """Train cql on the loaded Minari ``dataset`` (``about``: its registry name and content hash,
     :func:`.offline.identity`); ``out`` receives ``cql.npz`` + ``cql.json``. ``seed`` and ``steps``
     (gradient steps) override the hyperparameter file (default ``zoo/hyperparams/cql.toml``)."""
     if member != "cql":
         raise TrainError(f"train/cql.py trains cql, not {member!r}")
-    return train_offline("cql", CQLHyperparams, fit, ALGORITHM, "q-network", dataset, about, steps=steps, seed=seed,
-                         out=out, resume=resume, hyperparams=hyperparams, overrides=overrides, progress=progress)
+    return train_offline(
+        "cql",
+        CQLHyperparams,
+        fit,
+        ALGORITHM,
+        "q-network",
+        dataset,
+        about,
+        steps=steps,
+        seed=seed,
+        out=out,
+        resume=resume,
+        hyperparams=hyperparams,
+        overrides=overrides,
+        progress=progress,
+    )

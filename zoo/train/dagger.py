@@ -55,19 +55,28 @@ from overtakezoo.envs import CRASH, OVERTAKE, SUCCESS, observation_size
 from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
 from overtakezoo.envs.io import check_writable_dir
-
 from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.members.learned import action_mask, masked_argmax
 from overtakezoo.zoo.members.oracle import Oracle
 from overtakezoo.zoo.train.bc import cross_entropy_step
-from overtakezoo.zoo.train.contract import (Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card,
-                                            reproduce, suite_source)
+from overtakezoo.zoo.train.contract import (
+    Trained,
+    TrainError,
+    finish,
+    hyperparams_file,
+    load_hyperparams,
+    model_card,
+    reproduce,
+    suite_source,
+)
 from overtakezoo.zoo.train.qlearning import QNetwork  # the zoo's torch MLP (Linear / ReLU layers)
 from overtakezoo.zoo.train.typed import param
 
 LEARNS_FROM = "suites"
-ALGORITHM = ("DAgger (Ross et al. 2011) distilling the privileged oracle into an observation-only classifier "
-             "('learning by cheating', Chen et al. 2019), OVERTAKE threshold chosen on the training splits")
+ALGORITHM = (
+    "DAgger (Ross et al. 2011) distilling the privileged oracle into an observation-only classifier "
+    "('learning by cheating', Chen et al. 2019), OVERTAKE threshold chosen on the training splits"
+)
 STEPS_UNIT = "DAgger iterations"
 
 
@@ -115,8 +124,9 @@ class History:
         return self.frames.reshape(len(f), -1)
 
 
-def student_modes(net: nn.Module, x: np.ndarray, obs: np.ndarray, config: Any, offset: np.ndarray | float,
-                  masked: bool) -> np.ndarray:
+def student_modes(
+    net: nn.Module, x: np.ndarray, obs: np.ndarray, config: Any, offset: np.ndarray | float, masked: bool
+) -> np.ndarray:
     """The student's modes on input ``x`` (:class:`History`): argmax of its logits, ``offset`` added
     to OVERTAKE's, over the modes the observations ``obs`` allow."""
     with torch.no_grad():
@@ -126,8 +136,9 @@ def student_modes(net: nn.Module, x: np.ndarray, obs: np.ndarray, config: Any, o
 
 
 # ----------------------------------------------------------------------------- rollouts the oracle labels
-def rollout(suite: Any, scenarios: Any, net: nn.Module | None, beta: float, hp: DAggerHyperparams,
-            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rollout(
+    suite: Any, scenarios: Any, net: nn.Module | None, beta: float, hp: DAggerHyperparams, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``scenarios`` of ``suite`` driven by the beta-mixture of oracle and student (``net``; None:
     the oracle alone), every running row's decision state labelled by the oracle. Returns the
     features (M, D), the labels (M,) and each row's outcome."""
@@ -162,8 +173,14 @@ def rollout(suite: Any, scenarios: Any, net: nn.Module | None, beta: float, hp: 
 
 
 # ----------------------------------------------------------------------------- the fit
-def fit(net: nn.Module, optim: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor, hp: DAggerHyperparams,
-        rng: np.random.Generator) -> float:
+def fit(
+    net: nn.Module,
+    optim: torch.optim.Optimizer,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    hp: DAggerHyperparams,
+    rng: np.random.Generator,
+) -> float:
     """``grad_steps`` minibatches of cross-entropy on the aggregated data; returns the last loss."""
     net.train()
     loss = torch.zeros(())
@@ -203,8 +220,9 @@ def select_offset(net: nn.Module, suites: list[Any], hp: DAggerHyperparams) -> t
 
 
 # ----------------------------------------------------------------------------- the loop
-def run(suites: list[Any], hp: DAggerHyperparams, out: Path | None, progress: bool
-        ) -> tuple[nn.Module, float, dict[str, Any]]:
+def run(
+    suites: list[Any], hp: DAggerHyperparams, out: Path | None, progress: bool
+) -> tuple[nn.Module, float, dict[str, Any]]:
     torch.manual_seed(hp.seed)
     torch.set_num_threads(hp.threads)
     rng = np.random.default_rng(hp.seed)
@@ -218,10 +236,10 @@ def run(suites: list[Any], hp: DAggerHyperparams, out: Path | None, progress: bo
     pools = [s.scenarios() for s in suites]
     t0, cpu0 = time.perf_counter(), time.process_time()
     for it in range(hp.steps):
-        beta = hp.beta * hp.beta_decay ** it
+        beta = hp.beta * hp.beta_decay**it
         t_roll = time.process_time()
         outcomes = []
-        for suite, pool in zip(suites, pools):
+        for suite, pool in zip(suites, pools, strict=True):
             scenarios = pool.take(rng.integers(0, pool.num, hp.episodes))
             x, y, outcome = rollout(suite, scenarios, net if it and beta < 1.0 else None, beta, hp, rng)
             xs.append(x)
@@ -231,19 +249,31 @@ def run(suites: list[Any], hp: DAggerHyperparams, out: Path | None, progress: bo
         x_all, y_all = torch.from_numpy(np.concatenate(xs)), torch.from_numpy(np.concatenate(ys))
         loss = fit(net, optim, x_all, y_all, hp, rng)
         o = np.concatenate(outcomes)
-        row = {"iteration": it, "beta": beta, "states": len(y_all), "rollout_success": float((o == SUCCESS).mean()),
-               "rollout_crash": float((o == CRASH).mean()), "loss": loss,
-               "rollout_cpu_s": round(t_fit - t_roll, 2), "fit_cpu_s": round(time.process_time() - t_fit, 2)}
+        row = {
+            "iteration": it,
+            "beta": beta,
+            "states": len(y_all),
+            "rollout_success": float((o == SUCCESS).mean()),
+            "rollout_crash": float((o == CRASH).mean()),
+            "loss": loss,
+            "rollout_cpu_s": round(t_fit - t_roll, 2),
+            "fit_cpu_s": round(time.process_time() - t_fit, 2),
+        }
         log.append(row)
         if progress:
             print(" ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()), flush=True)
     t_sel = time.process_time()
     offset, selection = select_offset(net, suites, hp)
-    stats = {"iterations": hp.steps, "states": int(sum(len(y) for y in ys)),
-             "overtake_label_share": float(np.mean(np.concatenate(ys) == OVERTAKE)),
-             "overtake_logit_offset": offset, "threshold_selection": selection,
-             "selection_cpu_s": round(time.process_time() - t_sel, 1),
-             "cpu_time_s": round(time.process_time() - cpu0, 1), "log": log}
+    stats = {
+        "iterations": hp.steps,
+        "states": int(sum(len(y) for y in ys)),
+        "overtake_label_share": float(np.mean(np.concatenate(ys) == OVERTAKE)),
+        "overtake_logit_offset": offset,
+        "threshold_selection": selection,
+        "selection_cpu_s": round(time.process_time() - t_sel, 1),
+        "cpu_time_s": round(time.process_time() - cpu0, 1),
+        "log": log,
+    }
     if out is not None:
         with open(out / "log.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(log[0]))
@@ -260,10 +290,19 @@ def with_offset(net: nn.Module, offset: float) -> nn.Module:
     return shipped
 
 
-def train(suites: list[Any], *, member: str = "dagger", suite_name: str | None = None, steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          progress: bool = True) -> Trained:
+def train(
+    suites: list[Any],
+    *,
+    member: str = "dagger",
+    suite_name: str | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> Trained:
     """Train ``dagger`` on the loaded training ``suites`` (``suite_name``: their spec, for the card);
     ``steps`` (DAgger iterations) and ``seed`` override the file (default ``zoo/hyperparams/dagger.toml``)."""
     if member != "dagger":
@@ -274,15 +313,28 @@ def train(suites: list[Any], *, member: str = "dagger", suite_name: str | None =
         raise TrainError("dagger trains on single-AV suites (the oracle drives one ego per road)")
     out_dir = check_writable_dir(out) if out else None
     hp, hp_file = load_hyperparams(DAggerHyperparams, hyperparams or hyperparams_file(member), overrides)
-    hp = dataclasses.replace(hp, seed=hp.seed if seed is None else int(seed),
-                             steps=hp.steps if steps is None else int(steps))
+    hp = dataclasses.replace(
+        hp, seed=hp.seed if seed is None else int(seed), steps=hp.steps if steps is None else int(steps)
+    )
     net, offset, stats = run(suites, hp, out_dir, progress)
     wall = float(stats.pop("wall_time_s"))
     source = suite_source(suites, suite_name)
-    card = model_card(member, algorithm=ALGORITHM, architecture={"kind": "classifier"}, hp=hp, hp_file=hp_file,
-                      action_repeat=hp.action_repeat, action_mask=hp.action_mask, source=source, steps=hp.steps,
-                      steps_unit=STEPS_UNIT, seed=hp.seed, wall_time_s=wall, training=stats,
-                      reproduce=reproduce(member, source, hp.steps, hp.seed))
+    card = model_card(
+        member,
+        algorithm=ALGORITHM,
+        architecture={"kind": "classifier"},
+        hp=hp,
+        hp_file=hp_file,
+        action_repeat=hp.action_repeat,
+        action_mask=hp.action_mask,
+        source=source,
+        steps=hp.steps,
+        steps_unit=STEPS_UNIT,
+        seed=hp.seed,
+        wall_time_s=wall,
+        training=stats,
+        reproduce=reproduce(member, source, hp.steps, hp.seed),
+    )
     if hp.frame_stack > 1:  # the member reads its last frame_stack decisions (StackedMLPDecider)
         card["frame_stack"] = hp.frame_stack
     return finish(card, module=with_offset(net, offset), out=out_dir)

@@ -63,12 +63,22 @@ from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.io import atomic_write_bytes, check_writable_dir
 from overtakezoo.envs.mixture import MixedCore, split_rows
-
-from overtakezoo.zoo.base import member as registry_member, names
+from overtakezoo.zoo.base import member as registry_member
+from overtakezoo.zoo.base import names
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.members.learned import NUM_MODES, action_mask, masked_argmax as numpy_masked_argmax
-from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, reproduce,
-                       suite_source)
+from overtakezoo.zoo.members.learned import NUM_MODES, action_mask
+from overtakezoo.zoo.members.learned import masked_argmax as numpy_masked_argmax
+from overtakezoo.zoo.train.contract import (
+    RUN_FILES,
+    Trained,
+    TrainError,
+    finish,
+    hyperparams_file,
+    load_hyperparams,
+    model_card,
+    reproduce,
+    suite_source,
+)
 from overtakezoo.zoo.train.qlearning import NStepReturns, QNetwork, ReplayBuffer, masked_argmax, td_targets
 from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 from overtakezoo.zoo.train.typed import as_dict, param
@@ -165,7 +175,7 @@ class Trainer:
         sources = [lambda n, rng, pool=pool: pool.take(rng.integers(0, pool.num, n)) for pool in pools]
         rows = row_split(self.hp.num_envs, [p.num_avs for p in pools], self.hp.multi_av_share)
         # A road of E AVs is E rows: each suite gets the roads that fill its rows (at least one).
-        roads = [max(1, r // p.num_avs) for r, p in zip(rows, pools)]
+        roads = [max(1, r // p.num_avs) for r, p in zip(rows, pools, strict=True)]
         self.core = MixedCore([s.config for s in self.suites], sources, roads, seed=self._core_seed)
         self.multi_av = any(p.num_avs > 1 for p in pools)
         if self.multi_av and self.hp.select_every:
@@ -177,7 +187,10 @@ class Trainer:
 
     def row_counts(self) -> dict[str, dict[str, int]]:
         """Roads and AV rows each training suite holds in the parallel batch."""
-        return {s.name: {"roads": n, "rows": c.num} for s, n, c in zip(self.suites, self.core.sizes, self.core.cores)}
+        return {
+            s.name: {"roads": n, "rows": c.num}
+            for s, n, c in zip(self.suites, self.core.sizes, self.core.cores, strict=True)
+        }
 
     def _features(self, obs: np.ndarray) -> np.ndarray:
         return speed_relative(obs, self.config).astype(np.float32)
@@ -224,8 +237,16 @@ class Trainer:
         next_mask = torch.from_numpy(action_mask(b["next_obs"], self.config)) if hp.action_mask else None
         obs, action, next_obs = (torch.from_numpy(b[k]) for k in ("obs", "action", "next_obs"))
         gamma = hp.gamma ** torch.from_numpy(b["steps"])  # a k-step transition bootstraps with gamma^k
-        y = td_targets(self.net, self.target, torch.from_numpy(b["reward"]), next_obs, torch.from_numpy(b["done"]),
-                       gamma, hp.double, next_mask)
+        y = td_targets(
+            self.net,
+            self.target,
+            torch.from_numpy(b["reward"]),
+            next_obs,
+            torch.from_numpy(b["done"]),
+            gamma,
+            hp.double,
+            next_mask,
+        )
         q = self.net(obs).gather(1, action[:, None])[:, 0]
         loss = nn.functional.huber_loss(q, y, delta=hp.huber_delta)
         self.optim.zero_grad(set_to_none=True)
@@ -248,8 +269,11 @@ class Trainer:
         score = greedy_score(act, self.select_sets, self.hp.action_repeat)
         self.scores.append([self.transitions, round(score, 4)])
         if score > self.best["score"]:
-            self.best = {"score": score, "transitions": self.transitions,
-                         "net": {k: v.detach().clone() for k, v in self.net.state_dict().items()}}
+            self.best = {
+                "score": score,
+                "transitions": self.transitions,
+                "net": {k: v.detach().clone() for k, v in self.net.state_dict().items()},
+            }
         return score
 
     def selection(self) -> dict[str, Any] | None:
@@ -257,10 +281,15 @@ class Trainer:
         hp = self.hp
         if not hp.select_every:
             return None
-        return {"rule": "greedy success rate minus crash rate on the first training scenarios",
-                "scenarios": int(sum(sc.num for _, sc in self.select_sets)), "every": hp.select_every,
-                "from": hp.select_from, "transitions": self.best["transitions"],
-                "score": round(float(self.best["score"]), 4), "scores": self.scores}
+        return {
+            "rule": "greedy success rate minus crash rate on the first training scenarios",
+            "scenarios": int(sum(sc.num for _, sc in self.select_sets)),
+            "every": hp.select_every,
+            "from": hp.select_from,
+            "transitions": self.best["transitions"],
+            "score": round(float(self.best["score"]), 4),
+            "scores": self.scores,
+        }
 
     def rates(self) -> tuple[float, float]:
         if not self.recent:
@@ -280,8 +309,14 @@ class Trainer:
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=steps, initial=min(self.transitions, steps), unit="tr", desc=self.algo,
-                       dynamic_ncols=True, mininterval=1.0)
+            bar = tqdm(
+                total=steps,
+                initial=min(self.transitions, steps),
+                unit="tr",
+                desc=self.algo,
+                dynamic_ncols=True,
+                mininterval=1.0,
+            )
         log = _CsvLog(out / RUN_FILES["dqn"][0]) if out else None
         t0 = time.perf_counter() - self.wall
         while self.transitions < steps:
@@ -301,16 +336,26 @@ class Trainer:
                 if bar is not None:
                     bar.set_postfix(success=f"{s:.2f}", crash=f"{c:.2f}", eps=f"{self.epsilon():.2f}", refresh=False)
                 if log:
-                    log.write({"steps": self.transitions, "episodes": self.episodes, "success_rate": round(s, 4),
-                               "crash_rate": round(c, 4), "loss": round(self.last_loss, 5),
-                               "epsilon": round(self.epsilon(), 4), "updates": self.updates,
-                               "wall_time_s": round(self.wall, 2)})
+                    log.write(
+                        {
+                            "steps": self.transitions,
+                            "episodes": self.episodes,
+                            "success_rate": round(s, 4),
+                            "crash_rate": round(c, 4),
+                            "loss": round(self.last_loss, 5),
+                            "epsilon": round(self.epsilon(), 4),
+                            "updates": self.updates,
+                            "wall_time_s": round(self.wall, 2),
+                        }
+                    )
             if next_select is not None and self.transitions >= next_select and self.transitions < steps:
                 next_select = (self.transitions // every + 1) * every
                 score = self.select()
                 if bar is not None:
-                    bar.write(f"{self.transitions} transitions: greedy success - crash {score:.3f} "
-                              f"(best {self.best['score']:.3f} at {self.best['transitions']})")
+                    bar.write(
+                        f"{self.transitions} transitions: greedy success - crash {score:.3f} "
+                        f"(best {self.best['score']:.3f} at {self.best['transitions']})"
+                    )
             if out and self.transitions >= next_ckpt:
                 next_ckpt += hp.checkpoint_every
                 self.checkpoint(out / RUN_FILES["dqn"][1])
@@ -323,15 +368,30 @@ class Trainer:
 
     # ------------------------------------------------------------------------- checkpoints
     def checkpoint(self, path: Path) -> None:
-        state = {"algo": self.algo, "hp": as_dict(self.hp), "seed": self.seed, "net": self.net.state_dict(),
-                 "target": self.target.state_dict(), "optim": self.optim.state_dict(),
-                 "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
-                 "wall": self.wall, "recent": list(self.recent), "rng": self.rng.bit_generator.state,
-                 "torch_rng": torch.get_rng_state(), "core_seed": self._core_seed + 1,
-                 "best": {"score": float(self.best["score"]), "transitions": self.best["transitions"],
-                          "net": self.best["net"]}, "scores": self.scores,
-                 "buffer": {k: torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v
-                            for k, v in self.buffer.state().items()}}  # tensors: loadable with weights_only
+        state = {
+            "algo": self.algo,
+            "hp": as_dict(self.hp),
+            "seed": self.seed,
+            "net": self.net.state_dict(),
+            "target": self.target.state_dict(),
+            "optim": self.optim.state_dict(),
+            "counters": [self.transitions, self.core_steps, self.updates, self.episodes],
+            "wall": self.wall,
+            "recent": list(self.recent),
+            "rng": self.rng.bit_generator.state,
+            "torch_rng": torch.get_rng_state(),
+            "core_seed": self._core_seed + 1,
+            "best": {
+                "score": float(self.best["score"]),
+                "transitions": self.best["transitions"],
+                "net": self.best["net"],
+            },
+            "scores": self.scores,
+            "buffer": {
+                k: torch.from_numpy(np.ascontiguousarray(v)) if isinstance(v, np.ndarray) else v
+                for k, v in self.buffer.state().items()
+            },
+        }  # tensors: loadable with weights_only
         buf = io.BytesIO()
         torch.save(state, buf)
         atomic_write_bytes(path, buf.getvalue())
@@ -359,12 +419,14 @@ class Trainer:
         self.buffer.load({k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state["buffer"].items()})
 
 
-MULTI_AV_NOTE = ("Several automated vehicles (AVs) per road on the multi-AV training suites: every AV row acts "
-                 "with the one Q-network and its transitions go into the one replay buffer (parameter sharing, "
-                 "Gupta et al. 2017; the AVs of a road meet copies of the same policy: self-play). An AV that "
-                 "is done waits frozen until its road ends; its decisions then belong to no episode and are "
-                 "not stored. multi_av_share of the rows run the multi-AV suites, the rest the single-ego "
-                 "ones. Everything else is the single-agent DQN trainer's.")
+MULTI_AV_NOTE = (
+    "Several automated vehicles (AVs) per road on the multi-AV training suites: every AV row acts "
+    "with the one Q-network and its transitions go into the one replay buffer (parameter sharing, "
+    "Gupta et al. 2017; the AVs of a road meet copies of the same policy: self-play). An AV that "
+    "is done waits frozen until its road ends; its decisions then belong to no episode and are "
+    "not stored. multi_av_share of the rows run the multi-AV suites, the rest the single-ego "
+    "ones. Everything else is the single-agent DQN trainer's."
+)
 
 
 def row_split(total: int, num_avs: list[int], multi_share: float | None) -> list[int]:
@@ -377,7 +439,7 @@ def row_split(total: int, num_avs: list[int], multi_share: float | None) -> list
     to_multi = int(round(total * multi_share))
     out = [0] * len(num_avs)
     for group, rows in ((multi, to_multi), (single, total - to_multi)):
-        for i, n in zip(group, split_rows(rows, len(group))):
+        for i, n in zip(group, split_rows(rows, len(group)), strict=True):
             out[i] = n
     return out
 
@@ -401,30 +463,56 @@ class _CsvLog:
 # ----------------------------------------------------------------------------- the card, train
 def algorithm(hp: DQNHyperparams, multi_av: bool = False) -> str:
     """The card's ``algorithm``: which DQN, with which head, and parameter sharing when multi-AV."""
-    return (("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)")
-            + (" with a dueling head (Wang et al. 2016)" if hp.dueling else "")
-            + (f", {hp.n_step}-step returns" if hp.n_step > 1 else "")
-            + (", parameters shared by every automated vehicle (Gupta et al. 2017)" if multi_av else ""))
+    return (
+        ("Double DQN (van Hasselt et al. 2016)" if hp.double else "DQN (Mnih et al. 2015)")
+        + (" with a dueling head (Wang et al. 2016)" if hp.dueling else "")
+        + (f", {hp.n_step}-step returns" if hp.n_step > 1 else "")
+        + (", parameters shared by every automated vehicle (Gupta et al. 2017)" if multi_av else "")
+    )
 
 
 def card(trainer: Trainer, hp_file: str) -> dict[str, Any]:
     """The training card of ``trainer``'s network (:func:`.contract.model_card`)."""
     hp, source = trainer.hp, suite_source(trainer.suites, trainer.train_name)
     selection = trainer.selection()
-    training = {"core_steps": trainer.core_steps, "gradient_updates": trainer.updates, "episodes": trainer.episodes,
-                **({"selection": selection} if selection else {}),
-                **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {})}
-    return model_card(trainer.algo, algorithm=algorithm(hp, trainer.multi_av),
-                      architecture={"kind": "q-network", "dueling": hp.dueling}, hp=hp, hp_file=hp_file,
-                      action_repeat=hp.action_repeat, action_mask=hp.action_mask, source=source,
-                      steps=trainer.transitions, steps_unit=STEPS_UNIT, seed=trainer.seed, wall_time_s=trainer.wall,
-                      training=training, reproduce=reproduce(trainer.algo, source, hp.steps, trainer.seed))
+    training = {
+        "core_steps": trainer.core_steps,
+        "gradient_updates": trainer.updates,
+        "episodes": trainer.episodes,
+        **({"selection": selection} if selection else {}),
+        **({"train_rows": trainer.row_counts(), "multi_av": MULTI_AV_NOTE} if trainer.multi_av else {}),
+    }
+    return model_card(
+        trainer.algo,
+        algorithm=algorithm(hp, trainer.multi_av),
+        architecture={"kind": "q-network", "dueling": hp.dueling},
+        hp=hp,
+        hp_file=hp_file,
+        action_repeat=hp.action_repeat,
+        action_mask=hp.action_mask,
+        source=source,
+        steps=trainer.transitions,
+        steps_unit=STEPS_UNIT,
+        seed=trainer.seed,
+        wall_time_s=trainer.wall,
+        training=training,
+        reproduce=reproduce(trainer.algo, source, hp.steps, trainer.seed),
+    )
 
 
-def train(suites: list[Any], *, member: str = "dqn", suite_name: str | None = None, steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          progress: bool = True) -> Trained:
+def train(
+    suites: list[Any],
+    *,
+    member: str = "dqn",
+    suite_name: str | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> Trained:
     """Train ``member`` (dqn, double-dqn, ps-dqn) on the loaded training ``suites`` (``suite_name``:
     the spec they came from, for the card); ``out`` receives ``log.csv``, ``checkpoint.pt``,
     ``<member>.pt``, ``<member>.npz`` and the card ``<member>.json``. ``overrides`` ({"lr": 1e-3})

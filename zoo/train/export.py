@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
-
 from overtakezoo.zoo.members.learned import WeightsError, read_card, read_verified, sha256_bytes
 from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes
 
@@ -49,8 +48,11 @@ def torch_to_numpy(data: bytes, card: dict[str, Any], who: str = "weights") -> N
 def linear_layers(state: dict[str, Any], prefix: str) -> list[tuple[Any, Any]]:
     """``prefix<i>.weight`` / ``.bias`` in the order of i (an ``nn.Sequential``'s Linear layers);
     KeyError for a weight without its bias."""
-    idx = sorted(int(k[len(prefix):-len(".weight")]) for k in state
-                 if k.startswith(prefix) and k.endswith(".weight") and k[len(prefix):-len(".weight")].isdigit())
+    idx = sorted(
+        int(k[len(prefix) : -len(".weight")])
+        for k in state
+        if k.startswith(prefix) and k.endswith(".weight") and k[len(prefix) : -len(".weight")].isdigit()
+    )
     return [(state[f"{prefix}{i}.weight"], state[f"{prefix}{i}.bias"]) for i in idx]
 
 
@@ -71,8 +73,10 @@ def _ppo_net(blob: dict[str, Any]) -> NumpyMLP:
         raise ValueError(f"format {blob.get('format')!r}, expected {PPO_FORMAT!r}")
     cfg = blob["actor_cfg"]
     if cfg.get("obs_normalization"):
-        raise WeightsError("ppo: an actor with obs_normalization cannot be exported (the numpy MLP has no "
-                           "normalizer); train with [actor] obs_normalization = false")
+        raise WeightsError(
+            "ppo: an actor with obs_normalization cannot be exported (the numpy MLP has no "
+            "normalizer); train with [actor] obs_normalization = false"
+        )
     return NumpyMLP(_arrays(linear_layers(blob["state_dict"], "mlp.")), str(cfg.get("activation", "elu")), False)
 
 
@@ -81,11 +85,24 @@ def npz_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) -> dict
     out = copy.deepcopy(card)
     arch = out.setdefault("architecture", {})
     arch.setdefault("kind", "policy" if name == "ppo" or card.get("name") == "ppo" else "q-network")
-    arch.update({"obs_dim": net.in_features, "num_actions": net.out_features, "activation": net.activation,
-                 "dueling": net.dueling, "layers": [list(w.shape) for w, _ in net.layers]})
+    arch.update(
+        {
+            "obs_dim": net.in_features,
+            "num_actions": net.out_features,
+            "activation": net.activation,
+            "dueling": net.dueling,
+            "layers": [list(w.shape) for w, _ in net.layers],
+        }
+    )
     arch.setdefault("hidden", [int(w.shape[0]) for w, _ in net.layers[:-1]])
-    out.update({"weights_file": f"{name}.npz", "weights_format": "npz (overtakezoo.zoo.members.mlp, float64)",
-                "weights_sha256": sha256_bytes(npz), "weights_bytes": len(npz)})
+    out.update(
+        {
+            "weights_file": f"{name}.npz",
+            "weights_format": "npz (overtakezoo.zoo.members.mlp, float64)",
+            "weights_sha256": sha256_bytes(npz),
+            "weights_bytes": len(npz),
+        }
+    )
     return out
 
 
@@ -98,8 +115,9 @@ def exported_card(card: dict[str, Any], net: NumpyMLP, npz: bytes, name: str) ->
     return out
 
 
-def convert(card: dict[str, Any], data: bytes, name: str, who: str | None = None
-            ) -> tuple[dict[str, Any], bytes, NumpyMLP]:
+def convert(
+    card: dict[str, Any], data: bytes, name: str, who: str | None = None
+) -> tuple[dict[str, Any], bytes, NumpyMLP]:
     """Torch weights ``data`` with their training ``card`` -> (the card naming the .npz, the .npz
     bytes, the network): what :func:`export` writes, for a trainer that holds them in memory."""
     net = torch_to_numpy(data, card, who or f"{name}: weights")
@@ -115,13 +133,19 @@ def find_card(source: Path, name: str | None = None) -> Path:
         return source / f"{name}.json"
     cards = sorted(p for p in source.glob("*.json") if p.with_suffix(".pt").is_file())
     if len(cards) != 1:
-        raise WeightsError(f"{source}: expected one <name>.pt beside its <name>.json, found "
-                           f"{', '.join(p.stem for p in cards) or 'none'}")
+        raise WeightsError(
+            f"{source}: expected one <name>.pt beside its <name>.json, found "
+            f"{', '.join(p.stem for p in cards) or 'none'}"
+        )
     return cards[0]
 
 
-def export(source: str | Path, dest: str | Path | None = None, name: str | None = None,
-           card_updates: dict[str, Any] | None = None) -> Path:
+def export(
+    source: str | Path,
+    dest: str | Path | None = None,
+    name: str | None = None,
+    card_updates: dict[str, Any] | None = None,
+) -> Path:
     """Write ``<name>.npz`` + ``<name>.json`` into ``dest`` (default: beside the source) from a
     training output (a directory, its ``<name>.pt`` or its ``<name>.json``); ``card_updates`` are
     set in the card (e.g. a seed selection note). The torch file's sha256 is checked against the

@@ -30,18 +30,27 @@ import numpy as np
 
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, observation_size
 from overtakezoo.envs.io import check_writable_dir
-
 from overtakezoo.zoo.members.features import speed_relative
 from overtakezoo.zoo.train.typed import param
 
 STEPS_UNIT = "decisions (env steps)"
-ALGORITHM = ("PPO (Schulman et al. 2017: clipped surrogate, GAE, minibatch advantage normalisation, Adam), "
-             "numpy (overtakezoo.zoo.train.fastppo)")
+ALGORITHM = (
+    "PPO (Schulman et al. 2017: clipped surrogate, GAE, minibatch advantage normalisation, Adam), "
+    "numpy (overtakezoo.zoo.train.fastppo)"
+)
 # float32 for the networks (training only; what ships is float64, NumpyMLP): half the CPU time of
 # float64 in the update, and the same bits on every run (one BLAS thread).
 DTYPE = np.float32
-LOG_COLUMNS = ["iteration", "env_steps", "wall_s", "episodes", "success_rate", "crash_rate", "timeout_rate",
-               "greedy_score"]
+LOG_COLUMNS = [
+    "iteration",
+    "env_steps",
+    "wall_s",
+    "episodes",
+    "success_rate",
+    "crash_rate",
+    "timeout_rate",
+    "greedy_score",
+]
 
 
 # ----------------------------------------------------------------------------- hyperparameters
@@ -90,7 +99,7 @@ class MLP:
 
     def __init__(self, sizes: list[int], rng: np.random.Generator, last_gain: float) -> None:
         self.params: list[np.ndarray] = []
-        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
             gain = last_gain if i == len(sizes) - 2 else math.sqrt(2.0)
             self.params += [_orthogonal(rng, n_out, n_in, gain).astype(DTYPE), np.zeros(n_out, DTYPE)]
         self.m = [np.zeros_like(p) for p in self.params]
@@ -118,8 +127,8 @@ class MLP:
 
     def adam(self, grads: list[np.ndarray], lr: float, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> None:
         self.t += 1
-        c1, c2 = 1.0 - b1 ** self.t, 1.0 - b2 ** self.t
-        for p, g, m, v in zip(self.params, grads, self.m, self.v):
+        c1, c2 = 1.0 - b1**self.t, 1.0 - b2**self.t
+        for p, g, m, v in zip(self.params, grads, self.m, self.v, strict=True):
             m *= b1
             m += (1.0 - b1) * g
             v *= b2
@@ -127,8 +136,10 @@ class MLP:
             p -= lr * (m / c1) / (np.sqrt(v / c2) + eps)
 
     def layers(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-        return tuple((self.params[i].astype(np.float64), self.params[i + 1].astype(np.float64))
-                     for i in range(0, len(self.params), 2))
+        return tuple(
+            (self.params[i].astype(np.float64), self.params[i + 1].astype(np.float64))
+            for i in range(0, len(self.params), 2)
+        )
 
 
 def _orthogonal(rng: np.random.Generator, rows: int, cols: int, gain: float) -> np.ndarray:
@@ -159,7 +170,7 @@ def update(actor: MLP, critic: MLP, batch: dict[str, np.ndarray], p: PPOSection,
     for _ in range(p.epochs):
         order = rng.permutation(n)
         for k in range(p.minibatches):
-            idx = order[k * size:(k + 1) * size]
+            idx = order[k * size : (k + 1) * size]
             x, a, old, adv, ret = (batch[key][idx] for key in ("obs", "act", "logp", "adv", "ret"))
             b = len(idx)
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
@@ -185,8 +196,9 @@ def update(actor: MLP, critic: MLP, batch: dict[str, np.ndarray], p: PPOSection,
             critic.adam(gc, p.learning_rate)
 
 
-def gae(reward: np.ndarray, value: np.ndarray, done: np.ndarray, last: np.ndarray, gamma: float, lam: float
-        ) -> tuple[np.ndarray, np.ndarray]:
+def gae(
+    reward: np.ndarray, value: np.ndarray, done: np.ndarray, last: np.ndarray, gamma: float, lam: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(T, N) advantages and returns; a finished row (any outcome, timeouts included: the limit is
     part of the task) does not bootstrap."""
     adv = np.zeros_like(reward)
@@ -201,8 +213,17 @@ def gae(reward: np.ndarray, value: np.ndarray, done: np.ndarray, last: np.ndarra
 
 
 # ----------------------------------------------------------------------------- training
-def train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_name: str | None, steps: int | None,
-          seed: int, out: Path, progress: bool) -> Any:
+def train(
+    suites: list[Any],
+    hp: FastPPOHyperparams,
+    hp_file: str,
+    *,
+    suite_name: str | None,
+    steps: int | None,
+    seed: int,
+    out: Path,
+    progress: bool,
+) -> Any:
     """Train on the loaded training ``suites`` for ``steps`` decisions; write ``train_log.csv``,
     ``ppo.npz`` and ``ppo.json`` into ``out``; return the :class:`~.contract.Trained` member."""
     from threadpoolctl import threadpool_limits
@@ -211,8 +232,17 @@ def train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_name
         return _train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
 
-def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_name: str | None, steps: int | None,
-           seed: int, out: Path, progress: bool) -> Any:
+def _train(
+    suites: list[Any],
+    hp: FastPPOHyperparams,
+    hp_file: str,
+    *,
+    suite_name: str | None,
+    steps: int | None,
+    seed: int,
+    out: Path,
+    progress: bool,
+) -> Any:
     from overtakezoo.envs.hold import hold
     from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.zoo.members.mlp import NumpyMLP
@@ -228,7 +258,7 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
     source = suite_source(suites, suite_name)
     config = suites[0].config
     pools = [s.scenarios() for s in suites]
-    multi = [s.name for s, q in zip(suites, pools) if q.num_avs > 1]
+    multi = [s.name for s, q in zip(suites, pools, strict=True) if q.num_avs > 1]
     if multi:  # (waiting AVs of a multi-AV road would need their transitions dropped; rsl-rl's face has none)
         from overtakezoo.zoo.train.contract import TrainError
 
@@ -266,13 +296,22 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
             b_rew[t], b_done[t] = res.reward, res.finished
             if res.finished.any():
                 outcome = res.final_info["outcome"][res.finished]
-                counts += [len(outcome), (outcome == SUCCESS).sum(), (outcome == CRASH).sum(),
-                           (outcome == TIMEOUT).sum()]
+                counts += [
+                    len(outcome),
+                    (outcome == SUCCESS).sum(),
+                    (outcome == CRASH).sum(),
+                    (outcome == TIMEOUT).sum(),
+                ]
             obs = speed_relative(res.obs, config).astype(DTYPE)
         c1 = clock()
         adv, ret = gae(b_rew, b_val, b_done, critic.forward(obs)[0][:, 0], p.gamma, p.lam)
-        batch = {"obs": b_obs.reshape(-1, dim), "act": b_act.reshape(-1), "logp": b_logp.reshape(-1).astype(DTYPE),
-                 "adv": adv.reshape(-1).astype(DTYPE), "ret": ret.reshape(-1).astype(DTYPE)}
+        batch = {
+            "obs": b_obs.reshape(-1, dim),
+            "act": b_act.reshape(-1),
+            "logp": b_logp.reshape(-1).astype(DTYPE),
+            "adv": adv.reshape(-1).astype(DTYPE),
+            "ret": ret.reshape(-1).astype(DTYPE),
+        }
         update(actor, critic, batch, p, rng)
         c2 = clock()
         cpu["rollout"] += c1 - c0
@@ -283,44 +322,95 @@ def _train(suites: list[Any], hp: FastPPOHyperparams, hp_file: str, *, suite_nam
         if last or (every and (it + 1) % every == 0 and it + 1 >= hp.train.select_from):
             layers = actor.layers()
             net = NumpyMLP(layers, "tanh")
-            score = greedy_score(lambda o, c: net(speed_relative(o, c)).argmax(axis=1), select_sets, repeat)
+            score = greedy_score(lambda o, c, net=net: net(speed_relative(o, c)).argmax(axis=1), select_sets, repeat)
             if score > best["score"]:
                 best = {"score": score, "iteration": it + 1, "layers": layers}
             cpu["select"] += clock() - c2
         eps = max(int(counts[0]), 1)
-        log_rows.append([it + 1, (it + 1) * per_iter, f"{time.perf_counter() - t0:.2f}", int(counts[0]),
-                         f"{counts[1] / eps:.4f}", f"{counts[2] / eps:.4f}", f"{counts[3] / eps:.4f}",
-                         "" if score is None else f"{score:.4f}"])
+        log_rows.append(
+            [
+                it + 1,
+                (it + 1) * per_iter,
+                f"{time.perf_counter() - t0:.2f}",
+                int(counts[0]),
+                f"{counts[1] / eps:.4f}",
+                f"{counts[2] / eps:.4f}",
+                f"{counts[3] / eps:.4f}",
+                "" if score is None else f"{score:.4f}",
+            ]
+        )
         if progress:
-            print(f"fastppo iteration {it + 1}/{iterations}: success {counts[1] / eps:.2f} crash {counts[2] / eps:.2f}"
-                  + ("" if score is None else f", greedy score {score:.3f}"), flush=True)
+            print(
+                f"fastppo iteration {it + 1}/{iterations}: success {counts[1] / eps:.2f} crash {counts[2] / eps:.2f}"
+                + ("" if score is None else f", greedy score {score:.3f}"),
+                flush=True,
+            )
     wall = time.perf_counter() - t0
     with open(out / "train_log.csv", "w", newline="") as f:
         csv.writer(f).writerows([LOG_COLUMNS, *log_rows])
-    return _finish(best, hp, hp_file, source, iterations * per_iter, seed, wall, iterations, select_sets, out,
-                   steps, {k: round(v, 3) for k, v in cpu.items()})
+    return _finish(
+        best,
+        hp,
+        hp_file,
+        source,
+        iterations * per_iter,
+        seed,
+        wall,
+        iterations,
+        select_sets,
+        out,
+        steps,
+        {k: round(v, 3) for k, v in cpu.items()},
+    )
 
 
-def _finish(best: dict[str, Any], hp: FastPPOHyperparams, hp_file: str, source: dict[str, Any], steps: int, seed: int,
-            wall: float, iterations: int, select_sets: list, out: Path, asked: int, cpu: dict[str, float]) -> Any:
+def _finish(
+    best: dict[str, Any],
+    hp: FastPPOHyperparams,
+    hp_file: str,
+    source: dict[str, Any],
+    steps: int,
+    seed: int,
+    wall: float,
+    iterations: int,
+    select_sets: list,
+    out: Path,
+    asked: int,
+    cpu: dict[str, float],
+) -> Any:
     from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes, read_npz
     from overtakezoo.zoo.train.contract import Trained, model_card, write_outputs
     from overtakezoo.zoo.train.export import npz_card
 
     npz = npz_bytes(NumpyMLP(best["layers"], "tanh").arrays())
     net = NumpyMLP.from_arrays(read_npz(npz), "tanh")  # exactly what the file holds
-    selection = {"rule": "greedy success rate minus crash rate on the first training scenarios",
-                 "scenarios": int(sum(sc.num for _, sc in select_sets)), "every": hp.train.select_every,
-                 "from": hp.train.select_from, "iteration": best["iteration"], "score": round(best["score"], 4)}
+    selection = {
+        "rule": "greedy success rate minus crash rate on the first training scenarios",
+        "scenarios": int(sum(sc.num for _, sc in select_sets)),
+        "every": hp.train.select_every,
+        "from": hp.train.select_from,
+        "iteration": best["iteration"],
+        "score": round(best["score"], 4),
+    }
     what = f"--suite {source['train_suite']['name']}"
-    card = model_card("ppo", algorithm=ALGORITHM, architecture={"kind": "policy"}, hp=hp, hp_file=hp_file,
-                      action_repeat=hp.env.action_repeat, action_mask=False, source=source, steps=steps,
-                      steps_unit=STEPS_UNIT, seed=seed, wall_time_s=wall,
-                      training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)",
-                                "cpu_s": cpu},
-                      reproduce=f"overtakezoo train ppo {what} --hyperparams zoo/hyperparams/{hp_file} "
-                                f"--steps {asked} --seed {seed}",
-                      versions={"numpy": np.__version__}, torch=False)
+    card = model_card(
+        "ppo",
+        algorithm=ALGORITHM,
+        architecture={"kind": "policy"},
+        hp=hp,
+        hp_file=hp_file,
+        action_repeat=hp.env.action_repeat,
+        action_mask=False,
+        source=source,
+        steps=steps,
+        steps_unit=STEPS_UNIT,
+        seed=seed,
+        wall_time_s=wall,
+        training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)", "cpu_s": cpu},
+        reproduce=f"overtakezoo train ppo {what} --hyperparams zoo/hyperparams/{hp_file} --steps {asked} --seed {seed}",
+        versions={"numpy": np.__version__},
+        torch=False,
+    )
     trained = Trained(npz_card(card, net, npz, "ppo"), npz, net)
     write_outputs(out, trained)
     return trained

@@ -26,18 +26,26 @@ computed with the configuration recorded in the dataset's env spec.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from overtakezoo.envs import EnvConfig
 from overtakezoo.envs.io import check_writable_dir
-
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.contract import (Trained, TrainError, dataset_source, finish, hyperparams_file, load_hyperparams, model_card,
-                       reproduce)
+from overtakezoo.zoo.train.contract import (
+    Trained,
+    TrainError,
+    dataset_source,
+    finish,
+    hyperparams_file,
+    load_hyperparams,
+    model_card,
+    reproduce,
+)
 
 
 @dataclass
@@ -75,8 +83,15 @@ def transitions(dataset: Any, timeout_terminal: bool = True) -> Transitions:
     def feats(parts: list[np.ndarray]) -> np.ndarray:
         return speed_relative(np.concatenate(parts), config).astype(np.float32)
 
-    return Transitions(feats(obs), np.concatenate(act), np.concatenate(rew), feats(nxt), np.concatenate(done),
-                       np.concatenate(ep), config)
+    return Transitions(
+        feats(obs),
+        np.concatenate(act),
+        np.concatenate(rew),
+        feats(nxt),
+        np.concatenate(done),
+        np.concatenate(ep),
+        config,
+    )
 
 
 def dataset_config(dataset: Any) -> EnvConfig:
@@ -97,16 +112,35 @@ def identity(dataset: Any, data: Transitions, about: dict[str, Any]) -> dict[str
     h = hashlib.sha256()
     for a in (data.obs, data.action, data.reward, data.next_obs, data.done, data.episode):
         h.update(np.ascontiguousarray(a).tobytes())
-    return {"name": about["name"], "description": meta.get("description"),
-            "algorithm_name": meta.get("algorithm_name"), "episodes": int(dataset.total_episodes),
-            "steps": int(dataset.total_steps), "content_sha256": about["content_sha256"],
-            "content_hash": about["content_hash"], "transitions_sha256": h.hexdigest()}
+    return {
+        "name": about["name"],
+        "description": meta.get("description"),
+        "algorithm_name": meta.get("algorithm_name"),
+        "episodes": int(dataset.total_episodes),
+        "steps": int(dataset.total_steps),
+        "content_sha256": about["content_sha256"],
+        "content_hash": about["content_hash"],
+        "transitions_sha256": h.hexdigest(),
+    }
 
 
-def train_offline(member: str, schema: type, fit: Callable[..., tuple[Any, dict[str, Any]]], algorithm: str,
-                  kind: str, dataset: Any, about: dict[str, Any], *, steps: int | None, seed: int | None,
-                  out: str | Path | None, resume: str | Path | None, hyperparams: str | Path | None,
-                  overrides: dict[str, Any] | None, progress: bool) -> Trained:
+def train_offline(
+    member: str,
+    schema: type,
+    fit: Callable[..., tuple[Any, dict[str, Any]]],
+    algorithm: str,
+    kind: str,
+    dataset: Any,
+    about: dict[str, Any],
+    *,
+    steps: int | None,
+    seed: int | None,
+    out: str | Path | None,
+    resume: str | Path | None,
+    hyperparams: str | Path | None,
+    overrides: dict[str, Any] | None,
+    progress: bool,
+) -> Trained:
     """What bc and cql do around their ``fit(data, hp, progress) -> (net, stats)``: the
     hyperparameters (``seed`` and ``steps`` override the file), the transitions, the model card
     and the outputs (:func:`.contract.finish`)."""
@@ -120,10 +154,22 @@ def train_offline(member: str, schema: type, fit: Callable[..., tuple[Any, dict[
     stats = dict(stats)
     wall = float(stats.pop("wall_time_s"))
     source = dataset_source(identity(dataset, data, about), data.config)
-    card = model_card(member, algorithm=algorithm, architecture={"kind": kind}, hp=hp, hp_file=hp_file,
-                      action_repeat=1, action_mask=hp.action_mask, source=source, steps=hp.steps,
-                      steps_unit="gradient steps", seed=hp.seed, wall_time_s=wall, training=stats,
-                      reproduce=reproduce(member, source, hp.steps, hp.seed))
+    card = model_card(
+        member,
+        algorithm=algorithm,
+        architecture={"kind": kind},
+        hp=hp,
+        hp_file=hp_file,
+        action_repeat=1,
+        action_mask=hp.action_mask,
+        source=source,
+        steps=hp.steps,
+        steps_unit="gradient steps",
+        seed=hp.seed,
+        wall_time_s=wall,
+        training=stats,
+        reproduce=reproduce(member, source, hp.steps, hp.seed),
+    )
     return finish(card, module=net, out=out_dir)
 
 

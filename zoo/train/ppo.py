@@ -36,10 +36,19 @@ import numpy as np
 from overtakezoo.envs import EnvConfig, observation_size
 from overtakezoo.envs.config import unknown_key
 from overtakezoo.envs.io import atomic_path, check_writable_dir
-
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.contract import (RUN_FILES, Trained, TrainError, finish, hyperparams_file, load_hyperparams, model_card, read_toml,
-                       reproduce, suite_source)
+from overtakezoo.zoo.train.contract import (
+    RUN_FILES,
+    Trained,
+    TrainError,
+    finish,
+    hyperparams_file,
+    load_hyperparams,
+    model_card,
+    read_toml,
+    reproduce,
+    suite_source,
+)
 from overtakezoo.zoo.train.export import PPO_FORMAT
 from overtakezoo.zoo.train.typed import HyperparameterError, param
 
@@ -84,16 +93,35 @@ class PPOHyperparams:
     critic: dict[str, Any] = param()
 
     @classmethod
-    def check(cls, hp: "PPOHyperparams", where: str) -> None:  # called by contract.load_hyperparams
+    def check(cls, hp: PPOHyperparams, where: str) -> None:  # called by contract.load_hyperparams
         check_rsl_rl_keys(hp, where)
 
 
 # [runner] keys rsl-rl-lib 5.5's OnPolicyRunner and its logger read (it ignores any other key).
-RUNNER_KEYS = ("num_steps_per_env", "save_interval", "obs_groups", "check_for_nan", "logger", "wandb_project",
-               "neptune_project", "run_name", "torch_compile_mode")
+RUNNER_KEYS = (
+    "num_steps_per_env",
+    "save_interval",
+    "obs_groups",
+    "check_for_nan",
+    "logger",
+    "wandb_project",
+    "neptune_project",
+    "run_name",
+    "torch_compile_mode",
+)
 # Constructor arguments rsl-rl fills itself (not settings of a hyperparameter file).
-_SUPPLIED = {"self", "actor", "critic", "storage", "device", "multi_gpu_cfg", "obs", "obs_groups", "obs_set",
-             "output_dim"}
+_SUPPLIED = {
+    "self",
+    "actor",
+    "critic",
+    "storage",
+    "device",
+    "multi_gpu_cfg",
+    "obs",
+    "obs_groups",
+    "obs_set",
+    "output_dim",
+}
 
 
 def check_rsl_rl_keys(hp: PPOHyperparams, where: str) -> None:
@@ -111,8 +139,9 @@ def check_rsl_rl_keys(hp: PPOHyperparams, where: str) -> None:
         try:
             cls = resolve_callable(cfg["class_name"])
         except Exception as exc:
-            raise HyperparameterError(f"{where}: {section}.class_name: {cfg['class_name']!r} cannot be resolved "
-                                      f"({type(exc).__name__}: {exc})") from None
+            raise HyperparameterError(
+                f"{where}: {section}.class_name: {cfg['class_name']!r} cannot be resolved ({type(exc).__name__}: {exc})"
+            ) from None
         params = inspect.signature(cls).parameters
         if any(p.kind is p.VAR_KEYWORD for p in params.values()):
             continue  # the class takes any keyword
@@ -146,8 +175,15 @@ def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]
     import torch
 
     buf = io.BytesIO()
-    torch.save({"format": PPO_FORMAT, "obs_dim": obs_dim, "actor_cfg": actor_cfg,
-                "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()}}, buf)
+    torch.save(
+        {
+            "format": PPO_FORMAT,
+            "obs_dim": obs_dim,
+            "actor_cfg": actor_cfg,
+            "state_dict": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
+        },
+        buf,
+    )
     return buf.getvalue()
 
 
@@ -210,10 +246,19 @@ def load_checkpoint(runner: Any, path: str | Path) -> dict[str, Any]:
     return loaded.get("infos") or {}
 
 
-def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = None, steps: int | None = None,
-          seed: int | None = None, out: str | Path | None = None, resume: str | Path | None = None,
-          hyperparams: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          progress: bool = True) -> Trained:
+def train(
+    suites: list[Any],
+    *,
+    member: str = "ppo",
+    suite_name: str | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> Trained:
     """Train PPO on the loaded training ``suites`` (one suite or a mixture such as ``core-train``;
     ``suite_name``: the spec they came from, for the card) for ``steps`` transitions (decisions),
     seed ``seed`` (default 0); write into ``out`` (default ``runs/ppo-seed<seed>``) ``train_log.csv``,
@@ -225,13 +270,13 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
     if read_toml(hyperparams or hyperparams_file("ppo")).get("trainer") == "numpy":
         return _train_numpy(suites, suite_name, steps, seed, out, resume, hyperparams, overrides, progress)
     try:
-        import torch
         import rsl_rl  # noqa: F401
+        import torch
     except ModuleNotFoundError as exc:  # the same line as for a trainer module that imports it at the top
         raise TrainError(f"training ppo needs {exc.name} (pip install -e '.[train]')") from None
 
-    from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv, pool_source
+    from overtakezoo.envs.mixture import MixedCore, split_rows
     from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     hp, hp_file = load_hyperparams(PPOHyperparams, hyperparams or hyperparams_file("ppo"), overrides)
@@ -247,10 +292,18 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
     pools = [s.scenarios() for s in suites]
     num_envs = hp.env.num_envs
     repeat = hp.env.action_repeat
-    core = MixedCore([s.config for s in suites], [pool_source(p) for p in pools], split_rows(num_envs, len(pools)),
-                     seed=seed)
-    env = OvertakeRslRlEnv(num_envs, config, seed=seed, core=core, transform=lambda o: speed_relative(o, config),
-                           bootstrap_timeouts=hp.env.bootstrap_timeouts, action_repeat=repeat)
+    core = MixedCore(
+        [s.config for s in suites], [pool_source(p) for p in pools], split_rows(num_envs, len(pools)), seed=seed
+    )
+    env = OvertakeRslRlEnv(
+        num_envs,
+        config,
+        seed=seed,
+        core=core,
+        transform=lambda o: speed_relative(o, config),
+        bootstrap_timeouts=hp.env.bootstrap_timeouts,
+        action_repeat=repeat,
+    )
     # Model selection: the greedy (argmax) policy on the first scenarios of each training suite.
     select_every = hp.train.select_every
     select_sets = selection_sets(suites, pools, hp.train.select_scenarios)
@@ -277,8 +330,20 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
     with open(log_path, "w" if new_log else "a", newline="") as f:
         log = csv.writer(f)
         if new_log:
-            log.writerow(["iteration", "env_steps", "wall_s", "episodes", "success_rate", "crash_rate",
-                          "crash_ego_lane_rate", "crash_opposite_lane_rate", "timeout_rate", "learning_rate"])
+            log.writerow(
+                [
+                    "iteration",
+                    "env_steps",
+                    "wall_s",
+                    "episodes",
+                    "success_rate",
+                    "crash_rate",
+                    "crash_ego_lane_rate",
+                    "crash_opposite_lane_rate",
+                    "timeout_rate",
+                    "learning_rate",
+                ]
+            )
         for it in range(start_it, iterations):
             before = dict(env.episode_counts)
             runner.learn(1)
@@ -286,10 +351,15 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
             wall = wall_before + time.perf_counter() - t0
             done = {k: v - before.get(k, 0) for k, v in env.episode_counts.items()}
             eps = max(done.get("episodes", 0), 1)
-            rates = {k: done.get(k, 0) / eps for k in ("success", "crash", "crash_ego_lane",
-                                                          "crash_opposite_lane", "timeout")}
-            log.writerow([it + 1, (it + 1) * per_iter, f"{wall:.1f}", done.get("episodes", 0)]
-                         + [f"{rates[k]:.4f}" for k in rates] + [f"{runner.alg.learning_rate:.2e}"])
+            rates = {
+                k: done.get(k, 0) / eps
+                for k in ("success", "crash", "crash_ego_lane", "crash_opposite_lane", "timeout")
+            }
+            log.writerow(
+                [it + 1, (it + 1) * per_iter, f"{wall:.1f}", done.get("episodes", 0)]
+                + [f"{rates[k]:.4f}" for k in rates]
+                + [f"{runner.alg.learning_rate:.2e}"]
+            )
             f.flush()
             if bar is not None:
                 bar.set_postfix(success=f"{rates['success']:.2f}", crash=f"{rates['crash']:.2f}")
@@ -299,16 +369,23 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
                 score = greedy_score(greedy_actor(policy), select_sets, repeat)
                 runner.alg.train_mode()  # greedy_actor switched the shared actor to eval mode
                 if score > best["score"]:
-                    best = {"score": float(score), "iteration": it + 1,
-                            "state": {k: v.detach().clone() for k, v in policy.state_dict().items()}}
+                    best = {
+                        "score": float(score),
+                        "iteration": it + 1,
+                        "state": {k: v.detach().clone() for k, v in policy.state_dict().items()},
+                    }
                 if bar is not None:
-                    bar.write(f"iteration {it + 1}: greedy success - crash on {selected} training "
-                              f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})")
+                    bar.write(
+                        f"iteration {it + 1}: greedy success - crash on {selected} training "
+                        f"scenarios {score:.3f} (best {best['score']:.3f} at {best['iteration']})"
+                    )
             if (it + 1) % hp.train.checkpoint_every == 0 or it + 1 == iterations:
                 ckpt = out / RUN_FILES["ppo"][1].replace("<iteration>", f"{it + 1:05d}")
                 with atomic_path(ckpt) as tmp:  # complete or absent
-                    runner.save(str(tmp), infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed,
-                                                 "suite": meta, "best": best})
+                    runner.save(
+                        str(tmp),
+                        infos={"iterations": it + 1, "wall_time_s": wall, "seed": seed, "suite": meta, "best": best},
+                    )
     if bar is not None:
         bar.close()
     wall = wall_before + time.perf_counter() - t0
@@ -317,32 +394,56 @@ def train(suites: list[Any], *, member: str = "ppo", suite_name: str | None = No
     if best["state"] is not None:
         actor.load_state_dict(best["state"])
     blob = weights_blob(actor, observation_size(config), hp.actor)
-    selection = {"rule": "greedy success rate minus crash rate on the first training scenarios",
-                 "scenarios": selected, "every": select_every, "iteration": best["iteration"],
-                 "score": None if best["state"] is None else round(best["score"], 4)}
-    card = model_card("ppo", algorithm=ALGORITHM, architecture={"kind": "policy"}, hp=hp, hp_file=hp_file,
-                      action_repeat=repeat, action_mask=False, source=source, steps=iterations * per_iter,
-                      steps_unit=STEPS_UNIT, seed=seed, wall_time_s=wall,
-                      training={"iterations": iterations, "selection": selection},
-                      reproduce=reproduce("ppo", source, steps, seed), versions={"rsl-rl-lib": _library_version()})
+    selection = {
+        "rule": "greedy success rate minus crash rate on the first training scenarios",
+        "scenarios": selected,
+        "every": select_every,
+        "iteration": best["iteration"],
+        "score": None if best["state"] is None else round(best["score"], 4),
+    }
+    card = model_card(
+        "ppo",
+        algorithm=ALGORITHM,
+        architecture={"kind": "policy"},
+        hp=hp,
+        hp_file=hp_file,
+        action_repeat=repeat,
+        action_mask=False,
+        source=source,
+        steps=iterations * per_iter,
+        steps_unit=STEPS_UNIT,
+        seed=seed,
+        wall_time_s=wall,
+        training={"iterations": iterations, "selection": selection},
+        reproduce=reproduce("ppo", source, steps, seed),
+        versions={"rsl-rl-lib": _library_version()},
+    )
     return finish(card, weights=blob, module=actor, out=out)
 
 
-def _train_numpy(suites: list[Any], suite_name: str | None, steps: int | None, seed: int | None,
-                 out: str | Path | None, resume: Any, hyperparams: str | Path, overrides: dict[str, Any] | None,
-                 progress: bool) -> Trained:
+def _train_numpy(
+    suites: list[Any],
+    suite_name: str | None,
+    steps: int | None,
+    seed: int | None,
+    out: str | Path | None,
+    resume: Any,
+    hyperparams: str | Path,
+    overrides: dict[str, Any] | None,
+    progress: bool,
+) -> Trained:
     """A hyperparameter file with ``trainer = "numpy"`` (``zoo/hyperparams/ppo-fast.toml``): PPO in
     numpy, :mod:`.fastppo` (no torch, no rsl-rl)."""
     from overtakezoo.zoo.train import fastppo
 
     if resume is not None:
-        raise TrainError("--resume: the numpy ppo trainer (trainer = \"numpy\") keeps no checkpoints")
+        raise TrainError('--resume: the numpy ppo trainer (trainer = "numpy") keeps no checkpoints')
     hp, hp_file = load_hyperparams(fastppo.FastPPOHyperparams, hyperparams, overrides)
     seed = 0 if seed is None else int(seed)
     out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
-    return fastppo.train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out,
-                         progress=progress)
+    return fastppo.train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
 
-ALGORITHM = ("PPO (Schulman et al. 2017: clipped surrogate, GAE, adaptive KL learning rate) through rsl-rl-lib's "
-             "OnPolicyRunner")
+ALGORITHM = (
+    "PPO (Schulman et al. 2017: clipped surrogate, GAE, adaptive KL learning rate) through rsl-rl-lib's OnPolicyRunner"
+)

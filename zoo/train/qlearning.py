@@ -21,8 +21,13 @@ from overtakezoo.zoo.train.export import dqn_net
 class QNetwork(nn.Module):
     """MLP Q-network; with ``dueling`` the head splits into value + mean-centred advantages."""
 
-    def __init__(self, obs_dim: int, hidden: list[int] | tuple[int, ...] = (128, 128), dueling: bool = True,
-                 num_actions: int = NUM_MODES) -> None:
+    def __init__(
+        self,
+        obs_dim: int,
+        hidden: list[int] | tuple[int, ...] = (128, 128),
+        dueling: bool = True,
+        num_actions: int = NUM_MODES,
+    ) -> None:
         super().__init__()
         self.obs_dim, self.hidden, self.dueling = obs_dim, list(hidden), dueling
         layers: list[nn.Module] = []
@@ -61,8 +66,15 @@ class ReplayBuffer:
         self.done = np.zeros(capacity, np.float32)
         self.steps = np.ones(capacity, np.float32)
 
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray, next_obs: np.ndarray,
-            done: np.ndarray, steps: np.ndarray | None = None) -> None:
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        next_obs: np.ndarray,
+        done: np.ndarray,
+        steps: np.ndarray | None = None,
+    ) -> None:
         n = len(action)
         idx = (self.ptr + np.arange(n)) % self.capacity
         self.obs[idx], self.action[idx], self.reward[idx] = obs, action, reward
@@ -102,14 +114,22 @@ class NStepReturns:
         self.ret = np.zeros((n, rows), np.float64)
         self.age = np.zeros((n, rows), np.int64)  # decisions a pending transition spans; 0: slot free
 
-    def push(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray, next_obs: np.ndarray,
-             done: np.ndarray, finished: np.ndarray, valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def push(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        next_obs: np.ndarray,
+        done: np.ndarray,
+        finished: np.ndarray,
+        valid: np.ndarray | None = None,
+    ) -> dict[str, np.ndarray]:
         """One decision of every row (``valid``: the rows that made one; a waiting AV did not).
         ``next_obs`` / ``done`` are the decision's (the final observation where ``finished``: the
         episode ended, by its task or a time limit). Returns the transitions complete now."""
         valid = np.ones(len(action), bool) if valid is None else np.asarray(valid, bool)
         live = (self.age > 0) & valid[None]
-        self.ret += np.where(live, self.gamma ** self.age * reward[None], 0.0)
+        self.ret += np.where(live, self.gamma**self.age * reward[None], 0.0)
         self.age += live
         slot = self.t % self.n
         if (self.age[slot] > 0)[valid].any():  # cannot happen: an entry n decisions old left last push
@@ -119,9 +139,14 @@ class NStepReturns:
         self.t += 1
         emit = (self.age > 0) & valid[None] & ((self.age >= self.n) | np.asarray(finished, bool)[None])
         k, row = np.nonzero(emit)
-        out = {"obs": self.obs[k, row], "action": self.action[k, row], "reward": self.ret[k, row].astype(np.float32),
-               "next_obs": next_obs[row], "done": np.asarray(done, np.float32)[row],
-               "steps": self.age[k, row].astype(np.float32)}
+        out = {
+            "obs": self.obs[k, row],
+            "action": self.action[k, row],
+            "reward": self.ret[k, row].astype(np.float32),
+            "next_obs": next_obs[row],
+            "done": np.asarray(done, np.float32)[row],
+            "steps": self.age[k, row].astype(np.float32),
+        }
         self.age[k, row] = 0
         return out
 
@@ -135,9 +160,16 @@ def masked_argmax(q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
 
 
 # ----------------------------------------------------------------------------- TD target
-def td_targets(online: nn.Module, target: nn.Module, reward: torch.Tensor, next_obs: torch.Tensor,
-               done: torch.Tensor, gamma: float | torch.Tensor, double: bool,
-               next_mask: torch.Tensor | None = None) -> torch.Tensor:
+def td_targets(
+    online: nn.Module,
+    target: nn.Module,
+    reward: torch.Tensor,
+    next_obs: torch.Tensor,
+    done: torch.Tensor,
+    gamma: float | torch.Tensor,
+    double: bool,
+    next_mask: torch.Tensor | None = None,
+) -> torch.Tensor:
     """TD targets. DQN: ``r + gamma * max_a Q_target(s', a)``; Double DQN (van Hasselt et al. 2016):
     ``r + gamma * Q_target(s', argmax_a Q_online(s', a))`` -- the online net picks, the target net
     evaluates, which removes the max operator's overestimation bias. ``done`` rows do not bootstrap.

@@ -9,7 +9,8 @@ suites never enter a choice.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ Act = Callable[[np.ndarray, Any], np.ndarray]  # (raw observations, their config
 def selection_sets(suites: list[Any], pools: list[Any], total: int) -> list[tuple[Any, Any]]:
     """``(config, scenarios)`` per training suite: the first ``total // len(suites)`` (at least one)."""
     per_suite = max(1, int(total) // len(suites))
-    return [(s.config, q.take(np.arange(min(per_suite, q.num)))) for s, q in zip(suites, pools)]
+    return [(s.config, q.take(np.arange(min(per_suite, q.num)))) for s, q in zip(suites, pools, strict=True)]
 
 
 def greedy_score(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> float:
@@ -42,11 +43,11 @@ def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tu
     for config, scenarios in sets:
         live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
 
-        def count(outcome: np.ndarray) -> None:
+        def count(outcome: np.ndarray, live: dict[str, Any] = live) -> None:
             live["success"] += int((outcome == SUCCESS).sum())
             live["crash"] += int((outcome == CRASH).sum())
 
-        def compact(obs: np.ndarray) -> Any:
+        def compact(obs: np.ndarray, live: dict[str, Any] = live) -> Any:
             done = np.asarray(live["core"].done)
             keep = np.flatnonzero(~done)
             if 2 * keep.size > done.size or not keep.size:
@@ -56,8 +57,13 @@ def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tu
             return live["core"], obs[keep]
 
         obs = live["core"].reset(scenarios)
-        run_to_end(live["core"], obs, lambda o, _, c=config: act(o, c), hold_steps(config.decision_interval, repeat),
-                   compact=compact)
+        run_to_end(
+            live["core"],
+            obs,
+            lambda o, _, c=config: act(o, c),
+            hold_steps(config.decision_interval, repeat),
+            compact=compact,
+        )
         count(live["core"].outcome)
         rates.append((live["success"] / scenarios.num, live["crash"] / scenarios.num))
     return rates
@@ -65,6 +71,7 @@ def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tu
 
 def decider_act(decider: Any) -> Act:
     """A stateless zoo decider (an :class:`~overtakezoo.zoo.members.learned.MLPDecider`) as ``act``."""
+
     def act(obs: np.ndarray, config: Any) -> np.ndarray:
         decider.config = config
         return decider.act_batch(obs)

@@ -41,8 +41,13 @@ class HyperparameterError(ConfigError):
     """A hyperparameter file or mapping has an unknown key, a wrong type or an out-of-range value."""
 
 
-def param(default: Any = dataclasses.MISSING, lo: float | None = None, hi: float | None = None, *,
-          choices: tuple[Any, ...] | None = None) -> Any:
+def param(
+    default: Any = dataclasses.MISSING,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    choices: tuple[Any, ...] | None = None,
+) -> Any:
     """A schema field: its default (none: required), the closed range [lo, hi] of a number (or of
     every element of a tuple) and the allowed ``choices``."""
     meta = {"lo": lo, "hi": hi, "choices": choices}
@@ -56,8 +61,7 @@ def param(default: Any = dataclasses.MISSING, lo: float | None = None, hi: float
 def build(cls: type[T], data: Any, where: str, prefix: str = "") -> T:
     """Schema ``cls`` from a mapping; nested schemas are tables, named ``prefix.key`` in errors."""
     if not isinstance(data, Mapping):
-        raise HyperparameterError(f"{where}: {prefix.rstrip('.') or 'hyperparameters'}: expected a table, "
-                                  f"got {data!r}")
+        raise HyperparameterError(f"{where}: {prefix.rstrip('.') or 'hyperparameters'}: expected a table, got {data!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for key in data:
         if key not in fields:
@@ -101,14 +105,18 @@ def _value(tp: Any, value: Any, meta: Mapping[str, Any], where: str, key: str) -
             raise fail(f"expected a string, got {value!r}")
     elif tp in (int, float):
         # Counts must be integers: 2.0 is refused (not rounded), so a typo cannot pass silently.
-        if isinstance(value, bool) or not isinstance(value, numbers.Real) or (
-                tp is int and not isinstance(value, numbers.Integral)):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, numbers.Real)
+            or (tp is int and not isinstance(value, numbers.Integral))
+        ):
             raise fail(f"expected {'an integer' if tp is int else 'a number'}, got {value!r}")
         given, value = value, tp(value)
         lo, hi = meta.get("lo"), meta.get("hi")
         if math.isnan(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise fail(f"{given!r} is out of range [{lo if lo is not None else '-inf'}, "
-                       f"{hi if hi is not None else 'inf'}]")
+            raise fail(
+                f"{given!r} is out of range [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+            )
     else:
         raise TypeError(f"schema field {key}: unsupported type {tp!r}")
     choices = meta.get("choices")
@@ -119,11 +127,17 @@ def _value(tp: Any, value: Any, meta: Mapping[str, Any], where: str, key: str) -
 
 def as_dict(hp: Any) -> dict[str, Any]:
     """A schema instance as plain data (tuples as lists): what a model card or checkpoint stores."""
+
     def plain(v: Any) -> Any:
         if isinstance(v, tuple):
             return [plain(x) for x in v]
         if isinstance(v, dict):
             return {k: plain(x) for k, x in v.items()}
         return v
-    return {f.name: plain(getattr(hp, f.name)) if not dataclasses.is_dataclass(getattr(hp, f.name))
-            else as_dict(getattr(hp, f.name)) for f in dataclasses.fields(hp)}
+
+    return {
+        f.name: plain(getattr(hp, f.name))
+        if not dataclasses.is_dataclass(getattr(hp, f.name))
+        else as_dict(getattr(hp, f.name))
+        for f in dataclasses.fields(hp)
+    }
