@@ -6,6 +6,7 @@ Screenshots of each page kind go to the test's folder (and ``$OVERTAKEZOO_SCREEN
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import urllib.request
@@ -42,7 +43,7 @@ def built(tmp_path_factory) -> Path:
         capture_output=True,
         text=True,
         timeout=600,
-        env={"NO_MKDOCS_2_WARNING": "1", **__import__("os").environ},
+        env={"NO_MKDOCS_2_WARNING": "1", **os.environ},
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-5000:]
     return site
