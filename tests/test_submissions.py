@@ -71,6 +71,7 @@ def test_sample_indices_are_seeded_sorted_and_per_row():
 
 
 # ------------------------------------------------------------------ the shipped leaderboard
+@pytest.mark.board
 def test_every_shipped_row_reproduces_as_ci_runs(capsys):
     # CI's verify step: `overtakezoo leaderboard --verify --sample 1 --jobs 2`, the base resolved as in
     # CI. In CI's fresh clone of the branch under test there is no base, so every row of the board is

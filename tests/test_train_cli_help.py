@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_readme_first_command_is_the_base_install_and_ci_runs_the_second():
     lines = ROOT.joinpath("README.md").read_text().split("```bash\n", 1)[1].splitlines()
     assert lines[0] == "pip install -e . && overtakezoo eval --suite table1 --decider rule-fsm"
-    assert lines[1] == "pip install -e '.[test]' && python -m pytest -n 2"
+    assert lines[1] == "pip install -e '.[test]' && python -m pytest -n 2 && python -m pytest -m board"
     assert lines[1] in ROOT.joinpath(".ci", "run").read_text().splitlines()
     base = __import__("tomllib").loads(ROOT.joinpath("pyproject.toml").read_text())["project"]["dependencies"]
     assert not [d for d in base if re.match(r"(torch|rsl-rl|minari)\b", d)]  # eval needs numpy only
