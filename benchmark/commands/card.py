@@ -13,8 +13,9 @@ def register(subparsers: Any) -> None:
         "card",
         "write the policy card of a policy file (its training hold)",
         "Write the policy card of a policy file you trained outside OvertakeZoo: its training hold, the\n"
-        "core steps each decision was held in training (--action-repeat: your training env's action\n"
-        "repeat / frame skip; 10 for overtakezoo/Overtake-v1 and the suite ids, the zoo's 1 s)\n"
+        "core steps each decision was held in training (--action-repeat:\n"
+        "your training env's action repeat / frame skip; 10 for overtakezoo/Overtake-v1 and the\n"
+        "suite ids, the zoo's 1 s)\n"
         "and, with --suite, the observation contract (observation_size, observation_layout) of the\n"
         "suite it was trained on. It goes beside a Stable-Baselines3 .zip or a TorchScript file as\n"
         "<stem>.card.json, and into an ONNX file's metadata (key overtakezoo.card); written\n"

@@ -18,7 +18,7 @@ Everything else is converted, without unpickling anything:
 - TorchScript: exported to ONNX inside the sandbox (:mod:`.sandbox`), since loading it runs code.
 
 A file from outside carries a *policy card* (JSON, ``policy_card.schema.json`` beside this module):
-the decision hold it was trained with (``action_repeat``) and its observation contract
+its training hold (``action_repeat``) and its observation contract
 (``observation_size``, ``observation_layout``), beside a ``.zip`` or TorchScript file
 (``<stem>.card.json``) and inside an ONNX file (``metadata_props`` key ``overtakezoo.card``). It is
 data, validated when read (:func:`parse_card`), and goes with the converted artifact (the npz's model

@@ -139,7 +139,7 @@ class SandboxedPolicy:
     """A policy file acting in a child process (module docstring). ``kind``: ``mlp`` (an ``.npz``
     with its model card ``card``), ``onnx`` (its policy card inside it) or ``torchscript`` (``card``:
     its policy card, if any); ``config``: the EnvConfig the observations come from. ``info`` is what
-    the child reported after loading: the action repeat, and ``card``, the policy card it read."""
+    the child reported after loading: the training hold (``action_repeat``), and ``card``, the policy card it read."""
 
     def __init__(
         self,

@@ -17,7 +17,7 @@ from the config's ``scenario`` distribution, in one of Gymnasium's two autoreset
 In both modes the other keys of ``infos`` are the per-row info of the current episodes, each with its
 ``_key`` mask.
 
-The decision hold (``hold_steps``; by default the zoo's 1 s, 10 steps at dt = 0.1 s, for an env made
+The hold (``hold_steps``; by default the zoo's 1 s, 10 steps at dt = 0.1 s, for an env made
 from a suite, as its id ``overtakezoo/<suite>-v<version>`` holds, and the config's
 ``decision_interval`` for one made from a raw config) applies per row: one env step holds
 each row's action for ``hold_steps`` core steps (:func:`~overtakezoo.envs.hold.hold`, rewards summed
