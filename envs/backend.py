@@ -8,9 +8,55 @@ backend keeps every state array a tensor on its device.
 
 from __future__ import annotations
 
-from typing import Any
+import builtins
+from collections.abc import Callable
+from typing import Any, Protocol, TypeAlias
 
 import numpy as np
+
+# An array of either backend: a numpy ndarray (NumpyBackend) or a torch Tensor (TorchBackend). The model
+# is written once for both, so statically an array is either one: Any, named for what it stands for.
+Array: TypeAlias = Any
+
+
+class Backend(Protocol):
+    """The namespace the core and the model (envs/model/) compute with: ``xp`` (both backends below).
+    Reductions take one ``axis``; ``float``, ``int``, ``int8`` and ``bool`` are the backend's dtypes."""
+
+    name: str
+    float: Any
+    int: Any
+    int8: Any
+    bool: Any
+
+    def where(self, cond: Array, a: Array, b: Array, /) -> Array: ...
+    def minimum(self, a: Array, b: Array, /) -> Array: ...
+    def maximum(self, a: Array, b: Array, /) -> Array: ...
+    def abs(self, x: Array, /) -> Array: ...
+    def cos(self, x: Array, /) -> Array: ...
+    def sin(self, x: Array, /) -> Array: ...
+    def tan(self, x: Array, /) -> Array: ...
+    def arctan(self, x: Array, /) -> Array: ...
+    def arctan2(self, y: Array, x: Array, /) -> Array: ...
+    def sqrt(self, x: Array, /) -> Array: ...
+    def isfinite(self, x: Array, /) -> Array: ...
+    def ones_like(self, x: Array, /) -> Array: ...
+    def amin(self, a: Array, /, axis: builtins.int = 0, *, keepdims: builtins.bool = False) -> Array: ...
+    def any(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
+    def all(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
+    def sum(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
+    def concatenate(self, xs: Any, /, axis: builtins.int = 0) -> Array: ...
+    def stack(self, xs: Any, /, axis: builtins.int = 0) -> Array: ...
+    def zeros(self, shape: Any, dtype: Any = None) -> Array: ...
+    def full(self, shape: Any, value: Any, dtype: Any = None) -> Array: ...
+    def arange(self, n: builtins.int) -> Array: ...
+    def asarray(self, x: Any, dtype: Any = None) -> Array: ...
+    def batch_last(self, x: Any, dtype: Any = None) -> Array: ...
+    def astype(self, x: Array, dtype: Any) -> Array: ...
+    def copy(self, x: Array) -> Array: ...
+    def nonzero(self, mask: Array) -> Array: ...
+    def nonzero2(self, mask: Array) -> tuple[Array, ...]: ...
+    def to_numpy(self, x: Any) -> np.ndarray: ...
 
 
 class NumpyBackend:
@@ -29,7 +75,8 @@ class NumpyBackend:
     isfinite = staticmethod(np.isfinite)
     ones_like = staticmethod(np.ones_like)
     # ufunc reductions skip numpy's Python-level wrappers, which dominate at N = 1.
-    amin = staticmethod(np.minimum.reduce)
+    # (typed loosely: through staticmethod, numpy's stubs keep only reduce's first overload, keepdims=False)
+    amin: Callable[..., np.ndarray] = staticmethod(np.minimum.reduce)
     any = staticmethod(np.logical_or.reduce)
     all = staticmethod(np.logical_and.reduce)
     sum = staticmethod(np.add.reduce)
@@ -42,7 +89,7 @@ class NumpyBackend:
         return np.zeros(shape, dtype or self.float)
 
     @staticmethod
-    def stack(xs: Any, axis: int = 0) -> np.ndarray:
+    def stack(xs: Any, axis: builtins.int = 0) -> np.ndarray:
         # np.array of small equal-shape arrays is np.stack on axis 0 without its Python-level checks
         # (4x faster at N = 1); for large arrays np.stack's plain copies are faster.
         return np.array(xs) if axis == 0 and xs[0].size <= 256 else np.stack(xs, axis)
@@ -50,7 +97,7 @@ class NumpyBackend:
     def full(self, shape: Any, value: Any, dtype: Any = None) -> np.ndarray:
         return np.full(shape, value, dtype or self.float)
 
-    def arange(self, n: int) -> np.ndarray:
+    def arange(self, n: builtins.int) -> np.ndarray:
         return np.arange(n)
 
     def asarray(self, x: Any, dtype: Any = None) -> np.ndarray:
@@ -69,7 +116,7 @@ class NumpyBackend:
     def nonzero(self, mask: np.ndarray) -> np.ndarray:
         return np.flatnonzero(mask)
 
-    def nonzero2(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def nonzero2(self, mask: np.ndarray) -> tuple[np.ndarray, ...]:
         return np.nonzero(mask)
 
     def to_numpy(self, x: Any) -> np.ndarray:
@@ -173,7 +220,7 @@ class TorchBackend:
     def nonzero(self, mask: Any) -> Any:
         return self.torch.nonzero(mask).flatten()
 
-    def nonzero2(self, mask: Any) -> tuple[Any, Any]:
+    def nonzero2(self, mask: Any) -> tuple[Any, ...]:
         return self.torch.nonzero(mask, as_tuple=True)
 
     def to_numpy(self, x: Any) -> np.ndarray:
@@ -194,7 +241,7 @@ class TorchBackend:
         return mapping.get(dtype, dtype)
 
 
-def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None) -> NumpyBackend | TorchBackend:
+def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None) -> Backend:
     if name == "numpy":
         return NumpyBackend(device, dtype)
     if name == "torch":

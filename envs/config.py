@@ -5,19 +5,20 @@ from a suite's TOML file) and raises :class:`ConfigError` naming the offending k
 or out-of-range values.
 
 Every setting is a dataclass field carrying its range (:func:`bounded`, checked by :func:`check_ranges`);
-the settings are many, hence the length of this module.
+the settings are many, hence the length of this module. ``from_dict`` uses the project's one
+dict-to-dataclass builder (:func:`overtakezoo.envs.typed.build`), as the trainers' hyperparameters do.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
+from overtakezoo.envs.typed import bool_problem, build, number_problem
+from overtakezoo.envs.typed import bounded as bounded  # (re-exported: every settings module declares its ranges so)
+from overtakezoo.envs.typed import check_ranges as _check_ranges
+from overtakezoo.envs.typed import unknown_key as unknown_key
 
 FOLLOW, OVERTAKE, ABORT = 0, 1, 2
 MODE_NAMES = ("follow", "overtake", "abort")
@@ -31,30 +32,10 @@ class SuiteError(ConfigError):
     """A suite name, file or shard the user gave is unknown or malformed (the CLI prints one line)."""
 
 
-def bounded(default: Any, lo: float, hi: float, unit: str = "") -> Any:
-    """A setting with its physical range [lo, hi] (for a [low, high] pair: both ends), kept in the
-    field's metadata so the check, the error message and the docs quote one range. Integer
-    defaults make integer settings."""
-    integer = isinstance(default, int) and not isinstance(default, bool)
-    return field(default=default, metadata={"lo": lo, "hi": hi, "unit": unit, "integer": integer})
-
-
 def check_ranges(obj: Any, prefix: str, skip: tuple[str, ...] = ()) -> None:
-    """Every :func:`bounded` field of dataclass ``obj`` inside its range (ConfigError naming it)."""
-    for f in dataclasses.fields(obj):
-        meta = f.metadata
-        if "lo" not in meta or f.name in skip:
-            continue
-        value = getattr(obj, f.name)
-        for v in value if isinstance(value, tuple) else (value,):
-            _check(f"{prefix}{f.name}", v, meta["lo"], meta["hi"], meta["integer"], meta["unit"])
-
-
-def unknown_key(key: Any, known: Any) -> str:
-    """'unknown key' with the nearest known name, if one is close (a misspelling), and the list."""
-    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.75)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return f"unknown key{hint}; known: {', '.join(sorted(map(str, known)))}"
+    """Every :func:`~overtakezoo.envs.typed.bounded` field of dataclass ``obj`` inside its range
+    (ConfigError naming it)."""
+    _check_ranges(obj, prefix, ConfigError, skip)
 
 
 @dataclass(frozen=True)
@@ -217,6 +198,7 @@ class ObservationConfig:
         check_ranges(self, "observation.")
 
 
+RENDER_MODES = (None, "rgb_array", "human")
 # An episode of at most this many core steps (time_limit / dt): table1's is 600; beyond this a run
 # would take hours, almost always a typo (time_limit in ms, dt in s).
 MAX_EPISODE_STEPS = 100_000
@@ -237,7 +219,7 @@ class EnvConfig:
     # automated vehicles of a road come from the scenario distribution (platoon_size, oncoming_av).
     num_egos: int = bounded(1, 1, 4096)
     npc_agents: bool = False
-    render_mode: str | None = None
+    render_mode: str | None = field(default=None, metadata={"choices": RENDER_MODES})
     seed: int | None = None  # None, or an integer in [0, 2**63 - 1] (numpy's seeds are non-negative)
 
     def __post_init__(self) -> None:
@@ -255,8 +237,8 @@ class EnvConfig:
         _check_bool("npc_agents", self.npc_agents)
         if self.seed is not None:
             _check("seed", self.seed, 0, 2**63 - 1, integer=True)
-        if self.render_mode not in (None, "rgb_array", "human"):
-            raise ConfigError(f"render_mode: {self.render_mode!r} is not one of None, 'rgb_array', 'human'")
+        if self.render_mode not in RENDER_MODES:
+            raise ConfigError(f"render_mode: {self.render_mode!r} is not one of {', '.join(map(repr, RENDER_MODES))}")
         for key, cls in _NESTED.items():  # a value that is no table (npc = [1, 2]) never reaches .validate
             value = getattr(self, key)
             if not isinstance(value, cls):
@@ -283,67 +265,24 @@ class EnvConfig:
     def from_dict(cls, data: dict[str, Any] | None = None, **overrides: Any) -> EnvConfig:
         merged = dict(data or {})
         merged.update(overrides)
-        return _build(cls, merged, "")
+        # envs/typed.py's builder checks key by key; validate() runs again as the config is made (it also
+        # holds a config made directly, EnvConfig(dt=...), and the checks across keys).
+        return build(cls, merged, error=ConfigError)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
 def _check_bool(key: str, value: Any) -> None:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ConfigError(f"{key}: expected true or false, got {value!r}")
+    why = bool_problem(value)
+    if why:
+        raise ConfigError(f"{key}: {why}")
 
 
 def _check(key: str, value: Any, lo: float, hi: float, integer: bool = False, unit: str = "") -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ConfigError(f"{key}: expected {'an integer' if integer else 'a number'}, got {value!r}")
-    # Counts and indices must be integers: 2.0 is refused (not rounded) so a typo cannot pass silently.
-    if integer and not isinstance(value, numbers.Integral):
-        raise ConfigError(f"{key}: expected an integer, got {value!r}")
-    if not (lo <= value <= hi) or math.isnan(value):
-        raise ConfigError(f"{key}: {value!r} is out of range [{lo}, {hi}]" + (f" {unit}" if unit else ""))
+    why = number_problem(value, lo, hi, integer, unit)
+    if why:
+        raise ConfigError(f"{key}: {why}")
 
 
 _NESTED = {"planner": PlannerConfig, "npc": NPCConfig, "reward": RewardConfig, "observation": ObservationConfig}
-
-
-def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
-    """Build dataclass ``cls`` from a (nested) dict, naming unknown keys with their full path."""
-    if isinstance(data, cls):
-        return data
-    if not isinstance(data, dict):
-        raise ConfigError(f"{prefix.rstrip('.') or 'config'}: expected a table, got {data!r}")
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    kwargs: dict[str, Any] = {}
-    for key, value in data.items():
-        if key not in names:
-            raise ConfigError(f"{prefix}{key}: {unknown_key(key, names)}")
-        if key in _NESTED and cls is EnvConfig and not isinstance(value, _NESTED[key]):
-            value = _build(_NESTED[key], value, f"{prefix}{key}.")
-        elif key == "modes" and cls is PlannerConfig:
-            value = _build_modes(value, f"{prefix}{key}.")
-        kwargs[key] = value
-    try:
-        return cls(**kwargs)
-    except TypeError as exc:  # a wrong type reaching the dataclass constructor
-        raise ConfigError(f"{prefix.rstrip('.') or 'config'}: {exc}") from None
-
-
-def _build_modes(value: Any, prefix: str) -> dict[str, ModeParams]:
-    modes = _default_modes()
-    if not isinstance(value, dict):
-        raise ConfigError(f"{prefix.rstrip('.')}: expected a table of modes")
-    for name, params in value.items():
-        if name not in modes:
-            raise ConfigError(f"{prefix}{name}: unknown mode (expected {', '.join(MODE_NAMES)})")
-        if isinstance(params, ModeParams):
-            modes[name] = params
-            continue
-        if not isinstance(params, dict):
-            raise ConfigError(f"{prefix}{name}: expected a table")
-        known = {f.name for f in dataclasses.fields(ModeParams)}
-        for key in params:
-            if key not in known:
-                raise ConfigError(f"{prefix}{name}.{key}: {unknown_key(key, known)}")
-        modes[name] = dataclasses.replace(modes[name], **params)
-    return modes

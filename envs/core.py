@@ -104,7 +104,7 @@ class OvertakeCore:
         config: EnvConfig | None = None,
         auto_reset: bool = False,
         source: ScenarioSource | None = None,
-        seed: int | None = None,
+        seed: int | np.random.Generator | None = None,
         backend: str = "numpy",
         device: Any = None,
         dtype: Any = None,
@@ -132,6 +132,7 @@ class OvertakeCore:
     @property
     def num(self) -> int:
         """AV rows: one per automated vehicle, ``num_avs * num_roads``."""
+        assert self.scen is not None, "reset() first"
         return self.num_avs * self.scen.num
 
     @property
@@ -163,7 +164,7 @@ class OvertakeCore:
         self._set_scenarios(scenarios)
         self._start_rows(xp.arange(n), scenarios)
         self.last_plan = None
-        self._step_geo = None
+        self._step_geo: dict[str, Any] | None = None
         return self.observe()
 
     def _set_scenarios(self, sc: Scenarios, rows: Any = None) -> None:
@@ -188,6 +189,7 @@ class OvertakeCore:
     def _av_rows(self, roads: Any) -> Any:
         """The AV rows of ``roads`` (all AVs of each)."""
         xp = self.xp
+        assert self.scen is not None, "reset() first"
         roads = xp.asarray(roads, xp.int).reshape(-1)
         return (xp.arange(self.num_avs)[:, None] * self.scen.num + roads[None, :]).reshape(-1)
 
@@ -220,6 +222,8 @@ class OvertakeCore:
     def _start_rows(self, rows: Any, fresh: Scenarios) -> None:
         """Initial state of roads ``rows`` from the scenarios ``fresh`` (one per road)."""
         xp = self.xp
+        assert fresh.av_s is not None and fresh.av_d is not None and fresh.av_v is not None
+        assert fresh.av_direction is not None  # (Scenarios.__post_init__ fills the AV fields)
         cols = rows if self.num_avs == 1 else self._av_rows(rows)
         start_x, start_y, start_v = (np.asarray(getattr(fresh, k), float) for k in ("ego_s", "ego_d", "ego_v"))
         if self.num_avs > 1:  # the further AVs' starts, in their own frames
@@ -259,6 +263,7 @@ class OvertakeCore:
 
     def _replace_rows(self, rows: Any, fresh: Scenarios) -> None:
         """Put ``fresh`` scenarios into roads ``rows`` (auto-reset) without touching other roads."""
+        assert self.scen is not None, "reset() first"
         if fresh.num_npcs > self.scen.num_npcs:
             raise ValueError("auto-reset scenarios have more NPC slots than the batch")
         if fresh.num_avs != self.num_avs:
@@ -282,6 +287,7 @@ class OvertakeCore:
     def clone(self, rows: Any = None) -> OvertakeCore:
         """An independent copy of roads ``rows`` (all when None), e.g. for look-ahead search."""
         xp = self.xp
+        assert self.scen is not None, "reset() first"
         idx = xp.arange(self.scen.num) if rows is None else xp.asarray(rows)
         cols = idx if self.num_avs == 1 else self._av_rows(idx)
         other = OvertakeCore(self.cfg, auto_reset=False)
@@ -316,6 +322,7 @@ class OvertakeCore:
     @property
     def _other_av(self) -> Any:
         """(E - 1, B): for each AV row, the index of each other AV of its road, in order."""
+        assert self.scen is not None, "reset() first"
         return other_avs(self.num, self.scen.num, self.num_avs, self.xp)
 
     def _geometry(self) -> dict[str, Any]:
@@ -486,6 +493,7 @@ class OvertakeCore:
                 roads = xp.nonzero(ended)
                 obs = xp.copy(obs)
                 cols = roads if self.num_avs == 1 else self._av_rows(roads)
+                assert self.source is not None, "auto_reset needs a scenario source"
                 obs[cols] = self.restart(roads, self.source(len(roads), self.rng))  # only those rows change
         return StepResult(obs, reward, terminated, truncated, final_obs, info)
 
@@ -605,10 +613,11 @@ class OvertakeCore:
     def vehicles(self) -> dict[str, np.ndarray]:
         """Every vehicle of every road in world coordinates, (N, V) host arrays with V = E + M: the
         AVs first, then the NPC slots. ``kind`` is the controller (controllers.KIND_NAMES)."""
-        xp, e, n = self.xp, self.num_avs, self.scen.num
+        sc = self.scen
+        assert sc is not None and sc.av_direction is not None, "reset() first"
+        xp, e, n = self.xp, self.num_avs, sc.num
         avs = self._avs_world()
         host = lambda a: np.asarray(xp.to_numpy(a), float)  # noqa: E731
-        sc = self.scen
         kind_npc = np.where(sc.npc_behaviour == SCRIPTED, SCRIPTED_KIND, IDM)
         length = np.concatenate([np.repeat(sc.ego_length[:, None], e, 1), sc.npc_length], axis=1)
         width = np.concatenate([np.repeat(sc.ego_width[:, None], e, 1), sc.npc_width], axis=1)

@@ -84,7 +84,8 @@ class _Given(np.random.Generator):
         super().__init__(np.random.PCG64(0))
         self._dist, self._todo = dist, list(zip(plan, values, strict=True))
 
-    def uniform(self, low: Any = 0.0, high: Any = 1.0, size: Any = None) -> np.ndarray:
+    # (narrower than Generator.uniform, whose scalar form, size=None, sample() never draws)
+    def uniform(self, low: Any = 0.0, high: Any = 1.0, size: Any = None) -> np.ndarray:  # type: ignore[override]
         if not self._todo:
             raise RuntimeError("ScenarioDistribution.sample drew more than envs/draws.py's draw_plan lists")
         draw, value = self._todo.pop(0)
@@ -268,6 +269,7 @@ def _relevant(dist: ScenarioDistribution, draw: Draw, slot: int | None) -> bool:
     if draw.key == "reaction_time":  # a scripted NPC never reacts; followers are always IDM
         if slot == 0:
             return dist.lead_behaviour != "scripted"
+        assert slot is not None  # (a per-vehicle draw)
         return dist.oncoming_behaviour != "scripted" if slot <= K else True
     if draw.key == "oncoming_av_lead_reaction":
         return dist.oncoming_behaviour != "scripted"

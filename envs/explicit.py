@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +75,7 @@ def explicit_distribution(dist: ScenarioDistribution, doc: dict[str, Any], where
     """The hook of ``suites.parse_suite``: the validated ``[[scenarios]]`` of ``doc`` built on ``dist``
     (its ``[scenario]`` table). Every problem is a SuiteError naming the file, the entry and the key."""
     if "base" in doc:
-        raise SuiteError(f"{where}: scenarios: a split (base = ...) cannot list scenarios")
+        raise SuiteError(f"{where}: scenarios: a suite with a base (a split or a variant) cannot list scenarios")
     if "search" in doc and not isinstance(doc["search"], dict):
         raise SuiteError(f"{where}: search: expected a table")
     entries = doc.get("scenarios")
@@ -210,19 +209,19 @@ def entries_of(space: Space, values: dict[str, np.ndarray]) -> list[dict[str, An
 
 
 def suite_tables(suite: Any) -> dict[str, Any]:
-    """The ``[sim]`` table of a suite's file as written (a split's: its base's)."""
-    from overtakezoo.envs.suites import SUITES_DIR
+    """The ``[sim]`` table of a suite's file as written (with a base: the base's, the file's own merged over it)."""
+    from overtakezoo.envs.suites import suite_document
 
-    doc = tomllib.loads(Path(suite.path).read_bytes().decode("utf-8"))
-    if "base" in doc:
-        doc = tomllib.loads((SUITES_DIR / f"{doc['base']}.toml").read_bytes().decode("utf-8"))
+    doc, _ = suite_document(Path(suite.path).read_bytes(), str(suite.path))
     return doc.get("sim", {})
 
 
 def to_toml(header: str, doc: dict[str, Any]) -> bytes:
-    """A small, deterministic TOML writer for suite documents: scalars and lists of scalars first,
-    then tables, then arrays of tables (each entry's own tables after its keys)."""
-    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    """The project's one TOML writer (failure suites, the ablation's suites): small and deterministic.
+    ``header`` becomes comment lines (an empty line of it stays empty: a blank line before the
+    keys); then scalars and lists of scalars, then tables, then arrays of tables (each entry's own
+    tables after its keys)."""
+    lines = [f"# {line}".rstrip() if line else "" for line in header.splitlines()]
     lines += _table(doc, [])
     return ("\n".join(lines).strip("\n") + "\n").encode("utf-8")
 

@@ -27,12 +27,24 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from overtakezoo.envs.config import FOLLOW
 from overtakezoo.envs.core import OvertakeCore, StepResult
+
+
+class SteppedCore(Protocol):
+    """What :func:`hold` steps: an :class:`OvertakeCore`, or a batch stepped like one (a
+    :class:`~overtakezoo.envs.mixture.MixedCore`)."""
+
+    auto_reset: bool
+
+    @property
+    def done(self) -> Any: ...  # (N,) bool
+
+    def step(self, modes: Any, npc_accel: Any = None) -> StepResult: ...
 
 
 def hold_steps(decision_interval: int, action_repeat: int = 1) -> int:
@@ -63,7 +75,7 @@ class HeldStep:
 
 
 def hold(
-    core: OvertakeCore,
+    core: SteppedCore,
     modes: Any,
     steps: int,
     npc_accel: np.ndarray | None = None,
@@ -101,6 +113,7 @@ def hold(
             if final_obs is None:
                 final_obs = np.array(res.obs)
                 final_info = {k: np.array(v) for k, v in res.info.items()}
+            assert final_info is not None and res.final_obs is not None  # (an auto-reset step that ended rows)
             final_obs[now] = res.final_obs[now]
             for k in final_info:
                 final_info[k][now] = res.info[k][now]

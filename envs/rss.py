@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.config import ConfigError, bounded, check_ranges, unknown_key
+from overtakezoo.envs.config import ConfigError, bounded, check_ranges
+from overtakezoo.envs.typed import build
 
 
 @dataclass(frozen=True)
@@ -63,11 +64,7 @@ class RSSParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> RSSParams:
-        names = {f for f in cls.__dataclass_fields__}
-        for key in data or {}:
-            if key not in names:
-                raise ConfigError(f"safety.{key}: {unknown_key(key, names)}")
-        return cls(**{k: float(v) for k, v in (data or {}).items()})
+        return build(cls, data or {}, error=ConfigError, prefix="safety.", coerce=True, root="safety")
 
 
 def safe_distance_same_direction(

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,6 +91,7 @@ class Scenarios:
     @property
     def num_avs(self) -> int:
         """Automated vehicles per scenario, the ego included."""
+        assert self.av_s is not None  # (__post_init__ fills the AV fields)
         return 1 + int(self.av_s.shape[1])
 
     @property
@@ -292,7 +294,7 @@ class ScenarioDistribution:
     def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
-    def sample(self, n: int, seed: int | np.random.Generator) -> Scenarios:
+    def sample(self, n: int, seed: int | np.random.Generator | None) -> Scenarios:
         """Draw ``n`` scenarios. The same seed gives the same batch, bit for bit."""
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         K, F = self.oncoming_count, self.follower_count
@@ -415,6 +417,7 @@ def _with_avs(
     av: dict[str, list[np.ndarray]] = {k: [] for k in _AV_DTYPES}
     npc = {f.name: getattr(sc, f.name).copy() for f in dataclasses.fields(sc) if f.name.startswith("npc_")}
     if plat_gap is not None and plat_gap.shape[1]:
+        assert plat_v is not None  # (given with plat_gap)
         behind = np.cumsum(plat_gap + Le[:, None], axis=1)  # centre offsets behind the ego
         av["av_s"].append(sc.ego_s[:, None] - behind)
         av["av_d"].append(np.zeros_like(behind))
@@ -470,15 +473,15 @@ def _num(key: str, value: Any) -> float:
 def make_scenario(
     *,
     lead: tuple[float, float] | None = (15.0, 2.0),
-    oncoming: list[tuple[float, float]] = (),
-    followers: list[tuple[float, float]] = (),
+    oncoming: Sequence[tuple[float, float]] = (),
+    followers: Sequence[tuple[float, float]] = (),
     ego_speed: float = 15.0 * KMH,
     lead_behaviour: str = "idm",
     lead_boost: float = 0.0,
     oncoming_behaviour: str = "idm",
     reaction_time: float = 0.7,
     reveal: float = math.inf,
-    platoon: list[tuple[float, float]] = (),
+    platoon: Sequence[tuple[float, float]] = (),
     oncoming_av: tuple[float, float, float, float] | None = None,
     **road: Any,
 ) -> Scenarios:
@@ -539,10 +542,10 @@ def make_scenario(
     if not platoon and oncoming_av is None:
         return single
     plat = np.array(platoon, float).reshape(1, -1, 2)
-    oav = None
+    oav: tuple[np.ndarray, ...] | None = None
     if oncoming_av is not None:
-        distance, speed, lead_gap, lead_speed = (np.array([float(x)]) for x in oncoming_av)
-        oav = (speed, distance, lead_gap, lead_speed, np.array([reaction_time]))
+        distance, oav_speed, lead_gap, lead_speed = (np.array([float(x)]) for x in oncoming_av)
+        oav = (oav_speed, distance, lead_gap, lead_speed, np.array([reaction_time]))
     return _with_avs(
         single,
         slice(len(rows) - len(followers), len(rows)),

@@ -5,9 +5,14 @@ A suite file has top-level ``name``, ``version`` (an integer), ``count``, ``seed
 optional ``[sim]`` table (keys of :class:`~overtakezoo.envs.EnvConfig`, nested tables allowed). The
 suite's hash is the sha256 of the file's bytes, so any edit gives results a different identity.
 
-A *split* of a suite (``oncoming-4-train``) has ``base = "oncoming-4"`` in place of the two tables:
-the base's distribution and simulator settings drawn with the split's own ``seed`` and ``count``.
-Its hash covers its own bytes and the base file's, so an edit to either changes it.
+A suite may name a ``base``, another built-in suite: it then takes the base's ``[scenario]`` and
+``[sim]`` tables, with any ``[scenario]`` / ``[sim]`` tables of its own merged over them key by key
+(its other keys are its own). A *split* (``oncoming-4-train``: ``base = "oncoming-4"``, no tables)
+is the base's distribution and simulator settings drawn with the split's own ``seed`` and ``count``;
+a *variant* overrides a few keys. Its hash covers its own bytes and its base's (``b"\0"`` between,
+then the base's base, if any), so an edit to any of them changes it. :func:`suite_document` is the
+one reading of ``base``; published suite files are frozen (their hashes pin every result), so a new
+variant is a new file with a base and overrides, never an edit.
 """
 
 from __future__ import annotations
@@ -16,12 +21,16 @@ import hashlib
 import os
 import re
 import tomllib
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from overtakezoo.envs.config import ConfigError, EnvConfig, SuiteError, unknown_key
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
+
+if TYPE_CHECKING:
+    from overtakezoo.envs.explicit import ExplicitDistribution
 
 SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
@@ -46,6 +55,7 @@ MIXTURES = {
     "multi-train": tuple(f"{name}-train" for name in MULTI),
 }
 _KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base", "scenarios", "search"}
+SUITE_TABLES = ("scenario", "sim")  # what a suite takes from its base, its own merged over them
 
 
 @dataclass(frozen=True)
@@ -58,7 +68,7 @@ class Suite:
     hash: str
     path: Path
     config: EnvConfig
-    distribution: ScenarioDistribution
+    distribution: ScenarioDistribution | ExplicitDistribution  # the second: a suite that lists its scenarios
 
     @property
     def num_avs(self) -> int:
@@ -197,11 +207,12 @@ def suite_env_ids() -> dict[str, SuiteEnvId]:
     for ``import overtakezoo.envs``; the env validates the whole file when it is made)."""
     out: dict[str, SuiteEnvId] = {}
     for name in suite_names():
-        doc = tomllib.loads((SUITES_DIR / f"{name}.toml").read_text("utf-8"))
-        base = doc
-        if isinstance(doc.get("base"), str) and (SUITES_DIR / f"{doc['base']}.toml").is_file():
-            base = tomllib.loads((SUITES_DIR / f"{doc['base']}.toml").read_text("utf-8"))
-        sim, scenario = base.get("sim", {}), base.get("scenario", {})
+        data = (SUITES_DIR / f"{name}.toml").read_bytes()
+        try:
+            doc, _ = suite_document(data, name)
+        except SuiteError:  # (made, the env names the problem)
+            doc = tomllib.loads(data.decode("utf-8"))
+        sim, scenario = doc.get("sim", {}), doc.get("scenario", {})
         dt, interval = sim.get("dt", 0.1), sim.get("decision_interval", 1)
         multi = scenario.get("platoon_size", 1) > 1 or scenario.get("oncoming_av", 0) > 0
         held = zoo_hold(dt, interval)
@@ -237,18 +248,7 @@ def load_suite(name_or_path: str | Path) -> Suite:
 def parse_suite(data: bytes, path: Path) -> Suite:
     """Validate the bytes of a suite file; every problem is a SuiteError naming the file and key."""
     where = str(path)
-    try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise SuiteError(f"{where}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SuiteError(f"{where}: malformed TOML: {exc}") from None
-    unknown = sorted(set(doc) - _KEYS)
-    if unknown:
-        raise SuiteError(f"{where}: {unknown[0]}: {unknown_key(unknown[0], _KEYS)}")
-    digest = hashlib.sha256(data)
-    if "base" in doc:
-        doc, digest = _with_base(doc, where, digest)
+    doc, digest = suite_document(data, where)
     for key in ("name", "version", "count", "seed", "scenario"):
         if key not in doc:
             raise SuiteError(f"{where}: {key}: missing")
@@ -268,6 +268,7 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         raise SuiteError(f"{where}: sim: expected a table")
     if "scenario" in sim:
         raise SuiteError(f"{where}: sim.scenario: put scenario keys in the [scenario] table")
+    distribution: ScenarioDistribution | ExplicitDistribution
     try:
         config = EnvConfig.from_dict(sim, scenario=scenario)
         distribution = ScenarioDistribution.from_dict(scenario)
@@ -286,27 +287,86 @@ def parse_suite(data: bytes, path: Path) -> Suite:
         count=count,
         seed=seed,
         description=description,
-        hash=digest.hexdigest(),
+        hash=digest,
         path=path.resolve(),
         config=config,
         distribution=distribution,
     )
 
 
-def _with_base(doc: dict[str, Any], where: str, digest: Any) -> tuple[dict[str, Any], Any]:
-    """A split's document completed with its base suite's tables (a built-in suite, by name)."""
-    base = doc["base"]
-    if not isinstance(base, str) or not NAME_RE.match(base) or not (SUITES_DIR / f"{base}.toml").is_file():
-        raise SuiteError(f"{where}: base: {base!r} is not a built-in suite (known: {', '.join(suite_names())})")
-    both = sorted({"scenario", "sim"} & set(doc))
-    if both:
-        raise SuiteError(f"{where}: {both[0]}: a split takes its tables from its base suite {base!r}")
-    base_bytes = (SUITES_DIR / f"{base}.toml").read_bytes()
-    base_doc = tomllib.loads(base_bytes.decode("utf-8"))
-    if "base" in base_doc:
-        raise SuiteError(f"{where}: base: {base!r} is itself a split")
-    digest.update(b"\0" + base_bytes)
-    return {**doc, "scenario": base_doc["scenario"], "sim": base_doc.get("sim", {})}, digest
+def suite_document(data: bytes, where: str) -> tuple[dict[str, Any], str]:
+    """The one reading of a suite file's bytes: its document with its ``base`` resolved
+    (:func:`resolve_base`: the base's ``[scenario]`` and ``[sim]`` tables, the file's own merged over
+    them) and the suite's hash, the sha256 of the file's bytes followed by ``b"\0"`` and each base
+    file's bytes, nearest base first. Every problem is a SuiteError naming the file and the key."""
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise SuiteError(f"{where}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SuiteError(f"{where}: malformed TOML: {exc}") from None
+    unknown = sorted(set(doc) - _KEYS)
+    if unknown:
+        raise SuiteError(f"{where}: {unknown[0]}: {unknown_key(unknown[0], _KEYS)}")
+    digest = hashlib.sha256(data)
+    if "base" in doc:
+        doc, bases = resolve_base(doc, where, SUITES_DIR, inherit=SUITE_TABLES)
+        for base in bases:
+            digest.update(b"\0" + base)
+    return doc, digest.hexdigest()
+
+
+def resolve_base(
+    doc: dict[str, Any],
+    where: str,
+    folder: Path,
+    *,
+    inherit: Collection[str] | None = None,
+    error: type[ConfigError] = SuiteError,
+    what: str = "built-in suite",
+) -> tuple[dict[str, Any], list[bytes]]:
+    """``doc`` (a file's document) completed with its base: the file ``folder/<base>.toml`` named by
+    ``doc["base"]``, itself resolved first if it names a base. The base's keys in ``inherit`` (None:
+    all) come first, the file's own keys are merged over them (:func:`merged`: tables key by key).
+    Suites (``inherit`` their two tables) and hyperparameter files (everything) both read ``base``
+    here. Returns the document (``base`` kept) and the bytes of each base file, nearest first. A base
+    that is not a file of ``folder`` or a loop of bases is one ``error`` naming ``where: base``."""
+    names: list[str] = []
+    layers: list[dict[str, Any]] = []
+    chain: list[bytes] = []
+    current = doc
+    while "base" in current:
+        name = current["base"]
+        path = folder / f"{name}.toml" if isinstance(name, str) and NAME_RE.match(name) else None
+        if path is None or not path.is_file():
+            known = ", ".join(sorted(p.stem for p in folder.glob("*.toml")))
+            raise error(f"{where}: base: {name!r} is not a {what} (known: {known})")
+        if name in names:
+            raise error(f"{where}: base: {' -> '.join([*names, name])} is a loop")
+        names.append(name)
+        data = path.read_bytes()
+        try:
+            current = tomllib.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise error(f"{where}: base: {path} is not readable TOML: {exc}") from None
+        chain.append(data)
+        layers.append(current)
+    out: dict[str, Any] = {}
+    for layer in reversed(layers):
+        out = merged(out, {k: v for k, v in layer.items() if k != "base" and (inherit is None or k in inherit)})
+    return merged(out, doc), chain
+
+
+def merged(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``overrides`` applied (tables merged key by key, not replaced; any other value,
+    an array too, replaced)."""
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def _int(where: str, key: str, value: Any, lo: int, hi: int) -> int:

@@ -33,7 +33,6 @@ import argparse
 import json
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -86,15 +85,17 @@ VARIANTS = {
 
 
 def write_suites() -> list[Path]:
-    """``<suite>-wide-train.toml`` for each core suite: its own [scenario] and [sim] tables with
-    the ranges in WIDE_KEYS widened, the training split's count and seed."""
-    from overtakezoo.envs.suites import CORE, SUITES_DIR
+    """``<suite>-wide-train.toml`` for each core suite: its own [scenario] and [sim] tables (its
+    base's, if it names one, with its own over them) with the ranges in WIDE_KEYS widened, the
+    training split's count and seed."""
+    from overtakezoo.envs.explicit import to_toml
+    from overtakezoo.envs.suites import CORE, SUITES_DIR, suite_document
 
     SUITES.mkdir(exist_ok=True)
     paths = []
     for name in CORE:
-        base = tomllib.loads((SUITES_DIR / f"{name}.toml").read_text())
-        split = tomllib.loads((SUITES_DIR / f"{name}-train.toml").read_text())
+        base, _ = suite_document((SUITES_DIR / f"{name}.toml").read_bytes(), name)
+        split, _ = suite_document((SUITES_DIR / f"{name}-train.toml").read_bytes(), f"{name}-train")
         sc = dict(base["scenario"])
         for key in WIDE_KEYS:
             if isinstance(sc.get(key), list) and sc[key][1] > sc[key][0]:
@@ -104,46 +105,26 @@ def write_suites() -> list[Path]:
                 if key in SPEEDS:
                     hi = min(hi, sc["speed_limit"])
                 sc[key] = [round(lo, 6), round(hi, 6)]
-        lines = [
-            f"# {name}'s own distribution with every range in {', '.join(WIDE_KEYS)} widened by "
-            f"{int(WIDEN * 100)} % of its width on each side",
-            "# (speeds at most the speed limit, lower bounds at least half the original), drawn with "
-            f"{name}-train's seed.",
-            "# Written by `python scripts/ablation.py --write-suites`; a training split for the ablation only.",
-            "",
-            f'name = "{name}-wide-train"',
-            "version = 1",
-            f'description = "{name} with wider scenario ranges (domain randomisation, training only)"',
-            f"count = {split['count']}",
-            f"seed = {split['seed']}",
-            "",
-            "[scenario]",
-        ]
-        lines += [f"{k} = {_toml(v)}" for k, v in sc.items()]
-        lines += _table("sim", base.get("sim", {}))
+        header = (
+            f"{name}'s own distribution with every range in {', '.join(WIDE_KEYS)} widened by "
+            f"{int(WIDEN * 100)} % of its width on each side\n"
+            f"(speeds at most the speed limit, lower bounds at least half the original), drawn with "
+            f"{name}-train's seed.\n"
+            "Written by `python scripts/ablation.py --write-suites`; a training split for the ablation only.\n\n"
+        )
+        doc = {
+            "name": f"{name}-wide-train",
+            "version": 1,
+            "description": f"{name} with wider scenario ranges (domain randomisation, training only)",
+            "count": split["count"],
+            "seed": split["seed"],
+            "scenario": sc,
+            "sim": base.get("sim", {}),
+        }
         path = SUITES / f"{name}-wide-train.toml"
-        path.write_text("\n".join(lines) + "\n")
+        path.write_bytes(to_toml(header, doc))
         paths.append(path)
     return paths
-
-
-def _table(prefix: str, d: dict) -> list[str]:
-    flat = {k: v for k, v in d.items() if not isinstance(v, dict)}
-    out = ["", f"[{prefix}]", *(f"{k} = {_toml(v)}" for k, v in flat.items())] if flat or not d else []
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out += _table(f"{prefix}.{k}", v)
-    return out
-
-
-def _toml(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    return repr(v)
 
 
 def wide_spec() -> str:
@@ -212,7 +193,7 @@ def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
         got = json.loads(cache.read_text()) if cache.is_file() else {}
         if got.get("weights_sha256") != card["weights_sha256"]:
             got = {"weights_sha256": card["weights_sha256"], "seed": card["seed"], "suites": {}}
-        seed_eval = run / "seed-eval.json"  # scripts/seed_results.py's runs of the same weights, reused
+        seed_eval = run / "seed-eval.json"  # `overtakezoo seeds`' runs of the same weights, reused
         if variant != "no-threshold" and seed_eval.is_file():
             done = json.loads(seed_eval.read_text())
             if done.get("weights_sha256") == card["weights_sha256"]:

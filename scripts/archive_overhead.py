@@ -12,7 +12,8 @@ zstd levels (CPU time and ratio, median of 3).
 
 Each run is a fresh `overtakezoo eval` process; plain and archived runs alternate (so load drift
 hits both alike). CPU is the child's user + sys time and peak RSS its ru_maxrss, both from
-os.wait4 (CPU time, not wall time: the machine is shared). Prints a markdown table of medians.
+os.wait4 (CPU time, not wall time: the machine is shared). Prints a markdown table of medians
+(repeated and summarised by the perf report's helpers, benchmark/run/perf.py).
 """
 
 from __future__ import annotations
@@ -20,12 +21,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from overtakezoo.benchmark.run.perf import interleave, repeat, spread, timed
 
 
 def run_once(args: list[str]) -> tuple[float, float]:
@@ -124,12 +126,9 @@ def breakdown(suite_name: str, decider_name: str) -> str:
     ]
     for level in (3, 1, -1, -3, -5):
         z = zstandard.ZstdCompressor(level=level)
-        runs = []
-        for _ in range(3):
-            t = time.process_time()
-            out = sum(len(z.compress(c)) for c in chunks)
-            runs.append(time.process_time() - t)
-        lines.append(f"| {level} | {raw / statistics.median(runs) / 1e6:.0f} | {out / raw:.3f} |")
+        out = sum(len(z.compress(c)) for c in chunks)  # (untimed: a warm-up)
+        cpu = repeat(timed(lambda z=z: sum(len(z.compress(c)) for c in chunks), time.process_time), 3)
+        lines.append(f"| {level} | {raw / cpu['median'] / 1e6:.0f} | {out / raw:.3f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -152,21 +151,23 @@ def main() -> None:
         if a.out:
             Path(a.out).write_text(text)
         return
-    cpu: dict[str, list[float]] = {"plain": [], "archive": []}
     rss: dict[str, list[float]] = {"plain": [], "archive": []}
-    size = 0
+
+    def eval_cpu(kind: str, args: list[str]) -> float:
+        c, m = run_once(args)
+        rss[kind].append(m)
+        return c
+
     with tempfile.TemporaryDirectory() as tmp:
         base = ["--suite", a.suite, "--decider", a.decider, "--no-progress", "--out", f"{tmp}/r.json"]
-        for _ in range(a.repeats):  # interleaved: plain, archive, plain, archive, ...
-            for kind in ("plain", "archive"):
-                extra = ["--archive", f"{tmp}/run.mcap", *a.extra] if kind == "archive" else []
-                c, m = run_once(base + extra)
-                cpu[kind].append(c)
-                rss[kind].append(m)
-            size = os.path.getsize(f"{tmp}/run.mcap")
-    med = {k: statistics.median(v) for k, v in cpu.items()}
-    mem = {k: statistics.median(v) for k, v in rss.items()}
-    ratios = [x / y for x, y in zip(cpu["archive"], cpu["plain"], strict=True)]
+        archived = [*base, "--archive", f"{tmp}/run.mcap", *a.extra]
+        # interleaved: plain, archive, plain, archive, ...
+        cpu = interleave(
+            {"plain": lambda: eval_cpu("plain", base), "archive": lambda: eval_cpu("archive", archived)}, a.repeats
+        )
+        size = os.path.getsize(f"{tmp}/run.mcap")
+    mem = {k: spread(v) for k, v in rss.items()}
+    ratio = spread([x / y for x, y in zip(cpu["archive"]["runs"], cpu["plain"]["runs"], strict=True)])
     args = " ".join(a.extra)
     lines = [
         f"`eval --suite {a.suite} --decider {a.decider}` with and without `--archive`{' ' + args if args else ''}; "
@@ -176,11 +177,12 @@ def main() -> None:
         "",
         "| run | CPU time (user + sys) | peak RSS |",
         "|---|---|---|",
-        f"| plain eval | {med['plain']:.2f} s ({min(cpu['plain']):.2f} - {max(cpu['plain']):.2f}) | "
-        f"{mem['plain']:.0f} MB ({min(rss['plain']):.0f} - {max(rss['plain']):.0f}) |",
-        f"| eval --archive | {med['archive']:.2f} s ({min(cpu['archive']):.2f} - {max(cpu['archive']):.2f}) | "
-        f"{mem['archive']:.0f} MB ({min(rss['archive']):.0f} - {max(rss['archive']):.0f}) |",
-        f"| ratio | {statistics.median(ratios):.1f} x ({min(ratios):.1f} - {max(ratios):.1f}) | |",
+        *(
+            f"| {label} | {cpu[k]['median']:.2f} s ({cpu[k]['min']:.2f} - {cpu[k]['max']:.2f}) | "
+            f"{mem[k]['median']:.0f} MB ({mem[k]['min']:.0f} - {mem[k]['max']:.0f}) |"
+            for k, label in (("plain", "plain eval"), ("archive", "eval --archive"))
+        ),
+        f"| ratio | {ratio['median']:.1f} x ({ratio['min']:.1f} - {ratio['max']:.1f}) | |",
         "",
         f"Archive size: {size / 1e6:.1f} MB ({size / 1e3 / max(1, _episodes(a.suite)):.0f} KB per episode).",
     ]

@@ -4,7 +4,7 @@
 # re-measures the rows. Usage: scripts/reproduce-zoo.sh [RUNS_DIR]   (default: runs/zoo)
 #
 # 1. dqn, double-dqn, ppo: 3 seeds each on core-train (every core suite's training split);
-#    scripts/seed_results.py evaluates every seed and ships the median by training-split success;
+#    `overtakezoo seeds` evaluates every seed and ships the median by training-split success;
 #    then ps-dqn (several automated vehicles per road) on core-train+multi-train, the same way.
 # 2. The official datasets are rebuilt (the expert dataset is the shipped ppo's, the best learned member) and the registry
 #    rewritten with their content hashes.
@@ -27,22 +27,22 @@ done
 # The deployed decision rate (and, for ppo, the OVERTAKE threshold), chosen on the training splits
 # over the 3 seeds and written into the run cards before a seed is chosen (README, "Deployed decision rate").
 for algo in dqn double-dqn ppo; do
-  python scripts/decision_rate.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --jobs 2
+  overtakezoo decision-rate "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --jobs 2
 done
-python scripts/decision_rate.py ppo "$runs/ppo-s0" "$runs/ppo-s1" "$runs/ppo-s2" --jobs 2 \
+overtakezoo decision-rate ppo "$runs/ppo-s0" "$runs/ppo-s1" "$runs/ppo-s2" --jobs 2 \
   --overtake-offsets=0,-0.25,-0.5,-0.75,-1,-1.25,-1.5
 for algo in dqn double-dqn ppo; do
-  python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
+  overtakezoo seeds "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
 done
 # ps-dqn: dqn with one Q-network for every automated vehicle, on the core and the multi-AV training
 # splits; every seed also in self-play on duel / platoon / mixed-traffic, beside the shipped dqn,
 # ppo and rule-fsm there. Shipped by the same median rule, over its own training splits.
 overtakezoo train ps-dqn --suite core-train+multi-train --seeds 0,1,2 --out "$runs/ps-dqn" --eval-suite none --no-progress
-python scripts/decision_rate.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2
+overtakezoo decision-rate ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2
 # Its OVERTAKE threshold in Q units (the success reward is 10): a grid symmetric about 0, up to a tenth of it.
-python scripts/decision_rate.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2 \
+overtakezoo decision-rate ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --train-suite core-train+multi-train --jobs 2 \
   --overtake-offsets=1,0.5,0.25,0,-0.25,-0.5,-1
-python scripts/seed_results.py ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --ship \
+overtakezoo seeds ps-dqn "$runs/ps-dqn-s0" "$runs/ps-dqn-s1" "$runs/ps-dqn-s2" --ship \
   --train-suite core-train+multi-train --compare dqn,ppo,rule-fsm \
   --suites table1,table1-reactive,oncoming-2,oncoming-4,oncoming-8,dense,urban-50,adversarial,occluded,duel,platoon,mixed-traffic
 overtakezoo dataset regenerate
@@ -51,10 +51,10 @@ for algo in bc cql; do
   overtakezoo train "$algo" --dataset "$dataset" --seeds 0,1,2 --out "$runs/$algo" --eval-suite none --no-progress
 done
 for algo in bc cql; do
-  python scripts/seed_results.py "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
+  overtakezoo seeds "$algo" "$runs/$algo-s0" "$runs/$algo-s1" "$runs/$algo-s2" --ship
 done
 overtakezoo train dagger --suite core-train --seeds 0,1,2 --out "$runs/dagger" --eval-suite none --no-progress
-python scripts/seed_results.py dagger "$runs/dagger-s0" "$runs/dagger-s1" "$runs/dagger-s2" --ship
+overtakezoo seeds dagger "$runs/dagger-s0" "$runs/dagger-s1" "$runs/dagger-s2" --ship
 python scripts/ablation.py --runs "$runs"
 # 5. The paper's setting: dqn and double-dqn trained on table1-train alone, every seed run on table1
 #    (docs/paper-setting.md; not shipped).

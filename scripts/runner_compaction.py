@@ -10,16 +10,26 @@ array was the same bits (it must be).
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
+from functools import partial
 
 import numpy as np
 
 from overtakezoo.benchmark.run import runner
+from overtakezoo.benchmark.run.perf import interleave, timed
 from overtakezoo.benchmark.run.policy import load_zoo
 from overtakezoo.envs.suites import load_suite
 
 NEVER = 10**9  # a floor no batch reaches: the runner steps the whole batch
+
+
+def run_cpu(suite, name: str, floor: int, per: dict[int, dict[str, np.ndarray]]) -> float:
+    """CPU seconds of one run of ``suite`` with a fresh ``name`` at compaction floor ``floor``
+    (loading the decider not counted); its per-scenario arrays go to ``per[floor]``."""
+    runner.MIN_COMPACT_ROWS = floor
+    decider = load_zoo(name, suite.config)
+    run = partial(runner.run_suite, suite, decider, progress=False)
+    return timed(lambda: per.__setitem__(floor, run().per), time.process_time)()
 
 
 def main() -> None:
@@ -33,21 +43,19 @@ def main() -> None:
         "| decider | whole batch (CPU s) | finished rows dropped (CPU s) | ratio | same bits |\n|---|---|---|---|---|"
     )
     for name in args.deciders:
-        times: dict[int, list[float]] = {NEVER: [], default: []}
         per: dict[int, dict[str, np.ndarray]] = {}
-        for _ in range(args.rounds):
-            for floor in (NEVER, default):
-                runner.MIN_COMPACT_ROWS = floor
-                decider = load_zoo(name, suite.config)
-                t0 = time.process_time()
-                per[floor] = runner.run_suite(suite, decider, progress=False).per
-                times[floor].append(time.process_time() - t0)
-        runner.MIN_COMPACT_ROWS = default
+        try:
+            times = interleave(
+                {floor: partial(run_cpu, suite, name, floor, per) for floor in (NEVER, default)},
+                args.rounds,
+            )
+        finally:
+            runner.MIN_COMPACT_ROWS = default
         same = all(
             np.array_equal(per[NEVER][k], per[default][k], equal_nan=per[NEVER][k].dtype.kind == "f")
             for k in per[NEVER]
         )
-        whole, dropped = statistics.median(times[NEVER]), statistics.median(times[default])
+        whole, dropped = times[NEVER]["median"], times[default]["median"]
         print(f"| {name} | {whole:.2f} | {dropped:.2f} | {whole / dropped:.2f}x | {'yes' if same else 'NO'} |")
 
 

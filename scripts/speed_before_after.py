@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
+from functools import partial
 from pathlib import Path
+
+from overtakezoo.benchmark.run.perf import interleave
 
 REPO = Path(__file__).resolve().parents[1]
 # The core as `overtakezoo perf` steps it (auto-reset, always OVERTAKE), timed in CPU seconds of this
@@ -78,11 +80,13 @@ def main() -> None:
             (Path(tmp) / "pkg").mkdir()
             (Path(tmp) / "pkg" / "overtakezoo").symlink_to(tree)  # the flat layout, importable as overtakezoo
             trees = {"before": str(Path(tmp) / "pkg"), "after": None}
-            rates = {(name, n): [] for name in trees for n in args.sizes}
-            for _ in range(args.rounds):
-                for n in args.sizes:
-                    for name, path in trees.items():
-                        rates[name, n].append(rate(path, n, args.seconds, args.suite))
+            # round after round: every size, each tree in turn
+            probes = {
+                (name, n): partial(rate, path, n, args.seconds, args.suite)
+                for n in args.sizes
+                for name, path in trees.items()
+            }
+            rates = interleave(probes, args.rounds)
         finally:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)], check=False)
     print(
@@ -91,7 +95,7 @@ def main() -> None:
     )
     print("| N | before | after | after / before |\n|---|---|---|---|")
     for n in args.sizes:
-        before, after = statistics.median(rates["before", n]), statistics.median(rates["after", n])
+        before, after = rates["before", n]["median"], rates["after", n]["median"]
         print(f"| {n} | {before:,.0f} | {after:,.0f} | {after / before:.3f} |")
 
 

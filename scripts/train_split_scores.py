@@ -4,7 +4,8 @@
 
 Each training suite of ``--suite`` (a mixture such as core-train) is run from scenario ``--from`` to
 its end (the trainers' model selection scores the first ones; ``--from 0``: the whole split) by
-every run's ``<member>.npz`` and by the shipped ``zoo/pretrained/<member>``; the mean over the
+every run's ``<member>.npz`` (a run of another name, such as ``overtakezoo train ppo-numpy``'s: its one
+``<name>.npz``) and by the shipped ``zoo/pretrained/<member>``; the mean over the
 suites is what compares a run with the shipped member on training splits only (no test suite is
 read). Used for the numpy PPO on core-train (README, "PPO in numpy") and dqn's n-step returns
 (README, "DQN with 3-step returns").
@@ -38,8 +39,10 @@ def main() -> None:
     m = args.member
     deciders = [(f"shipped {m}", load_pretrained(m, suites[0].config))]
     for run in args.runs:
-        card = read_card(Path(run) / f"{m}.json", m)
-        deciders.append((run, MLPDecider(load_weights(Path(run) / f"{m}.npz", card), m, suites[0].config, card)))
+        cards = [p for p in sorted(Path(run).glob("*.json")) if p.with_suffix(".npz").is_file()]
+        name = m if (Path(run) / f"{m}.npz").is_file() or len(cards) != 1 else cards[0].stem  # (ppo-numpy's runs)
+        card = read_card(Path(run) / f"{name}.json", name)
+        deciders.append((run, MLPDecider(load_weights(Path(run) / f"{name}.npz", card), name, suites[0].config, card)))
     for name, decider in deciders:
         rows = scores(decider, suites, args.start)
         success, crash = np.mean([r[1] for r in rows]), np.mean([r[2] for r in rows])

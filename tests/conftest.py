@@ -165,22 +165,6 @@ def one_torch_thread():
     torch.set_num_threads(before)
 
 
-# ----------------------------------------------------------------------------- repository scripts
-@pytest.fixture
-def decision_rate(monkeypatch):
-    """``scripts/decision_rate.py`` as a module (its folder on sys.path, as when it runs)."""
-    import importlib.util
-    import sys
-
-    scripts = Path(__file__).resolve().parents[1] / "scripts"
-    monkeypatch.syspath_prepend(str(scripts))
-    spec = importlib.util.spec_from_file_location("decision_rate_under_test", scripts / "decision_rate.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop("decision_rate_under_test", None)
-
-
 def last_error_line(capsys, argv):
     """The one ``error:`` line a refused command prints, last (after any lines saying the hold)."""
     from overtakezoo.benchmark.cli import main

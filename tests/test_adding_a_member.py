@@ -1,7 +1,8 @@
 """CONTRIBUTING.md's checklist for a new zoo member, followed once: a member declared in the registry
 alone is listed by the CLI, passes the protocol check and drives a suite, and the board's measured
 tables (the cross-play matrices and the failure board) say they do not cover it yet, naming the
-command that measures each again, until they do."""
+command that measures each again: a warning from `leaderboard --check`, and a failure of the default
+run for the shipped board."""
 
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ def measured(tmp_path: Path) -> Path:
 
 
 def test_the_shipped_tables_cover_the_zoo():
+    """The default run fails until the shipped cross-play matrices and failure board cover every member."""
     assert uncovered(LEADERBOARDS) == []
 
 
@@ -63,9 +65,9 @@ def test_the_measured_tables_name_a_member_they_miss_and_the_command(new_member,
     assert all(f"no entry for {new_member}" in line for line in lines)
     assert "`overtakezoo crossplay --suite duel --jobs 2`" in "\n".join(lines)
     assert "`overtakezoo failure-board --jobs 2`" in "\n".join(lines)
-    assert main(["leaderboard", "--root", str(measured), "--check"]) == 1
+    main(["leaderboard", "--root", str(measured), "--check"])  # (stale too: the root has no generated files)
     err = capsys.readouterr().err
-    assert f"crossplay/duel.json: no entry for {new_member}" in err
+    assert f"warning: {measured}/crossplay/duel.json: no entry for {new_member}" in err
 
 
 def test_a_removed_member_is_named_too(measured, monkeypatch):

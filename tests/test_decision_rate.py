@@ -1,5 +1,5 @@
 """A learned member's deployed decision rate (the card's ``decide_every``, chosen on training splits by
-scripts/decision_rate.py): the runner re-asks the member that often, results and cross-play tables
+``overtakezoo decision-rate``): the runner re-asks the member that often, results and cross-play tables
 tell the rate apart, and a card with a bad rate is refused, never guessed."""
 
 from __future__ import annotations
@@ -7,13 +7,13 @@ from __future__ import annotations
 import copy
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import jsonschema
 import numpy as np
 import pytest
 
+from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.members.learned import (
@@ -92,8 +92,8 @@ def test_a_network_with_memory_keeps_its_training_rate(dqn_parts):
     assert deployed_repeat("dagger", stacked) == 10
 
 
-def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_path, monkeypatch, decision_rate):
-    """scripts/decision_rate.py on two runs (the shipped dqn under two seeds) over a small training
+def test_the_command_chooses_on_training_splits_and_writes_every_run_card(tmp_path):
+    """``overtakezoo decision-rate`` on two runs (the shipped dqn under two seeds) over a small training
     split: the chosen rate is the best mean score, written with its table into each run's card."""
     split = tmp_path / "occluded-mini-train.toml"
     split.write_text('name = "occluded-mini-train"\nversion = 1\nbase = "occluded"\ncount = 30\nseed = 7\n')
@@ -107,10 +107,7 @@ def test_the_script_chooses_on_training_splits_and_writes_every_run_card(tmp_pat
         card["seed"] = seed
         (run / "dqn.json").write_text(json.dumps(card))
         runs.append(str(run))
-    monkeypatch.setattr(
-        sys, "argv", ["decision_rate.py", "dqn", *runs, "--candidates", "10,1", "--train-suite", str(split)]
-    )
-    decision_rate.main()
+    assert main(["decision-rate", "dqn", *runs, "--candidates", "10,1", "--train-suite", str(split)]) == 0
     cards = [json.loads((Path(r) / "dqn.json").read_text()) for r in runs]
     sel = cards[0]["decide_every_selection"]
     assert sel == cards[1]["decide_every_selection"] and sel["candidates"] == [10, 1]

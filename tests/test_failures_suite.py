@@ -100,7 +100,7 @@ def edit(path, old, new):
         ("lead_gap = ", 'lead_gap = "x" #', "scenarios[0].lead_gap: expected a finite number"),
         ("lead_gap = ", "lead_gap = inf #", "scenarios[0].lead_gap: expected a finite number"),
         ("[[scenarios]]\n", "[[scenarios]]\noncoming_count = 99\n", "oncoming_count: expected an integer in [0, 64]"),
-        ('name = "listed"', 'name = "listed"\nbase = "table1"', "a split takes its tables from its base suite"),
+        ('name = "listed"', 'name = "listed"\nbase = "table1"', "scenarios: a suite with a base"),
         ('name = "listed"', 'name = "listed"\nsearch = 3', "search: expected a table"),
     ],
 )

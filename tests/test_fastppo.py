@@ -1,5 +1,6 @@
-"""The numpy PPO (zoo/train/fastppo.py, `overtakezoo train ppo --hyperparams zoo/hyperparams/ppo-fast.toml`):
-it learns table1-train from scratch in seconds, the same seed gives the same bits, it never imports torch."""
+"""The numpy PPO (zoo/train/fastppo.py, `overtakezoo train ppo-numpy`, zoo/hyperparams/ppo-numpy.toml):
+it learns table1-train from scratch in seconds, the same seed gives the same bits, it never imports torch;
+it is a trainer of its own, never posing as the ppo member, and its runs evaluate like any run."""
 
 from __future__ import annotations
 
@@ -13,22 +14,19 @@ import pytest
 from overtakezoo.envs import CRASH, SUCCESS
 from overtakezoo.envs.suites import load_training
 from overtakezoo.zoo.train import fastppo
-from overtakezoo.zoo.train.contract import HYPERPARAMS, check_card, load_hyperparams
+from overtakezoo.zoo.train.contract import HYPERPARAMS, check_card, load_hyperparams, run_files
 from overtakezoo.zoo.train.typed import HyperparameterError
 
-FAST = HYPERPARAMS / "ppo-fast.toml"
+FAST = HYPERPARAMS / "ppo-numpy.toml"
 
 
 def _train(tmp_path, name, steps, seed=0, **overrides):
-    from overtakezoo.zoo.train import ppo
-
-    return ppo.train(
+    return fastppo.train(
         load_training("table1-train"),
         suite_name="table1-train",
         steps=steps,
         seed=seed,
         out=tmp_path / name,
-        hyperparams=FAST,
         overrides=overrides or None,
         progress=False,
     )
@@ -75,10 +73,13 @@ def test_learns_table1_train_from_scratch(tmp_path, seed):
     success, crash = np.mean(core.outcome == SUCCESS), np.mean(core.outcome == CRASH)
     print(f"seed {seed}: success {success:.3f} crash {crash:.3f}")
     assert success >= 0.85 and crash <= 0.05, (success, crash)
-    card = json.loads((tmp_path / "run" / "ppo.json").read_text())
+    card = json.loads((tmp_path / "run" / "ppo-numpy.json").read_text())
     check_card(card)
     assert "torch" not in card["versions"] and card["training"]["selection"]["iteration"] in (8, 12, 16)
-    assert "--hyperparams zoo/hyperparams/ppo-fast.toml" in card["reproduce"]
+    assert card["name"] == "ppo-numpy" and card["weights_file"] == "ppo-numpy.npz"
+    assert card["reproduce"] == f"overtakezoo train ppo-numpy --suite table1-train --steps 32768 --seed {seed}"
+    assert card["hyperparameters"]["file"] == "ppo-numpy.toml"
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == sorted(run_files("fastppo", "ppo-numpy"))
     assert (tmp_path / "run" / "train_log.csv").read_text().count("\n") == 17  # header + 16 iterations
 
 
@@ -93,13 +94,13 @@ def test_same_seed_same_bits_other_seed_other_bits(tmp_path):
 def test_trains_without_importing_torch(tmp_path):
     code = (
         "import sys; from overtakezoo.benchmark.cli import main; "
-        f"rc = main(['train', 'ppo', '--hyperparams', {str(FAST)!r}, '--steps', '2048', '--eval-suite', 'none', "
+        f"rc = main(['train', 'ppo-numpy', '--steps', '2048', '--eval-suite', 'none', "
         f"'--out', {str(tmp_path / 'run')!r}, '--no-progress']); "
         "assert rc == 0; assert 'torch' not in sys.modules, 'torch imported'"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert (tmp_path / "run" / "ppo.npz").is_file()
+    assert (tmp_path / "run" / "ppo-numpy.npz").is_file() and not (tmp_path / "run" / "ppo.npz").exists()
 
 
 def test_bad_hyperparameters_are_one_error_naming_the_key(tmp_path):
@@ -110,15 +111,54 @@ def test_bad_hyperparameters_are_one_error_naming_the_key(tmp_path):
     from overtakezoo.zoo.train.contract import TrainError
 
     with pytest.raises(TrainError, match="--resume"):
-        from overtakezoo.zoo.train import ppo
-
-        ppo.train(
-            load_training("table1-train"),
-            steps=2048,
-            out=tmp_path / "r",
-            hyperparams=FAST,
-            resume=tmp_path / "x.pt",
-            progress=False,
-        )
+        fastppo.train(load_training("table1-train"), steps=2048, out=tmp_path / "r", resume=tmp_path / "x.pt")
     with pytest.raises(TrainError, match="single-AV"):
-        ppo.train(load_training("multi-train"), steps=2048, out=tmp_path / "m", hyperparams=FAST, progress=False)
+        fastppo.train(load_training("multi-train"), steps=2048, out=tmp_path / "m", progress=False)
+
+
+def test_one_ppo_trainer_per_name_each_file_for_its_own_command(tmp_path, capsys):
+    """`train ppo` is always rsl-rl's; the numpy PPO is `train ppo-numpy`. A hyperparameter file of
+    the other trainer is one `error:` line naming the command that reads it, never a switch."""
+    from overtakezoo.benchmark.cli import main
+    from overtakezoo.zoo.train.contract import hyperparams_file
+
+    old = tmp_path / "ppo-fast.toml"  # a file from before: the numpy PPO chosen by a key of the ppo member's
+    old.write_text('trainer = "numpy"\n' + FAST.read_text())
+    for argv, right in (
+        (["train", "ppo", "--hyperparams", str(FAST)], f"`overtakezoo train ppo-numpy --hyperparams {FAST}`"),
+        (["train", "ppo", "--hyperparams", str(old)], f"`overtakezoo train ppo-numpy --hyperparams {old}`"),
+        (["train", "ppo-numpy", "--hyperparams", str(hyperparams_file("ppo"))], "`overtakezoo train ppo --hyperparams"),
+        (["train", "ppo-numpy", "--hyperparams", str(old)], "`overtakezoo train ppo-numpy`; delete the line"),
+    ):
+        assert main([*argv, "--steps", "2048", "--out", str(tmp_path / "run"), "--no-progress"]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and err.startswith("error: ") and err.count("\n") == 1 and right in err, err
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())  # nothing trained
+
+
+def test_a_run_evaluates_as_before_under_its_own_name(tmp_path):
+    """What `train ppo-numpy` writes is evaluated by `eval --policy` (the .npz, its card or the run
+    directory) and loaded by the learned loader, under its own name."""
+    from overtakezoo.benchmark.cli import main
+    from overtakezoo.zoo.members.learned import load_pretrained
+
+    run = tmp_path / "run"
+    argv = ["train", "ppo-numpy", "--steps", "2048", "--eval-suite", "none", "--out", str(run), "--no-progress"]
+    assert main(argv) == 0
+    card = json.loads((run / "ppo-numpy.json").read_text())
+    suite = load_training("table1-train")[0]
+    dec = load_pretrained("ppo-numpy", suite.config, directory=run)
+    assert dec.name == "ppo-numpy" and dec.weights_sha256 == card["weights_sha256"] and dec.action_repeat == 10
+    from conftest import suite_file
+    from overtakezoo.benchmark.run.runner import run_suite
+    from overtakezoo.envs.suites import load_suite
+
+    tiny = suite_file(tmp_path / "tiny.toml", 4)
+    run_suite(load_suite(str(tiny)), dec, progress=False).save(tmp_path / "loaded.json")
+    want = json.loads((tmp_path / "loaded.json").read_text())["scenarios"]
+    for spec in (run / "ppo-numpy.npz", run / "ppo-numpy.json", run):
+        res = tmp_path / "res.json"
+        assert main(["eval", "--suite", str(tiny), "--policy", str(spec), "--out", str(res), "--no-progress"]) == 0
+        doc = json.loads(res.read_text())
+        assert doc["decider"]["name"] == f"ppo-numpy-{card['weights_sha256'][:8]}"
+        assert doc["decider"]["policy"]["kind"] == "overtakezoo-ppo" and doc["scenarios"] == want

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -37,13 +40,51 @@ def test_a_split_takes_its_tables_from_its_base_and_its_hash_covers_the_base(tmp
     before = load_suite(split).hash
     (folder / "oncoming-2.toml").write_bytes(base.replace(b"count = 1000", b"count = 999"))
     assert load_suite(split).hash != before  # an edit of the base re-identifies the split
-    split.write_text(
-        'name = "x-train"\nversion = 1\nbase = "oncoming-2"\ncount = 10\nseed = 1\n[scenario]\ngoal = 50.0\n'
-    )
-    with pytest.raises(SuiteError, match="scenario: a split takes its tables from its base suite"):
-        load_suite(split)
     split.write_text('name = "x-train"\nversion = 1\nbase = "nope"\ncount = 10\nseed = 1\n')
     with pytest.raises(SuiteError, match="base: 'nope' is not a built-in suite"):
+        load_suite(split)
+
+
+def test_a_variant_is_its_base_with_its_own_tables_merged_over_and_hashes_every_file(tmp_path, monkeypatch):
+    # docs/suites.md: a new suite names a base and gives only what differs ([scenario] / [sim] keys,
+    # merged key by key, nested tables too); its hash is sha256(own bytes + b"\0" + base bytes [+ b"\0"
+    # + the base's base ...]), and a split of the variant is a split as any other.
+    from overtakezoo.envs import suites
+
+    folder = tmp_path / "suites"
+    folder.mkdir()
+    base_bytes = (suites.SUITES_DIR / "table1-reactive.toml").read_bytes()
+    (folder / "table1-reactive.toml").write_bytes(base_bytes)
+    monkeypatch.setattr(suites, "SUITES_DIR", folder)
+    variant = folder / "late.toml"
+    variant.write_bytes(
+        b'name = "late"\nversion = 1\nbase = "table1-reactive"\ncount = 10\nseed = 7\n'
+        b"[scenario]\nsensor_range = 30.0\noncoming_reveal = [12.0, 30.0]\n"
+        b"[sim.planner]\nmax_steer = 0.5\n[sim.planner.modes.overtake]\nvelocity = 30.0\n"
+    )
+    base, late = load_suite(folder / "table1-reactive.toml"), load_suite(variant)
+    expected_scenario = {**base.config.scenario, "sensor_range": 30.0, "oncoming_reveal": [12.0, 30.0]}
+    assert late.config.scenario == expected_scenario
+    assert late.distribution == dataclasses.replace(base.distribution, sensor_range=30.0, oncoming_reveal=(12.0, 30.0))
+    overtake = dataclasses.replace(base.config.planner.modes["overtake"], velocity=30.0)
+    planner = dataclasses.replace(
+        base.config.planner, max_steer=0.5, modes={**base.config.planner.modes, "overtake": overtake}
+    )
+    assert late.config == dataclasses.replace(base.config, planner=planner, scenario=expected_scenario)
+    assert (late.count, late.seed, late.name) == (10, 7, "late")  # its own keys, not the base's
+    assert late.hash == hashlib.sha256(variant.read_bytes() + b"\0" + base_bytes).hexdigest()
+    # The variant's own split: two bases deep, every file in its hash.
+    split = folder / "late-train.toml"
+    split.write_bytes(b'name = "late-train"\nversion = 1\nbase = "late"\ncount = 5\nseed = 8\n')
+    train = load_suite(split)
+    assert train.config == late.config and train.distribution == late.distribution
+    chain = split.read_bytes() + b"\0" + variant.read_bytes() + b"\0" + base_bytes
+    assert train.hash == hashlib.sha256(chain).hexdigest()
+    (folder / "table1-reactive.toml").write_bytes(base_bytes.replace(b"count = 3000", b"count = 2999"))
+    assert load_suite(split).hash != train.hash  # an edit of any file in the chain re-identifies it
+    # A loop of bases is one error.
+    (folder / "table1-reactive.toml").write_bytes(b'base = "late"\n' + base_bytes)
+    with pytest.raises(SuiteError, match="base: late -> table1-reactive -> late is a loop"):
         load_suite(split)
 
 

@@ -168,3 +168,42 @@ def test_a_cards_reproduce_line_carries_the_overrides_it_was_trained_with():
     assert card["reproduce"] == "overtakezoo train dqn --suite s --steps 10 --seed 0 " + " ".join(
         f"--set {f}" for f in flags
     )
+
+
+def test_a_file_with_a_base_resolves_to_the_flat_file_it_replaces(tmp_path, monkeypatch):
+    # double-dqn.toml and ps-dqn.toml are dqn.toml (`base = "dqn"`) and the keys they change: each
+    # loads exactly as the flat file with those keys edited in (what they were before, as_dict and all).
+    for algo, edits in (
+        ("double-dqn", (("double = false", "double = true"), ("steps = 500000", "steps = 1000000"))),
+        ("ps-dqn", (("double = false", "double = false\nmulti_av_share = 0.5"),)),
+    ):
+        text = DQN_TOML
+        for old, new in edits:
+            assert old in text
+            text = text.replace(old, new)
+        flat = tmp_path / f"{algo}-flat.toml"
+        flat.write_text(text)
+        hp, name = load_hyperparams(DQNHyperparams, hyperparams_file(algo))
+        want, _ = load_hyperparams(DQNHyperparams, flat)
+        assert name == f"{algo}.toml" and hp == want and as_dict(hp) == as_dict(want)
+    # Tables merge key by key (as a suite's [sim] over its base's): only [train] steps changes here.
+    from overtakezoo.zoo.train.fastppo import FastPPOHyperparams
+
+    short = tmp_path / "short.toml"
+    short.write_text('base = "ppo-numpy"\n[train]\nsteps = 4096\n')
+    hp, _ = load_hyperparams(FastPPOHyperparams, short)
+    base, _ = load_hyperparams(FastPPOHyperparams, hyperparams_file("ppo-numpy"))
+    assert hp == dataclasses.replace(base, train=dataclasses.replace(base.train, steps=4096))
+    # --set goes over the resolved file; the base must be a file of zoo/hyperparams; no loops.
+    hp, _ = load_hyperparams(DQNHyperparams, hyperparams_file("double-dqn"), {"double": False, "steps": 500000})
+    assert hp == load_hyperparams(DQNHyperparams, hyperparams_file("dqn"))[0]
+    short.write_text('base = "nope"\n')
+    with pytest.raises(HyperparameterError, match=r"short.toml: base: 'nope' is not a hyperparameter file"):
+        load_hyperparams(DQNHyperparams, short)
+    from overtakezoo.zoo.train import contract
+
+    monkeypatch.setattr(contract, "HYPERPARAMS", tmp_path)
+    (tmp_path / "a.toml").write_text('base = "b"\n')
+    (tmp_path / "b.toml").write_text('base = "a"\n')
+    with pytest.raises(HyperparameterError, match="base: b -> a -> b is a loop"):
+        load_hyperparams(DQNHyperparams, tmp_path / "a.toml")

@@ -24,3 +24,18 @@ def test_ruff_finds_nothing():
 def test_ruff_format_changes_nothing():
     out = _ruff("format", "--check")
     assert out.returncode == 0, out.stdout + out.stderr + "\n(run `ruff format` to apply)"
+
+
+def test_mypy_finds_nothing():
+    """envs/ and zoo/ type-check clean: `mypy` with pyproject.toml's [tool.mypy] (the packages, the
+    settings), as run from the repository root. Its cache is the default .mypy_cache/ (git-ignored),
+    so a second run takes seconds."""
+    pytest.importorskip("mypy")
+    out = subprocess.run(
+        [sys.executable, "-m", "mypy", "--config-file", str(REPO / "pyproject.toml")],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stdout + out.stderr

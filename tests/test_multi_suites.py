@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.results.multi_metrics import run_joint_rates
 from overtakezoo.envs import ConfigError, ScenarioDistribution, make_scenario
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, Scenarios
 from overtakezoo.envs.suites import CORE, MIXTURES, MULTI, load_suite, load_training
@@ -250,26 +251,15 @@ def test_a_hand_built_duel():
     assert make_scenario(lead=None, platoon=[(8.0, 4.0)]).av_lead.tolist() == [[-1]]  # nothing to pass
 
 
-def _multi_rates():
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "multi_rates.py"
-    spec = importlib.util.spec_from_file_location("multi_rates", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.parametrize("name", MULTI)
 def test_multi_suites_step_on_the_core(name):
     """Every AV of every road runs to an end: following never crashes nor succeeds (the leads are
     slow), overtaking blindly crashes somewhere (the suites are not free)."""
     suite = load_suite(name)
-    follow = _multi_rates().rates(suite, "always-follow", 16)
+    follow = run_joint_rates(suite, "always-follow", 16)
     assert len(follow["per_av"]) == suite.scenarios().num_avs
     assert all(av == {"success": 0.0, "crash": 0.0, "timeout": 1.0} for av in follow["per_av"])
-    rush = _multi_rates().rates(suite, "always-overtake", 32)
+    rush = run_joint_rates(suite, "always-overtake", 32)
     assert rush["any_crash"] > 0 and rush["all_succeed"] < 1
 
 

@@ -1,5 +1,5 @@
 """A learned member's OVERTAKE threshold (the card's ``overtake_offset``, chosen on training splits by
-``scripts/decision_rate.py --overtake-offsets``): it shifts the OVERTAKE score before the argmax, so a
+``overtakezoo decision-rate --overtake-offsets``): it shifts the OVERTAKE score before the argmax, so a
 lower one overtakes less; results and cross-play tables tell it apart; a bad value is refused."""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import jsonschema
 import numpy as np
 import pytest
 
+from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.run.runner import run_suite
 from overtakezoo.envs import SUCCESS
 from overtakezoo.envs.suites import load_suite
@@ -69,8 +70,8 @@ def test_a_bad_offset_is_refused_naming_the_key(ppo_parts, bad):
             jsonschema.validate({**card, "overtake_offset": bad}, SCHEMA, cls=jsonschema.Draft202012Validator)
 
 
-def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch, decision_rate, ppo_parts):
-    """``decision_rate.py --overtake-offsets`` on two runs (the shipped ppo under two seeds) over a
+def test_the_command_chooses_the_offset_on_training_splits(tmp_path, ppo_parts):
+    """``overtakezoo decision-rate --overtake-offsets`` on two runs (the shipped ppo under two seeds) over a
     small training split: the best mean score wins (ties: nearest 0), written into each run's card,
     which keeps its decision rate."""
     split = tmp_path / "table1-mini-train.toml"
@@ -83,10 +84,7 @@ def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch,
         shutil.copy(PRETRAINED / "ppo.npz", run / "ppo.npz")
         (run / "ppo.json").write_text(json.dumps({**card, "seed": seed}))
         runs.append(str(run))
-    monkeypatch.setattr(
-        sys, "argv", ["decision_rate.py", "ppo", *runs, "--overtake-offsets=-50,0,-1", "--train-suite", str(split)]
-    )
-    decision_rate.main()
+    assert main(["decision-rate", "ppo", *runs, "--overtake-offsets=-50,0,-1", "--train-suite", str(split)]) == 0
     cards = [json.loads((Path(r) / "ppo.json").read_text()) for r in runs]
     sel = cards[0]["overtake_offset_selection"]
     assert sel == cards[1]["overtake_offset_selection"] and sel["candidates"] == [0.0, -1.0, -50.0]
@@ -99,14 +97,15 @@ def test_the_script_chooses_the_offset_on_training_splits(tmp_path, monkeypatch,
         jsonschema.validate(c, SCHEMA, cls=jsonschema.Draft202012Validator)
         assert MLPDecider(load_weights(PRETRAINED / "ppo.npz", c, "ppo"), "ppo", None, c).overtake_offset == best
 
-    # The same choice from worker processes, run as a user runs the script: --jobs 2 writes the same table.
+    # The same choice from worker processes, run as a user runs the command: --jobs 2 writes the same table.
     for seed, run in enumerate(runs):
         (Path(run) / "ppo.json").write_text(json.dumps({**card, "seed": seed}))
-    script = Path(__file__).resolve().parents[1] / "scripts" / "decision_rate.py"
     subprocess.run(
         [
             sys.executable,
-            str(script),
+            "-m",
+            "overtakezoo.benchmark.cli",
+            "decision-rate",
             "ppo",
             *runs,
             "--overtake-offsets=-50,0,-1",

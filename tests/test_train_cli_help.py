@@ -16,7 +16,7 @@ from conftest import suite_file
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
 from overtakezoo.envs.suites import SUITES_DIR
-from overtakezoo.zoo.train.contract import run_files
+from overtakezoo.zoo.train.contract import TRAINERS, run_files
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,6 +66,10 @@ def test_train_help_names_the_members_the_zoos_suites_and_the_files(capsys):
     for name in learned:
         files = run_files(zoo.member(name).trainer, "<member>")
         assert f": {', '.join(files)}" in text
+    # The trainers with a name of their own (not members): named, described and their files listed.
+    for name, (module, what) in TRAINERS.items():
+        assert name not in learned and f"or a trainer of its own ({name}: {what})" in text
+        assert f"{name}: {', '.join(run_files(module, '<member>'))}" in text
     assert "<member>-<eval suite>.results.json" in text and "pip install -e '.[train]'" in text
 
 

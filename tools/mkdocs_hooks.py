@@ -8,7 +8,9 @@ Nothing here is copied by hand, so a page cannot drift from its source:
   ``overtakezoo leaderboard --verify``;
 - ``guides/submit.md`` is :data:`overtakezoo.benchmark.leaderboard.guide.GUIDE`, the one submit
   guide the leaderboard page shows too;
-- ``changelog.md`` is ``CHANGELOG.md``.
+- ``changelog.md`` is ``CHANGELOG.md``;
+- ``metrics.md``'s table of every per-scenario array is generated from the arrays' declarations
+  (:func:`overtakezoo.benchmark.results.registry.docs_table`) where the page holds :data:`METRICS_TABLE`.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from mkdocs.exceptions import PluginError
 from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
+METRICS_TABLE = "<!-- the table of arrays: generated from benchmark/results/registry.py by tools/mkdocs_hooks.py -->"
 
 
 def _board_pages() -> list[str]:
@@ -83,3 +87,13 @@ def on_files(files: Files, config) -> Files:
         if path.is_file():  # pages, plots, and the results files and suites they link to
             add(f"leaderboard/{rel.as_posix()}", source=path)
     return files
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:
+    if page.file.src_uri != "metrics.md":
+        return markdown
+    if METRICS_TABLE not in markdown:  # the page was edited: say so rather than drop the table
+        raise PluginError(f"docs/metrics.md: the line {METRICS_TABLE} is missing")
+    from overtakezoo.benchmark.results.registry import docs_table
+
+    return markdown.replace(METRICS_TABLE, docs_table())

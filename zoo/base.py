@@ -55,6 +55,7 @@ class Decider:
     weights_sha256: str | None = None
     action_repeat: int = 1
     row_state: tuple[str, ...] | None = None
+    _agent_rows: dict[Any, int] | None  # act_agents' row per agent, from its first call of an episode
 
     def __init__(self, config: EnvConfig | None = None) -> None:
         self.config = config or EnvConfig()
@@ -63,8 +64,9 @@ class Decider:
         super().__init_subclass__(**kwargs)
         own = cls.__dict__.get("act")
         if own is not None and own is not Decider.act:  # act written in batch form: derive the rest
-            cls.act_batch = own
-            cls.act = Decider.act
+            # (a class's methods rebound on purpose: the subclass's act is its batch form)
+            cls.act_batch = own  # type: ignore[method-assign]
+            cls.act = Decider.act  # type: ignore[method-assign]
 
     def bind(self, core: Any) -> None:  # only privileged deciders use the core
         self.core = core
@@ -110,7 +112,7 @@ class Decider:
         :meth:`reset_agents` at every new episode (after ``env.reset()``); an agent that left and
         comes back also starts a new episode, and one the episode never had is a ``KeyError``."""
         rows: dict[Any, int] | None = getattr(self, "_agent_rows", None)
-        present = getattr(self, "_agents_present", set())
+        present: set[Any] = getattr(self, "_agents_present", set())
         if rows is not None and any(a in rows and a not in present for a in observations):
             rows = None  # an agent that had left is back: a new episode
         if rows is None:

@@ -10,25 +10,18 @@ from typing import Any
 
 import numpy as np
 
+from overtakezoo.benchmark.results import registry
+
 EPISODE_GAP_NS = 1 * 10**9  # episodes follow each other on the timeline with this gap (the last scene stays up)
 FORMAT_VERSION = "3"  # 3: per-step topics in CDR (ros2msg schemas); 2 (JSON throughout) is not read
 STATE_TOPICS = ("/episode/spec", "/state", "/episode/summary")  # what the reader needs
-SUMMARY_FIELDS = (
-    "outcome",
-    "crash_npc",
-    "crash_lane",
-    "t",
-    "episode_return",
-    "episode_steps",
-    "completion_time",
-    "aborts",
-    "switches",
-    "opposite_time",
-    "min_ttc",
-    "peak_lat_accel",
-    "peak_jerk",
-)
-INF_FIELDS = {"min_ttc", "npc_reveal"}  # null means +inf for these, NaN for every other field
+# /episode/summary: the core's info() at the episode's end. These first, in format 3's order, then the
+# results arrays the core reports (results/registry.py: source INFO; archives are single-ego).
+_EPISODE_FIELDS = ("outcome", "crash_npc", "crash_lane", "t", "episode_return", "episode_steps")
+_RESULTS_FIELDS = [m for m in registry.recorded(1, safety=False) if m.source == registry.INFO]
+SUMMARY_FIELDS = (*_EPISODE_FIELDS, *(m.source_key for m in _RESULTS_FIELDS if m.source_key not in _EPISODE_FIELDS))
+# null means +inf for these (a scenario's never-revealed NPC, the arrays declared so), NaN for every other field
+INF_FIELDS = {"npc_reveal", *(m.source_key for m in _RESULTS_FIELDS if m.null == math.inf)}
 
 
 # ---------------------------------------------------------------------------- schemas

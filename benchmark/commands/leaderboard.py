@@ -17,8 +17,8 @@ def register(subparsers: Any) -> None:
         "Regenerate leaderboards/ from leaderboards/submissions/: a Markdown table per suite, an\n"
         "index (index.json, README.md) and a PNG plot of success vs crash rate per suite. The output\n"
         "is byte-identical on every run. With --check nothing is written and the exit status is 1\n"
-        "when any generated file is missing, different or obsolete, or when a cross-play matrix or the\n"
-        "failure board misses a zoo member (CI runs this).\n"
+        "when any generated file is missing, different or obsolete (CI runs this); a cross-play matrix\n"
+        "or failure board that misses a zoo member is named in a warning.\n"
         "With --verify nothing is written: every current row's labels are derived again (from its\n"
         "built-in zoo member, or from its stored artifact, checked by sha256) and its policy is re-run\n"
         "(artifacts in a sandboxed child process) on its scenarios: all of them for rows new or changed\n"
@@ -143,16 +143,18 @@ def run(args: Any) -> int:
             raise UserError(f"--only {args.only!r}: no current row matches")
         print(f"verified {n} row(s): every re-run reproduces its recorded per-scenario results")
         return 0
-    short = uncovered(args.root)  # measured files that miss a zoo member (or list a removed one)
+    # Measured files that miss a zoo member (or list a removed one): a warning, since a scratch board
+    # may measure a few deciders (`crossplay --deciders`); the shipped board must cover the zoo
+    # (tests/test_adding_a_member.py).
+    short = uncovered(args.root)
     if args.check:
         stale = stale_files(args.root)
         for rel in stale:
             print(f"stale: {args.root}/{rel}", file=sys.stderr)
         for line in short:
-            print(f"stale: {args.root}/{line}", file=sys.stderr)
+            print(f"warning: {args.root}/{line}", file=sys.stderr)
         if stale:
             print("leaderboard is out of date: run `overtakezoo leaderboard`", file=sys.stderr)
-        if stale or short:
             return 1
         print("leaderboard is up to date")
         return 0

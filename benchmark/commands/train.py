@@ -1,7 +1,7 @@
 """``overtakezoo train``: train a learned member on a training suite (or, offline, from a recorded
 dataset) and evaluate it (:mod:`..training` does the work). The help is derived from the registry
 (the members that train), the shipped model cards (the suites the zoo trained on) and the trainer
-contract (the files written)."""
+contract (the files written; the trainers with a name of their own, ``TRAINERS``: ppo-numpy)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ EXAMPLES = """examples:
 
   overtakezoo train dqn --out runs/dqn --set lr=1e-3 --set hidden=[64,64]
   overtakezoo train ppo --out runs/ppo --set train.select_every=10
-  overtakezoo train ppo --hyperparams zoo/hyperparams/ppo-fast.toml --out runs/ppo-fast   # numpy PPO, no torch
+  overtakezoo train ppo-numpy --out runs/ppo-numpy   # numpy PPO, no torch: ppo-numpy.npz, not ppo's
 """
 
 
@@ -51,7 +51,7 @@ def _learned() -> list[tuple[str, str, Any]]:
 
 def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
     """The command's one-line summary and its epilog (the files, per trainer)."""
-    from overtakezoo.zoo.train.contract import run_files
+    from overtakezoo.zoo.train.contract import TRAINERS, run_files
 
     trained_on: dict[str, list[str]] = {}
     for name, _, card in learned:
@@ -61,8 +61,10 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
     zoo_suites = "; ".join(
         f"{', '.join(names)} on {suite}" for suite, names in sorted(trained_on.items(), key=lambda kv: -len(kv[1]))
     )
+    own = "; ".join(f"{name}: {what}" for name, (_, what) in TRAINERS.items())
     summary = (
-        f"train a learned member ({', '.join(name for name, *_ in learned)}) on --suite (default "
+        f"train a learned member ({', '.join(name for name, *_ in learned)}) or a trainer of its own "
+        f"({own}) on --suite (default "
         f"{DEFAULT_SUITE}; the zoo trained {zoo_suites}) or --dataset, then evaluate it on --eval-suite "
         f"(default {DEFAULT_EVAL})"
     )
@@ -71,7 +73,7 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
         by_trainer.setdefault(trainer, []).append(name)
     lines = [
         f"  {', '.join(names)}: {', '.join(run_files(trainer, '<member>'))}" for trainer, names in by_trainer.items()
-    ]
+    ] + [f"  {name}: {', '.join(run_files(module, '<member>'))}" for name, (module, _) in TRAINERS.items()]
     epilog = (
         EXAMPLES
         + "\nWrites into --out (<member> is the name trained, e.g. dqn.npz):\n"
@@ -79,9 +81,10 @@ def _summary(learned: list[tuple[str, str, Any]]) -> tuple[str, str]:
         + "\n  and, unless --eval-suite none, the runner's results file <member>-<eval suite>.results.json\n"
         "  (the card <member>.json then holds those results too; schema: zoo/train/card.schema.json).\n"
         "The .npz is what the zoo and `eval --policy` load (no torch needed); --resume continues from a\n"
-        "checkpoint (bc and cql keep none). `python scripts/seed_results.py ALGO RUN... --ship` publishes\n"
+        "checkpoint (bc, cql and ppo-numpy keep none). `overtakezoo seeds ALGO RUN... --ship` publishes\n"
         "a run into zoo/pretrained/. Hyperparameter files and --set values are checked: an unknown key or\n"
-        "an out-of-range value is one error naming the key. Training needs torch: pip install -e '.[train]'."
+        "an out-of-range value is one error naming the key. Training needs torch (ppo-numpy does not):\n"
+        "pip install -e '.[train]'."
     )
     return summary, epilog
 
@@ -98,7 +101,14 @@ def register(subparsers: Any) -> None:
         epilog=epilog,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("algorithm", choices=zoo.names("learned"), help="what to train (the zoo's learned members)")
+    from overtakezoo.zoo.train.contract import TRAINERS
+
+    p.add_argument(
+        "algorithm",
+        choices=[*zoo.names("learned"), *TRAINERS],
+        help="what to train: a learned member of the zoo, or a trainer of its own (not a member, its "
+        f"files named after it: {', '.join(TRAINERS)})",
+    )
     p.add_argument(
         "--suite",
         default=DEFAULT_SUITE,
@@ -147,7 +157,7 @@ def register(subparsers: Any) -> None:
         default=[],
         metavar="KEY=VALUE",
         dest="overrides",
-        help="override a hyperparameter (a TOML value; ppo: SECTION.KEY, e.g. train.steps=1000); repeatable",
+        help="override a hyperparameter (a TOML value; ppo, ppo-numpy: SECTION.KEY, e.g. train.steps=1000); repeatable",
     )
     p.add_argument(
         "--eval-suite",

@@ -17,7 +17,7 @@ projection).
 
 Everything is seeded and the files are written whole (``io.atomic_*``): a regeneration with the same
 code and zoo gives the same bytes. ``write_failure_board(out_dir)`` regenerates it; the command is
-``overtakezoo failure-board`` (``scripts/failure_board.py``).
+``overtakezoo failure-board`` (benchmark/commands/failure_board.py).
 """
 
 from __future__ import annotations

@@ -225,7 +225,7 @@ def generalization(
 
 # ------------------------------------------------------------------ inputs from the leaderboard
 def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
-    """``seeds/<member>.json`` (written by scripts/seed_results.py): every training seed's outcome
+    """``seeds/<member>.json`` (written by ``overtakezoo seeds``): every training seed's outcome
     counts per suite, and the shipped seed with its selection rule."""
     out = {}
     for path in sorted((root / "seeds").glob("*.json")) if (root / "seeds").is_dir() else []:
@@ -289,7 +289,7 @@ def build_table(
                     raise UserError(
                         f"seeds/{name}.json: seed {missing[0]} has no result on the scoring suite {suite} "
                         "at its current hash, so the headline would fall back to one run: evaluate every "
-                        f"seed there (scripts/seed_results.py {name} RUN_DIRS) or leave {suite} out of "
+                        f"seed there (overtakezoo seeds {name} RUN_DIRS) or leave {suite} out of "
                         "the score"
                     )
                 per_seed = [Counts(c["success"], c["crash"], c["n"]) for c in per_seed]
@@ -345,7 +345,7 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
         "Shipped seed: " + (said if rules else "-"),
         "",
         "Verified: the shipped seed (its weights are the zoo's, and its counts must equal the member's rows, "
-        "which `overtakezoo leaderboard --verify` re-runs). The other seeds' counts are as `scripts/seed_results.py` "
+        "which `overtakezoo leaderboard --verify` re-runs). The other seeds' counts are as `overtakezoo seeds` "
         "measured them; their weights are not stored yet, so they cannot be re-run.",
         "",
     ]

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from overtakezoo.benchmark.results import registry
 from overtakezoo.envs import CRASH, OFFROAD, SUCCESS, TIMEOUT
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, crash_roles
 
@@ -19,41 +21,62 @@ Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 BOOTSTRAP_SAMPLES = 1000
 _BLOCK = 4_000_000  # resampled values held in memory at once
 
-# (key, label, kind, unit): kind "rate" prints as %, "mean" with its unit. Order = table order.
-TABLE = [
+# A table's rows are (key, label, kind, unit): kind "rate" prints as %, "mean" with its unit. A row
+# computed from several arrays (summarize) is written out below; a name is an array's own row (its
+# label and unit declared in registry.py). After these come the group's other own rows in declaration
+# order, so a newly declared metric's row appears without an edit here.
+TABLE_LAYOUT: list[tuple[str, str, str, str] | str] = [
     ("success_rate", "successful overtaking", "rate", "%"),
-    ("completion_time", "completion time of successes", "mean", "s"),
+    "completion_time",
     ("crash_share_npc1", "share of crashes with NPC1 (ahead)", "rate", "%"),
     ("crash_share_npc2", "share of crashes with NPC2 (oncoming)", "rate", "%"),
     ("crash_same_scenarios", "crash in the same scenarios", "rate", "%"),
-    ("npc1_speed_failed", "mean NPC1 speed in failed scenarios", "mean", "m/s"),
-    ("npc2_speed_failed", "mean NPC2 speed in failed scenarios", "mean", "m/s"),
+    "npc1_speed_failed",
+    "npc2_speed_failed",
     ("crash_rate", "crash rate", "rate", "%"),
     ("timeout_rate", "timeout rate", "rate", "%"),
     ("offroad_rate", "off-road rate", "rate", "%"),
     ("crash_share_other", "share of crashes with other vehicles", "rate", "%"),
     ("crash_share_opposite_lane", "share of crashes in the opposite lane", "rate", "%"),
-    ("aborts", "aborts per scenario", "mean", ""),
-    ("opposite_time", "time in the opposite lane", "mean", "s"),
-    ("min_ttc", "min time-to-collision (scenarios with one)", "mean", "s"),
-    ("peak_lat_accel", "peak lateral acceleration", "mean", "m/s^2"),
-    ("peak_jerk", "peak longitudinal jerk", "mean", "m/s^3"),
-]
+]  # then aborts, opposite_time, min_ttc, peak_lat_accel, peak_jerk
 PAIRED = {"crash_same_scenarios"}  # needs two results
 # The safety metrics (issue 22, docs/metrics.md): in a summary only when its arrays are in the file,
 # and a table of their own, so Table I (and every page rendering it) stays as it was.
-SAFETY_TABLE = [
+SAFETY_LAYOUT: list[tuple[str, str, str, str] | str] = [
     ("rss_violation_rate", "RSS (opposite direction) violated, of scenarios in the opposite lane", "rate", "%"),
-    ("rss_violation_share", "share of opposite-lane time in RSS violation", "rate", "%"),
-    ("rss_first_violation", "time of the first RSS violation", "mean", "s"),
-    ("rss_worst_margin", "worst RSS margin in the opposite lane", "mean", "m"),
-    ("rss_merge_violation", "RSS (same direction) violated at the merge back, of merges", "rate", "%"),
-    ("min_headon_ttc", "min head-on time-to-collision (scenarios closing head-on)", "mean", "s"),
-    ("cutin_pet", "post-encroachment time at the cut-in", "mean", "s"),
-    ("abort_delay", "abort delay after the overtake became unsafe", "mean", "s"),
-    ("late_abort", "late or missing abort, of unsafe overtakes", "rate", "%"),
-    ("ponr_margin", "point-of-no-return margin", "mean", "s"),
-]
+]  # then the safety arrays' own rows
+
+
+class TableRows(Sequence[tuple[str, str, str, str]]):
+    """A table's rows: ``layout``, then the other own rows of ``group``'s arrays; read from the
+    registry at each use, so a metric declared (or added by a test) later is in it."""
+
+    def __init__(self, group: str, layout: list[tuple[str, str, str, str] | str]) -> None:
+        self.group, self.layout = group, layout
+
+    def _rows(self) -> list[tuple[str, str, str, str]]:
+        own = {m.summary_key: m.table_row() for m in registry.metrics(self.group) if m.summary is not None}
+        placed = [own.pop(row) if isinstance(row, str) else row for row in self.layout]
+        return [*placed, *own.values()]
+
+    def __getitem__(self, i: Any) -> Any:  # an index or a slice, as a list's
+        return self._rows()[i]
+
+    def __len__(self) -> int:
+        return len(self._rows())
+
+    def __add__(self, other: list[tuple[str, str, str, str]]) -> list[tuple[str, str, str, str]]:
+        return [*self._rows(), *other]
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Sequence) and self._rows() == list(other)
+
+    def __repr__(self) -> str:
+        return repr(self._rows())
+
+
+TABLE = TableRows(registry.CORE, TABLE_LAYOUT)
+SAFETY_TABLE = TableRows(registry.SAFETY, SAFETY_LAYOUT)
 
 
 def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -103,50 +126,39 @@ def _num(v: float) -> float | None:
 
 
 def summarize(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]]:
-    """Every single-result metric of :data:`TABLE` from the per-scenario arrays."""
+    """Every single-result metric of :data:`TABLE` from the per-scenario arrays, and of
+    :data:`SAFETY_TABLE` when the safety arrays are in ``per``."""
     outcome, npc, lane = per["outcome"], per["crash_npc"], per["crash_lane"]
     success, crash = outcome == SUCCESS, outcome == CRASH
-    failed = ~success
     npc1, npc2 = crash_roles(npc, lane, per.get("lead_npc"))
-    return {
+    derived = {
         "success_rate": _rate(success),
-        "completion_time": _mean(per["completion_time"][success], seed, "completion_time"),
         "crash_share_npc1": _rate(npc1, crash),
         "crash_share_npc2": _rate(npc2, crash),
-        "npc1_speed_failed": _mean(per["npc1_speed"][failed], seed, "npc1_speed_failed"),
-        "npc2_speed_failed": _mean(per["npc2_speed"][failed], seed, "npc2_speed_failed"),
         "crash_rate": _rate(crash),
         "timeout_rate": _rate(outcome == TIMEOUT),
         "offroad_rate": _rate(outcome == OFFROAD),
         "crash_share_other": _rate(~npc1 & ~npc2, crash),
         "crash_share_opposite_lane": _rate(lane == OPPOSITE_LANE, crash),
-        "aborts": _mean(per["aborts"], seed, "aborts"),
-        "opposite_time": _mean(per["opposite_time"], seed, "opposite_time"),
-        "min_ttc": _mean(per["min_ttc"], seed, "min_ttc"),  # scenarios never on a collision course are inf: left out
-        "peak_lat_accel": _mean(per["peak_lat_accel"], seed, "peak_lat_accel"),
-        "peak_jerk": _mean(per["peak_jerk"], seed, "peak_jerk"),
-        **(summarize_safety(per, seed) if "rss_violation_share" in per else {}),
     }
+    if "rss_violation_share" in per:  # rates count within the scenarios the metric applies to
+        share = per["rss_violation_share"]
+        derived["rss_violation_rate"] = _rate(share > 0, ~np.isnan(share))
+    scenarios = {"all": slice(None), "successes": success, "failures": ~success}
+    own = {
+        m.summary_key: _own_row(per[m.name][scenarios[m.summary.over]], m.summary, m.summary_key, seed)
+        for m in registry.metrics()
+        if m.summary is not None and (m.group == registry.CORE or m.name in per)
+    }
+    return {**derived, **own}
 
 
-def summarize_safety(per: dict[str, np.ndarray], seed: int) -> dict[str, dict[str, Any]]:
-    """The :data:`SAFETY_TABLE` metrics. Means leave out undefined values (NaN) and, as min_ttc,
-    infinite ones; rates count within the scenarios the metric applies to."""
-    share = per["rss_violation_share"]
-    in_opposite = ~np.isnan(share)
-    merge, late = per["rss_merge_violation"], per["late_abort"]
-    return {
-        "rss_violation_rate": _rate(share > 0, in_opposite),
-        "rss_violation_share": _mean(share, seed, "rss_violation_share"),
-        "rss_first_violation": _mean(per["rss_first_violation"], seed, "rss_first_violation"),
-        "rss_worst_margin": _mean(per["rss_worst_margin"], seed, "rss_worst_margin"),
-        "rss_merge_violation": _rate(merge == 1, merge >= 0),
-        "min_headon_ttc": _mean(per["min_headon_ttc"], seed, "min_headon_ttc"),
-        "cutin_pet": _mean(per["cutin_pet"], seed, "cutin_pet"),
-        "abort_delay": _mean(per["abort_delay"], seed, "abort_delay"),
-        "late_abort": _rate(late == 1, late >= 0),
-        "ponr_margin": _mean(per["ponr_margin"], seed, "ponr_margin"),
-    }
+def _own_row(x: np.ndarray, how: registry.Summary, key: str, seed: int) -> dict[str, Any]:
+    """An array's own summary row. Means leave out undefined values (NaN) and infinite ones (min_ttc:
+    never on a collision course); rates count the 1s among the values that apply (>= 0)."""
+    if how.aggregate == registry.RATE:
+        return _rate(x == 1, x >= 0)
+    return _mean(x, seed, key)
 
 
 def crash_same_scenarios(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, Any]:

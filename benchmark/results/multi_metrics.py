@@ -49,6 +49,63 @@ def by_av(a: np.ndarray, num_avs: int) -> np.ndarray:
     return np.asarray(a).reshape(num_avs, -1)
 
 
+def joint_masks(per: dict[str, np.ndarray], num_avs: int) -> dict[str, np.ndarray]:
+    """The per-road joint outcomes as (n,) bool masks: every AV succeeds (``all_succeed``), any AV
+    crashes (``any_crash``), a crash between two AVs (``av_crash``); and ``outcome`` as (E, n). A
+    results file without ``crash_av`` (a single-AV run) has no AV-AV crash."""
+    outcome = by_av(per["outcome"], num_avs)
+    crash_av = by_av(per["crash_av"], num_avs) if "crash_av" in per else np.full(outcome.shape, -1)
+    return {
+        "outcome": outcome,
+        "all_succeed": (outcome == SUCCESS).all(axis=0),
+        "any_crash": (outcome == CRASH).any(axis=0),
+        "av_crash": (crash_av >= 0).any(axis=0),
+    }
+
+
+def joint_rates(per: dict[str, np.ndarray], num_avs: int) -> dict[str, Any]:
+    """Joint and per-AV outcome rates of one run (every AV of a road driven by the same decider), to
+    3 decimals, with the outcome ``counts`` behind them: the plain numbers a seeds file, a decision-rate
+    score and ``scripts/multi_rates.py`` read (:func:`summarize_multi` gives the same with CIs)."""
+    m = joint_masks(per, num_avs)
+    outcome = m["outcome"]
+    e, n = outcome.shape
+
+    def mean(mask: np.ndarray) -> float:
+        return round(float(mask.mean()), 3)
+
+    return {
+        "scenarios": n,
+        "all_succeed": mean(m["all_succeed"]),
+        "any_crash": mean(m["any_crash"]),
+        "av_av_crash": mean(m["av_crash"]),
+        "per_av": [
+            {"success": mean(o == SUCCESS), "crash": mean(o == CRASH), "timeout": mean(o == TIMEOUT)} for o in outcome
+        ],
+        "counts": {
+            "roads": n,
+            "av_rows": e * n,
+            "success": int((outcome == SUCCESS).sum()),
+            "crash": int((outcome == CRASH).sum()),
+            "timeout": int((outcome == TIMEOUT).sum()),
+            "all_succeed": int(m["all_succeed"].sum()),
+            "any_crash": int(m["any_crash"].sum()),
+            "av_av_crash": int(m["av_crash"].sum()),
+        },
+    }
+
+
+def run_joint_rates(suite: Any, decider: Any, limit: int | None = None) -> dict[str, Any]:
+    """:func:`joint_rates` of ``decider`` (a zoo name or a loaded decider) driving every AV of
+    ``suite``'s first ``limit`` scenarios (None: all) through the benchmark runner."""
+    from overtakezoo.benchmark.run.runner import run_suite
+    from overtakezoo.zoo.base import load
+
+    if isinstance(decider, str):
+        decider = load(decider, suite.config)
+    return joint_rates(run_suite(suite, decider, progress=False, limit=limit).per, suite.num_avs)
+
+
 def yielded(per: dict[str, np.ndarray], num_avs: int) -> np.ndarray:
     """(E, n) bool: AV e yielded on road i (see the module docstring)."""
     outcome = by_av(per["outcome"], num_avs)
@@ -70,15 +127,15 @@ def summarize_multi(per: dict[str, np.ndarray], seed: int, num_avs: int) -> dict
     """Pooled per-agent Table I, one per AV index (``per_av``) and the joint outcomes (``joint``)."""
     e = num_avs
     gave_way = yielded(per, e)
-    outcome = by_av(per["outcome"], e)
-    all_ok = (outcome == SUCCESS).all(axis=0)
+    m = joint_masks(per, e)
+    all_ok = m["all_succeed"]
     last_done = by_av(per["completion_time"], e).max(axis=0)
     joint = {
         "all_succeed": _rate(all_ok),
-        "any_crash": _rate((outcome == CRASH).any(axis=0)),
-        "av_crash": _rate((by_av(per["crash_av"], e) >= 0).any(axis=0)),
+        "any_crash": _rate(m["any_crash"]),
+        "av_crash": _rate(m["av_crash"]),
         "any_yield": _rate(gave_way.any(axis=0)),
-        "all_timeout": _rate((outcome == TIMEOUT).all(axis=0)),
+        "all_timeout": _rate((m["outcome"] == TIMEOUT).all(axis=0)),
         "completion_time": _mean(last_done[all_ok], seed, "joint_completion_time"),
     }
     per_av = [_agent_rows({k: by_av(v, e)[i] for k, v in per.items()}, gave_way[i], seed) for i in range(e)]

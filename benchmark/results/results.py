@@ -5,8 +5,8 @@ same command twice gives byte-identical files apart from ``timing``. A multi-AV 
 ``num_avs`` (E >= 2) and stores each per-scenario array once per AV, AV-major (AV e's value for
 scenario i at ``e * n + i``), with two more arrays (MULTI_PER_SCENARIO); its summary adds the
 per-AV and joint outcomes (multi_metrics.py). Single-ego files have neither. Loading validates against
-``schemas/results.schema.json`` and recomputes the summary from the arrays; any mismatch is a
-UserError naming the field.
+the results schema (schema.py; the arrays as registry.py declares them) and recomputes the summary
+from the arrays; any mismatch is a UserError naming the field.
 """
 
 from __future__ import annotations

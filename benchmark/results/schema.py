@@ -1,12 +1,15 @@
 """The results file's fields (the per-scenario arrays: dtype and what a JSON null stands for) and the
-validation of a results document against ``schemas/results.schema.json`` (JSON Schema): the first
-problem as one line naming the key, and the per-scenario arrays checked item by item."""
+validation of a results document against its JSON Schema: the first problem as one line naming the
+key, and the per-scenario arrays checked item by item. The schema is :func:`results_schema`: the
+hand-written ``schemas/results.schema.json`` with the arrays (registry.py) and the summary rows
+(metrics.py) added, so a metric is declared in one place."""
 
 from __future__ import annotations
 
+import copy
 import functools
 import json
-import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -14,46 +17,20 @@ import jsonschema
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.results import registry
+from overtakezoo.benchmark.results.metrics import PAIRED, SAFETY_TABLE, TABLE
 
-# Per-scenario arrays: name -> (dtype, value a JSON null stands for).
-PER_SCENARIO: dict[str, tuple[type, float | None]] = {
-    "outcome": (np.int8, None),
-    "crash_npc": (np.int64, None),
-    "crash_lane": (np.int64, None),
-    "completion_time": (np.float64, math.nan),
-    "episode_time": (np.float64, math.nan),
-    "aborts": (np.int64, None),
-    "switches": (np.int64, None),
-    "opposite_time": (np.float64, math.nan),
-    "min_ttc": (np.float64, math.inf),  # inf: never on a collision course
-    "peak_lat_accel": (np.float64, math.nan),
-    "peak_jerk": (np.float64, math.nan),
-    "npc1_speed": (np.float64, math.nan),
-    "npc2_speed": (np.float64, math.nan),
-}
-
-
+# Per-scenario arrays: name -> (dtype, value a JSON null stands for), views of registry.py's declarations.
+PER_SCENARIO: Mapping[str, tuple[type, float | None]] = registry.ArraysView(registry.CORE)
 # ... and in multi-AV files: the other AV a crash was with (its index, -1 none), the AV's own lead's NPC slot.
-MULTI_PER_SCENARIO: dict[str, tuple[type, float | None]] = {"crash_av": (np.int64, None), "lead_npc": (np.int64, None)}
-
-
+MULTI_PER_SCENARIO: Mapping[str, tuple[type, float | None]] = registry.ArraysView(registry.MULTI)
 # The safety metrics (issue 22; docs/metrics.md): a file has all of them or none (files written before
 # they existed, e.g. the shipped leaderboard rows, have none and still load; verify compares what a row has).
 # -1 in the int arrays: not applicable (no merge back / never unsafe).
-SAFETY_PER_SCENARIO: dict[str, tuple[type, float | None]] = {
-    "rss_violation_share": (np.float64, math.nan),
-    "rss_first_violation": (np.float64, math.nan),
-    "rss_worst_margin": (np.float64, math.nan),
-    "rss_merge_violation": (np.int8, None),
-    "min_headon_ttc": (np.float64, math.inf),  # inf: never closing head-on in the opposite lane
-    "cutin_pet": (np.float64, math.nan),
-    "abort_delay": (np.float64, math.nan),
-    "late_abort": (np.int8, None),
-    "ponr_margin": (np.float64, math.nan),
-}
+SAFETY_PER_SCENARIO: Mapping[str, tuple[type, float | None]] = registry.ArraysView(registry.SAFETY)
 
 
-def per_scenario_keys(num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
+def per_scenario_keys(num_avs: int = 1) -> Mapping[str, tuple[type, float | None]]:
     """The per-scenario arrays of a results file with ``num_avs`` AVs per scenario."""
     return PER_SCENARIO if num_avs == 1 else {**PER_SCENARIO, **MULTI_PER_SCENARIO}
 
@@ -65,7 +42,7 @@ def recorded_keys(num_avs: int = 1, safety: bool = True) -> dict[str, tuple[type
     return {**per_scenario_keys(num_avs), **(SAFETY_PER_SCENARIO if safety else {})}
 
 
-def stored_keys(per: dict[str, Any], num_avs: int = 1) -> dict[str, tuple[type, float | None]]:
+def stored_keys(per: Mapping[str, Any], num_avs: int = 1) -> Mapping[str, tuple[type, float | None]]:
     """The per-scenario arrays ``per`` holds: the required ones, and the safety ones when it has them."""
     keys = per_scenario_keys(num_avs)
     return {**keys, **SAFETY_PER_SCENARIO} if any(k in per for k in SAFETY_PER_SCENARIO) else keys
@@ -74,12 +51,46 @@ def stored_keys(per: dict[str, Any], num_avs: int = 1) -> dict[str, tuple[type, 
 SCHEMA_ID = "overtakezoo-results/1"
 
 
-SCHEMA_PATH = Path(__file__).with_name("schemas") / "results.schema.json"
+SCHEMA_PATH = Path(__file__).with_name("schemas") / "results.schema.json"  # all but the arrays and summary rows
+_STAT = {  # a summary row: value with its 95 % interval, n values (k of n for a rate)
+    "type": "object",
+    "required": ["value", "lo", "hi", "n"],
+    "additionalProperties": False,
+    "properties": {
+        **{k: {"type": ["number", "null"]} for k in ("value", "lo", "hi")},
+        **{k: {"type": "integer", "minimum": 0} for k in ("n", "k")},
+    },
+}
+
+
+def results_schema() -> dict[str, Any]:
+    """The results JSON Schema: ``SCHEMA_PATH`` with every declared array (required: the core ones)
+    and every summary row (required: Table I's) added."""
+    return copy.deepcopy(_schema_for(tuple(registry.METRICS)))
+
+
+@functools.cache  # keyed by the declarations, so a metric added at run time gets a schema of its own
+def _schema_for(metrics: tuple[registry.Metric, ...]) -> dict[str, Any]:
+    schema = json.loads(SCHEMA_PATH.read_text())
+    scen, summary = schema["properties"]["scenarios"], schema["properties"]["summary"]
+    scen["required"] = sorted(m.name for m in metrics if m.group == registry.CORE)
+    scen["properties"] = {
+        m.name: {"description": f"{m.group}: {m.doc}", "type": "array", "items": m.items_schema()} for m in metrics
+    }
+    core_rows = [key for key, *_ in TABLE if key not in PAIRED]
+    other_rows = [key for key, *_ in SAFETY_TABLE] + [m.summary_key for m in metrics if m.summary]
+    summary["required"] = core_rows
+    summary["properties"] = {**{k: _STAT for k in core_rows + other_rows}, **summary["properties"]}
+    return schema
+
+
+def _validator() -> jsonschema.protocols.Validator:
+    return _validator_for(tuple(registry.METRICS))
 
 
 @functools.cache
-def _validator() -> jsonschema.protocols.Validator:
-    schema = json.loads(SCHEMA_PATH.read_text())
+def _validator_for(metrics: tuple[registry.Metric, ...]) -> jsonschema.protocols.Validator:
+    schema = _schema_for(metrics)
     cls = jsonschema.validators.validator_for(schema)
     cls.check_schema(schema)
     # JSON Schema counts 0.0 as an integer; numpy seeds, counts and indices need a real int.

@@ -42,17 +42,49 @@ def spread(values: list[float]) -> dict[str, Any]:
     return {"median": statistics.median(values), "min": min(values), "max": max(values), "runs": values}
 
 
+# ----------------------------------------------------------------------------- the timing helper
+# Every figure here and in the timing scripts (scripts/archive_overhead.py, runner_compaction.py,
+# safety_overhead.py, speed_before_after.py) is repeated and summarised by these three: a *measure*
+# is a callable returning one number (seconds, a rate, a size), and its figure is the spread of its runs.
+def repeat(measure: Callable[[], float], repeats: int) -> dict[str, Any]:
+    """``measure()`` called ``repeats`` times: the :func:`spread` (median, min, max, runs) of what it returned."""
+    return interleave({0: measure}, repeats)[0]
+
+
+def interleave(measures: dict[Any, Callable[[], float]], rounds: int) -> dict[Any, dict[str, Any]]:
+    """``rounds`` rounds, each calling every measure once in order (so drifting machine load hits them
+    all alike, as an A/B comparison needs): the :func:`spread` of each, by its key."""
+    runs: dict[Any, list[float]] = {key: [] for key in measures}
+    for _ in range(rounds):
+        for key, measure in measures.items():
+            runs[key].append(measure())
+    return {key: spread(values) for key, values in runs.items()}
+
+
+def timed(fn: Callable[[], object], clock: Callable[[], float] = time.perf_counter) -> Callable[[], float]:
+    """A measure: the seconds of ``clock`` one call of ``fn`` takes (wall time by default;
+    ``time.process_time`` for this process's CPU time)."""
+
+    def measure() -> float:
+        start = clock()
+        fn()
+        return clock() - start
+
+    return measure
+
+
 def windows(step: Callable[[], int], seconds: float, repeats: int) -> list[float]:
     """Rates (units per wall second) of ``repeats`` windows of ``seconds``; ``step`` returns the
     units one call did. The first call is a warm-up and is not timed."""
     step()
-    rates = []
-    for _ in range(repeats):
+
+    def window() -> float:
         done, start = 0, time.perf_counter()
         while (elapsed := time.perf_counter() - start) < seconds:
             done += step()
-        rates.append(done / elapsed)
-    return rates
+        return done / elapsed
+
+    return repeat(window, repeats)["runs"]
 
 
 def core_rates(n: int, seconds: float, repeats: int, seed: int = 0) -> list[float]:
@@ -136,12 +168,7 @@ def suite_wall_times(suite: str, decider: str, repeats: int) -> dict[str, Any]:
 
     s = load_suite(suite)
     d = zoo.load(decider, config=s.config)
-    walls = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run_suite(s, d, progress=False)
-        walls.append(time.perf_counter() - start)
-    return {"scenarios": s.count, **spread(walls)}
+    return {"scenarios": s.count, **repeat(timed(lambda: run_suite(s, d, progress=False)), repeats)}
 
 
 def eval_process_times(suite: str, decider: str, runs: int) -> list[float]:
@@ -206,7 +233,7 @@ def replay_gif_times(runs: int) -> list[float]:
             ],
             tmp,
         )
-        return [_cli(["replay", "run.mcap", "--episode", "29", "--out", "ep.gif"], tmp)[0] for _ in range(runs)]
+        return repeat(lambda: _cli(["replay", "run.mcap", "--episode", "29", "--out", "ep.gif"], tmp)[0], runs)["runs"]
 
 
 def peak_memory_per_1000_scenarios(suite: str = "table1", decider: str = "rule-fsm") -> float:

@@ -1,16 +1,17 @@
 """The training rows of the performance report (``overtakezoo perf``; benchmark/run/perf.py).
 
-Two trainers of the ppo member, side by side: the numpy PPO (:mod:`overtakezoo.zoo.train.fastppo`,
-``--hyperparams zoo/hyperparams/ppo-fast.toml``, no torch) and rsl-rl's ``OnPolicyRunner``
-(``zoo/train/ppo.py`` with ``zoo/hyperparams/ppo.toml``, what the shipped ppo was trained with).
+Two PPO trainers side by side: the numpy PPO (``overtakezoo train ppo-numpy``,
+:mod:`overtakezoo.zoo.train.fastppo` with ``zoo/hyperparams/ppo-numpy.toml``, no torch) and rsl-rl's
+``OnPolicyRunner`` (``overtakezoo train ppo``: ``zoo/train/ppo.py`` with ``zoo/hyperparams/ppo.toml``,
+what the shipped ppo member was trained with).
 
 - ``train-throughput-core-train`` (numpy PPO, ``--set env.num_envs=`` :data:`FAST_THROUGHPUT_ENVS`)
   and ``train-throughput-core-train-rsl-rl``: env-steps (core steps: decisions x the 1 s hold) per
-  CPU second of ``overtakezoo train ppo --suite core-train --eval-suite none`` for a fixed budget,
+  CPU second of ``overtakezoo train ppo-numpy | ppo --suite core-train --eval-suite none`` for a fixed budget,
   as a process (imports, model selection and outputs included), and the same per wall second.
 - ``time-to-paper-level`` (numpy PPO) and ``time-to-paper-level-rsl-rl``: from scratch on
   ``table1-train`` to the paper's DQN figure on ``table1`` (success >= 92.2 %, crash <= 5 %). Per
-  seed, the training process ``overtakezoo train ppo --suite table1-train --eval-suite none`` is run
+  seed, the training process ``overtakezoo train ppo-numpy | ppo --suite table1-train --eval-suite none`` is run
   at the budgets of its ladder in turn; the shipped policy of each is then evaluated on table1 by a
   separate ``overtakezoo eval --policy`` process (the yardstick, not part of training; its time is
   in the ``-with-eval`` row); the seed's figure is the time of the first training process whose
@@ -38,38 +39,38 @@ from typing import Any
 SEEDS = (0, 1, 2)
 PAPER_SUCCESS, PAPER_CRASH = 0.922, 0.05
 HOLD = 10  # core steps per decision (both hyperparameter files' action_repeat)
-FAST_FILE = "zoo/hyperparams/ppo-fast.toml"  # (passed as an absolute path: the processes run in a temporary folder)
-FAST = ["--hyperparams", str(Path(__file__).resolve().parents[2] / FAST_FILE)]
-FAST_STEPS_PER_ENV = 4  # ppo-fast.toml: num_steps_per_env
-FAST_ITERATION = 512 * FAST_STEPS_PER_ENV  # decisions per iteration (ppo-fast.toml: num_envs x num_steps_per_env)
+FAST, RSL = "ppo-numpy", "ppo"  # the two trainers' names (`overtakezoo train NAME`, their own hyperparameter files)
+FAST_STEPS_PER_ENV = 4  # ppo-numpy.toml: num_steps_per_env
+FAST_ITERATION = 512 * FAST_STEPS_PER_ENV  # decisions per iteration (ppo-numpy.toml: num_envs x num_steps_per_env)
 FAST_LADDER = (8, 12, 16, 24, 32)  # iterations tried in turn
 FAST_THROUGHPUT_ENVS = 4096  # rows on core-train (9 suites): the core's cost per row falls with the batch
 FAST_THROUGHPUT_ITERATIONS = 8
 RSL_ITERATION = 256 * 32  # ppo.toml: num_envs x num_steps_per_env
 RSL_LADDER = (4, 8, 16, 32, 64)
 THROUGHPUT_ITERATIONS = 8  # rsl-rl
-ZOO_ARGS = [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}", "--set", "train.select_every=8"]
+ZOO_ARGS = ["--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}", "--set", "train.select_every=8"]  # (FAST)
 ZOO_ITERATION = FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV  # decisions per iteration on core-train
 ZOO_LADDER = (30, 60, 90)  # 60 iterations: ~1M decisions, the shipped ppo's budget
 HELD_BACK = 500  # each core-train split's scenarios from here on are the yardstick
 DEPLOYED = ("decide_every", "overtake_offset")  # the shipped card's deployment settings a new run is scored with
 
 
-def _train(args: list[str], tmp: str) -> tuple[float, float, Path]:
+def _train(trainer: str, args: list[str], tmp: str) -> tuple[float, float, Path]:
     from overtakezoo.benchmark.run.perf import _cli
 
     out = Path(tmp) / f"run{len(list(Path(tmp).iterdir()))}"
-    wall, cpu = _cli(["train", "ppo", *args, "--eval-suite", "none", "--out", str(out)], tmp)
+    wall, cpu = _cli(["train", trainer, *args, "--eval-suite", "none", "--out", str(out)], tmp)
     return wall, cpu, out
 
 
-def _paper_level(out: Path, tmp: str) -> tuple[bool, str, float, float]:
+def _paper_level(trainer: str, out: Path, tmp: str) -> tuple[bool, str, float, float]:
     """Evaluate the run's shipped policy on table1 in its own process: (reached, summary, wall, CPU)."""
     from overtakezoo.benchmark.run.perf import _cli
 
     results = out / "table1.results.json"
     wall, cpu = _cli(
-        ["eval", "--suite", "table1", "--policy", str(out / "ppo.npz"), "--out", str(results), "--no-safety"], tmp
+        ["eval", "--suite", "table1", "--policy", str(out / f"{trainer}.npz"), "--out", str(results), "--no-safety"],
+        tmp,
     )
     summary = json.loads(results.read_text())["summary"]
     success, crash = summary["success_rate"]["value"], summary["crash_rate"]["value"]
@@ -82,21 +83,23 @@ def _paper_level(out: Path, tmp: str) -> tuple[bool, str, float, float]:
 
 
 def _shown(args: list[str]) -> str:
-    return "".join(f" {a}" for a in args).replace(FAST[1], FAST_FILE)
+    return "".join(f" {a}" for a in args)
 
 
-def _throughput(report: Any, trainers: list[tuple[str, str, list[str], int]], repeats: int, tmp: str) -> None:
-    """``trainers``: (row, who, extra args, decisions); their processes interleaved (A B A B ...),
-    so a change in the machine's load falls on both alike."""
+def _throughput(report: Any, trainers: list[tuple[str, str, str, list[str], int]], repeats: int, tmp: str) -> None:
+    """``trainers``: (row, who, trainer, extra args, decisions); their processes interleaved (A B A B
+    ...), so a change in the machine's load falls on both alike."""
     runs: dict[str, list[tuple[float, float]]] = {row: [] for row, *_ in trainers}
     for s in range(repeats):
-        for row, _, args, steps in trainers:
-            wall, cpu, _ = _train(["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp)
+        for row, _, trainer, args, steps in trainers:
+            wall, cpu, _ = _train(
+                trainer, ["--suite", "core-train", "--steps", str(steps), "--seed", str(s), *args], tmp
+            )
             runs[row].append((wall, cpu))
-    for row, who, args, steps in trainers:
+    for row, who, trainer, args, steps in trainers:
         report.add(
             row,
-            f"{who}: `overtakezoo train ppo --suite core-train --eval-suite none{_shown(args)}`, "
+            f"{who}: `overtakezoo train {trainer} --suite core-train --eval-suite none{_shown(args)}`, "
             f"{steps} decisions as a process: env-steps (decisions x {HOLD}) per CPU second (interleaved "
             f"with the other trainer's runs)",
             "env-steps/s",
@@ -137,6 +140,7 @@ def _time_to_level(
     report: Any,
     row: str,
     who: str,
+    trainer: str,
     args: list[str],
     iteration: int,
     ladder: tuple[int, ...],
@@ -144,15 +148,17 @@ def _time_to_level(
     progress: Callable[[str], None],
 ) -> None:
     def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
-        w, c, out = _train(["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed), *args], tmp)
-        ok, summary, ew, _ = _paper_level(out, tmp)
+        w, c, out = _train(
+            trainer, ["--suite", "table1-train", "--steps", str(k * iteration), "--seed", str(seed), *args], tmp
+        )
+        ok, summary, ew, _ = _paper_level(trainer, out, tmp)
         progress(f"{row}: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; table1 {summary}")
         return ok, w, c, ew, f"{summary}, {w:.2f} s"
 
     walls, cpus, with_eval, reached = _ladder(ladder, attempt)
     what = (
         f"{who}: from scratch on table1-train to >= 92.2 % success and <= 5 % crash on table1; the training "
-        f"process `overtakezoo train ppo --suite table1-train --eval-suite none{_shown(args)}` at "
+        f"process `overtakezoo train {trainer} --suite table1-train --eval-suite none{_shown(args)}` at "
         f"{', '.join(map(str, ladder))} iterations ({iteration} decisions each) in turn, the first whose "
         f"policy gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds"
     )
@@ -194,10 +200,10 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
 
     def attempt(seed: int, k: int) -> tuple[bool, float, float, float, str]:
         w, c, out = _train(
-            ["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed), *ZOO_ARGS], tmp
+            FAST, ["--suite", "core-train", "--steps", str(k * ZOO_ITERATION), "--seed", str(seed), *ZOO_ARGS], tmp
         )
-        card = {**read_card(out / "ppo.json", "ppo"), **recipe}
-        got = _held_back_score(MLPDecider(load_weights(out / "ppo.npz", card), "ppo", suites[0].config, card), sets)
+        card = {**read_card(out / f"{FAST}.json", FAST), **recipe}
+        got = _held_back_score(MLPDecider(load_weights(out / f"{FAST}.npz", card), FAST, suites[0].config, card), sets)
         progress(
             f"time-to-zoo-quality: seed {seed}, {k} iterations: {w:.2f} s wall, {c:.2f} s CPU; "
             f"held-back score {100 * got:.1f} (shipped ppo {100 * target:.1f})"
@@ -209,7 +215,7 @@ def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None])
         f"numpy PPO from scratch on core-train to the shipped ppo member's leaderboard score (success - 2 x "
         f"crash, mean over the 9 splits) on every split's held-back training scenarios {HELD_BACK}-999 "
         f"({100 * target:.1f}), both deployed with the shipped card's {_recipe(recipe)}; the process "
-        "`overtakezoo train ppo --suite core-train --eval-suite none"
+        f"`overtakezoo train {FAST} --suite core-train --eval-suite none"
         f"{_shown(ZOO_ARGS)}` at {', '.join(map(str, ZOO_LADDER))} iterations ({ZOO_ITERATION} decisions each) "
         f"in turn, the first that gets there ({'; '.join(reached)}); median of {len(SEEDS)} seeds, user + sys "
         "CPU time of the training process"
@@ -232,14 +238,15 @@ def add_training_rows(report: Any, repeats: int = 3, progress: Callable[[str], N
             (
                 "train-throughput-core-train",
                 fast,
-                [*FAST, "--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
+                FAST,
+                ["--set", f"env.num_envs={FAST_THROUGHPUT_ENVS}"],
                 FAST_THROUGHPUT_ITERATIONS * FAST_THROUGHPUT_ENVS * FAST_STEPS_PER_ENV,
             )
         ]
         if rsl_rl:
-            trainers.append(("train-throughput-core-train-rsl-rl", rsl, [], THROUGHPUT_ITERATIONS * RSL_ITERATION))
+            trainers.append(("train-throughput-core-train-rsl-rl", rsl, RSL, [], THROUGHPUT_ITERATIONS * RSL_ITERATION))
         _throughput(report, trainers, repeats, tmp)
-        _time_to_level(report, "time-to-paper-level", fast, FAST, FAST_ITERATION, FAST_LADDER, tmp, progress)
+        _time_to_level(report, "time-to-paper-level", fast, FAST, [], FAST_ITERATION, FAST_LADDER, tmp, progress)
         if rsl_rl:
-            _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, [], RSL_ITERATION, RSL_LADDER, tmp, progress)
+            _time_to_level(report, "time-to-paper-level-rsl-rl", rsl, RSL, [], RSL_ITERATION, RSL_LADDER, tmp, progress)
         _time_to_zoo_quality(report, tmp, progress)

@@ -26,7 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results, per_scenario_keys, round_per_scenario
+from overtakezoo.benchmark.results import registry
+from overtakezoo.benchmark.results.results import Results, round_per_scenario
 from overtakezoo.benchmark.results.schema import recorded_keys
 from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
 from overtakezoo.benchmark.safety import SafetyMonitor
@@ -203,7 +204,7 @@ class Compaction:
 
     def _values(self) -> dict[str, np.ndarray]:
         """The per-scenario arrays of the current rows (final for the finished ones)."""
-        return {**_per_scenario(self.core), **(self.monitor.end_chunk(self.core) if self.monitor is not None else {})}
+        return _per_scenario(self.core, self.monitor)
 
     def compact(self, obs: np.ndarray) -> tuple[OvertakeCore, np.ndarray] | None:
         """After a hold: drop the finished rows when at most half the batch still runs; returns the
@@ -265,53 +266,34 @@ def _decide(decider: Any, obs: np.ndarray, scenarios: np.ndarray, step: int, dt:
 
 
 def _per_scenario_empty() -> dict[str, np.ndarray]:
-    return {k: np.zeros(0, dtype) for k, (dtype, _) in {**per_scenario_keys(2), **SAFETY_PER_SCENARIO}.items()}
+    return {m.name: np.zeros(0, m.dtype) for m in registry.metrics()}
 
 
-def _per_scenario(core: OvertakeCore) -> dict[str, np.ndarray]:
-    info, sc = core.info(), core.scen
-    if core.num_avs > 1:
-        return _per_av(core, info, sc)
-    npc1_speed, npc2_speed = npc1_npc2_speeds(sc)
-    return {
-        "outcome": info["outcome"],
-        "crash_npc": info["crash_npc"],
-        "crash_lane": info["crash_lane"],
-        "completion_time": info["completion_time"],
-        "episode_time": info["t"],
-        "aborts": info["aborts"],
-        "switches": info["switches"],
-        "opposite_time": info["opposite_time"],
-        "min_ttc": info["min_ttc"],
-        "peak_lat_accel": info["peak_lat_accel"],
-        "peak_jerk": info["peak_jerk"],
-        # Initial NPC speeds, for the paper's "mean NPC speed in failed scenarios" rows.
-        "npc1_speed": npc1_speed,
-        "npc2_speed": npc2_speed,
+def _per_scenario(core: OvertakeCore, monitor: Any = None) -> dict[str, np.ndarray]:
+    """Every array the run records (results/registry.py), each from its declared source."""
+    sources = {
+        registry.INFO: core.info(),
+        registry.SCENARIO: _scenario_values(core),
+        registry.MONITOR: monitor.end_chunk(core) if monitor is not None else {},
     }
+    return {m.name: sources[m.source][m.source_key] for m in registry.recorded(core.num_avs, monitor is not None)}
 
 
-def _per_av(core: OvertakeCore, info: dict[str, np.ndarray], sc: Any) -> dict[str, np.ndarray]:
-    """The per-scenario arrays of a multi-AV chunk, one value per AV row (AV-major, as the core)."""
+def _scenario_values(core: OvertakeCore) -> dict[str, np.ndarray]:
+    """The arrays taken from the scenario (registry source SCENARIO): the initial speeds of NPC1 and
+    NPC2, for the paper's "mean NPC speed in failed scenarios" rows; on a multi-AV road, per AV row
+    (AV-major, as the core), its own lead's slot and speed."""
+    sc = core.scen
+    if core.num_avs == 1:
+        npc1_speed, npc2_speed = npc1_npc2_speeds(sc)
+        return {"npc1_speed": npc1_speed, "npc2_speed": npc2_speed}
     e, n = core.num_avs, sc.num
     # Each AV's own lead (its NPC1): the ego's is NPC1's slot, the others' are av_lead.
     ego_lead = sc.npc_present[:, NPC1_SLOT] & (sc.npc_lane[:, NPC1_SLOT] == EGO_LANE)
     lead = np.concatenate([np.where(ego_lead, NPC1_SLOT, -1)[None], sc.av_lead.T.astype(np.int64)]).reshape(-1)
     lead_v = np.take_along_axis(np.tile(sc.npc_v, (e, 1)), np.maximum(lead, 0)[:, None], 1)[:, 0]
     return {
-        "outcome": info["outcome"],
-        "crash_npc": info["crash_npc"],
-        "crash_lane": info["crash_lane"],
-        "crash_av": info["crash_av"],
         "lead_npc": lead,
-        "completion_time": info["completion_time"],
-        "episode_time": info["t"],
-        "aborts": info["aborts"],
-        "switches": info["switches"],
-        "opposite_time": info["opposite_time"],
-        "min_ttc": info["min_ttc"],
-        "peak_lat_accel": info["peak_lat_accel"],
-        "peak_jerk": info["peak_jerk"],
         "npc1_speed": np.where(lead >= 0, lead_v, np.nan),
         "npc2_speed": np.full(e * n, np.nan),  # no single "first oncoming car" beside other AVs
     }

@@ -32,17 +32,25 @@ from overtakezoo.envs.suites import Suite, load_suite, load_training
 
 
 def trainer(member: str) -> Any:
-    """The module under ``overtakezoo.zoo.train`` that trains ``member`` (the registry says which)."""
+    """The module under ``overtakezoo.zoo.train`` that trains ``member`` (the registry says which), or
+    the trainer of that name that is not a member (``ppo-numpy``: ``zoo.train.contract.TRAINERS``)."""
+    from overtakezoo.zoo.train.contract import TRAINERS
+
+    if member in TRAINERS:
+        module = TRAINERS[member][0]
+    else:
+        try:
+            entry = zoo.member(member)
+        except zoo.UnknownDecider as exc:
+            raise UserError(str(exc)) from None
+        if entry.kind != "learned" or not entry.trainer:
+            raise UserError(
+                f"{member} is a {entry.kind} member, not trained (learned members: "
+                f"{', '.join(zoo.names('learned'))}; trainers of their own: {', '.join(TRAINERS)})"
+            )
+        module = entry.trainer
     try:
-        entry = zoo.member(member)
-    except zoo.UnknownDecider as exc:
-        raise UserError(str(exc)) from None
-    if entry.kind != "learned" or not entry.trainer:
-        raise UserError(
-            f"{member} is a {entry.kind} member, not trained (learned members: {', '.join(zoo.names('learned'))})"
-        )
-    try:
-        return importlib.import_module(f"overtakezoo.zoo.train.{entry.trainer}")
+        return importlib.import_module(f"overtakezoo.zoo.train.{module}")
     except ModuleNotFoundError as exc:
         if (exc.name or "").startswith("overtakezoo"):
             raise
@@ -63,9 +71,9 @@ def train(
     eval_suite: str | None = "table1",
     progress: bool = True,
 ) -> Any:
-    """Train ``member`` on ``suite`` (dqn, double-dqn, ps-dqn, ppo) or ``dataset`` (bc, cql), then
-    (unless ``eval_suite`` is None) evaluate it; returns the trainer's ``Trained``, its card with
-    the results. Files go into ``out`` (the module docstring)."""
+    """Train ``member`` on ``suite`` (dqn, double-dqn, ps-dqn, ppo, dagger; the trainer ppo-numpy) or
+    ``dataset`` (bc, cql), then (unless ``eval_suite`` is None) evaluate it; returns the trainer's
+    ``Trained``, its card with the results. Files go into ``out`` (the module docstring)."""
     module = trainer(member)
     common: dict[str, Any] = {
         "member": member,

@@ -101,7 +101,7 @@ def row_info(info: dict[str, np.ndarray], row: int) -> dict[str, Any]:
     """Per-row core info as plain Python values (the per-agent ``infos`` entry). An undefined
     value (``completion_time`` before a success, NaN in the core) becomes ``None`` so that two equal
     infos compare equal."""
-    out = {}
+    out: dict[str, Any] = {}
     for key, values in info.items():
         if key[0] != "_":
             value = values.item(row)

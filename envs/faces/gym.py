@@ -94,7 +94,8 @@ class OvertakeEnv(RendersFirstRow, gymnasium.Env):
         self.render_mode = self.config.render_mode
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         self.core = OvertakeCore(self.config, auto_reset=False)
-        self.observation_space = ego_observation_space(self.config)  # finite bounds, see envs/faces/spaces.py
+        # finite bounds, see envs/faces/spaces.py
+        self.observation_space: spaces.Box = ego_observation_space(self.config)
         self.action_space = spaces.Discrete(len(MODE_NAMES))
         self._renderer = None
         self._first_reset = True

@@ -252,6 +252,7 @@ class OvertakeParallelEnv(RendersFirstRow, ParallelEnv):
         """(M, NPC_OBS_SIZE) float32: each NPC slot relative to its nearest AV still driving (any AV
         once all are done), all in world coordinates."""
         c, sc = self.core, self.core.scen
+        assert sc is not None and sc.av_direction is not None, "reset() first"
         w = sc.lane_width[0]
         # The AVs in the world frame from their own frames (E,): s = direction * x, d mirrored.
         direction = np.concatenate([[1.0], sc.av_direction[0].astype(float)])

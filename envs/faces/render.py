@@ -8,7 +8,7 @@ frames into ``rgb_array`` images (Agg canvas, no pyplot state) or shows them (``
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -21,6 +21,7 @@ from overtakezoo.envs.scenarios import OPPOSITE_LANE
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     from overtakezoo.envs.core import OvertakeCore
 
@@ -30,6 +31,7 @@ MODE_COLOURS = ("tab:blue", "tab:orange", "tab:purple")  # follow, overtake, abo
 def frame_from_core(core: OvertakeCore, row: int = 0) -> dict[str, Any]:
     """Everything :func:`draw_frame` needs about ``row``, as plain Python / numpy values."""
     sc, pc = core.scen, core.cfg.planner
+    assert sc is not None, "reset() first"
     p = core.last_plan
     frame = {
         "t": float(core.t[row]),
@@ -94,17 +96,15 @@ class TopView:
         ax.set_facecolor("#6b8e4e")  # verge
         ax.set_aspect("auto" if extent else "equal")
         ax.set_yticks([])
-        self.road = ax.add_patch(Rectangle((-1e5, 0.0), 2e5, 1.0, color="#555555", zorder=0))
-        self.edges = ax.add_collection(LineCollection([], colors="white", linewidths=1.5, zorder=1))
-        self.centre = ax.add_collection(
-            LineCollection([], colors="#f2c200", linestyles=(0, (6, 6)), linewidths=1.5, zorder=1)
-        )
-        self.goal = ax.add_collection(LineCollection([], colors="white", linewidths=3, zorder=1))
-        self.sensor = ax.add_collection(
-            LineCollection([], colors="cyan", linestyles="dotted", linewidths=1.2, zorder=2)
-        )
-        self.target = ax.add_collection(LineCollection([], colors="black", linestyles="--", linewidths=2.0, zorder=3))
-        text = dict(fontsize=7, clip_on=True)
+        # (add_patch / add_collection return their argument; matplotlib's stubs type it as the base class)
+        self.road = cast(Rectangle, ax.add_patch(Rectangle((-1e5, 0.0), 2e5, 1.0, color="#555555", zorder=0)))
+        lines = lambda **kw: cast(LineCollection, ax.add_collection(LineCollection([], **kw)))  # noqa: E731
+        self.edges = lines(colors="white", linewidths=1.5, zorder=1)
+        self.centre = lines(colors="#f2c200", linestyles=(0, (6, 6)), linewidths=1.5, zorder=1)
+        self.goal = lines(colors="white", linewidths=3, zorder=1)
+        self.sensor = lines(colors="cyan", linestyles="dotted", linewidths=1.2, zorder=2)
+        self.target = lines(colors="black", linestyles="--", linewidths=2.0, zorder=3)
+        text: dict[str, Any] = dict(fontsize=7, clip_on=True)
         self.goal_text = ax.text(0, 0, "goal", ha="center", va="top", color="white", **text)
         self.sensor_text = ax.text(0, 0, "sensor range", ha="right", va="top", color="cyan", **text)
         # Lane names inside the axes (axes-fraction x, data y), so no label is cut at the figure edge.
@@ -141,8 +141,11 @@ class TopView:
         """Artists per NPC slot and per rollout (the counts are fixed for a given scenario layout)."""
         m = len(frame["npc_present"])
         while len(self.npcs) < m:
-            box = self.ax.add_patch(
-                Rectangle((0, 0), 1, 1, rotation_point="center", edgecolor="black", linewidth=1.5, zorder=5)
+            box = cast(
+                Rectangle,
+                self.ax.add_patch(
+                    Rectangle((0, 0), 1, 1, rotation_point="center", edgecolor="black", linewidth=1.5, zorder=5)
+                ),
             )
             self.npcs.append(
                 (box, self.ax.text(0, 0, "", ha="center", va="center", fontsize=7, zorder=6, clip_on=True))
@@ -273,7 +276,7 @@ class Renderer:
         if mode == "human":
             import matplotlib.pyplot as plt
 
-            self.fig = plt.figure(figsize=size, dpi=dpi)
+            self.fig: Figure | None = plt.figure(figsize=size, dpi=dpi)
         else:
             from matplotlib.backends.backend_agg import FigureCanvasAgg
 
@@ -283,10 +286,12 @@ class Renderer:
         self.view: TopView | None = None
 
     def render(self, frame: dict[str, Any]) -> np.ndarray | None:
+        fig = self.fig
+        assert fig is not None, "the renderer is closed"
         if self.view is None:
             self.view = TopView(self.ax)
             self.view.update(frame)
-            self.fig.tight_layout()
+            fig.tight_layout()
         else:
             self.view.update(frame)
         if self.mode == "human":
@@ -295,8 +300,9 @@ class Renderer:
             if _interactive():
                 plt.pause(1.0 / self.fps)
             return None
-        self.fig.canvas.draw()
-        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+        canvas = cast("FigureCanvasAgg", fig.canvas)  # rgb_array: the Agg canvas __init__ attached
+        canvas.draw()
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
     def close(self) -> None:
         if self.mode == "human":
@@ -315,4 +321,6 @@ def _interactive() -> bool:
 
 def render_rgb(core: OvertakeCore, row: int = 0, **kwargs: Any) -> np.ndarray:
     """One-off ``rgb_array`` image of ``row`` (creates and drops a figure; use :class:`Renderer` in loops)."""
-    return Renderer("rgb_array", **kwargs).render(frame_from_core(core, row))
+    image = Renderer("rgb_array", **kwargs).render(frame_from_core(core, row))
+    assert image is not None  # (rgb_array always returns one)
+    return image

@@ -117,8 +117,8 @@ class OvertakeRslRlEnv(VecEnv):
         if shape not in ((n, 1), (n,)):
             raise ValueError(f"actions: expected shape ({n}, 1), got {shape}")
         if tensor:
-            col = actions.detach().reshape(n).to("cpu")
-            col = (col.float() if col.dtype == torch.bfloat16 else col).numpy()  # numpy has no bfloat16
+            t = actions.detach().reshape(n).to("cpu")
+            col = (t.float() if t.dtype == torch.bfloat16 else t).numpy()  # numpy has no bfloat16
         else:
             col = np.reshape(actions, n)
         return check_actions(col, n, "actions", whole_floats=True)
@@ -136,6 +136,7 @@ class OvertakeRslRlEnv(VecEnv):
         time_outs = truncated if self.bootstrap_timeouts else np.zeros_like(truncated)
         extras: dict = {"time_outs": torch.as_tensor(time_outs, dtype=torch.float32, device=dev)}
         if finished.any():
+            assert res.final_info is not None  # (set on an auto-reset core when rows finished)
             # Per finished episode indicators: the runner's logger averages them over an iteration.
             out, lane = res.final_info["outcome"][finished], res.final_info["crash_lane"][finished]
             crash = out == CRASH

@@ -78,7 +78,8 @@ class OvertakeVectorEnv(VectorEnv):
         # The core freezes a finished row; this face restarts it, after the hold that ended it
         # (SAME_STEP) or at the next step (NEXT_STEP), so no held step runs in a new episode.
         self.core = OvertakeCore(self.config, auto_reset=False)
-        self.single_observation_space = ego_observation_space(self.config)  # finite bounds, see envs/faces/spaces.py
+        # finite bounds, see envs/faces/spaces.py
+        self.single_observation_space: spaces.Box = ego_observation_space(self.config)
         self.single_action_space = spaces.Discrete(len(MODE_NAMES))
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -124,6 +125,7 @@ class OvertakeVectorEnv(VectorEnv):
                     last[step.finished] = step.obs[step.finished]
 
         res = hold(self.core, actions, self.hold_steps, on_step=None if last is None else keep_last)
+        infos: dict[str, Any]  # (Gymnasium's: arrays, and on SAME_STEP the finished rows' final_info dict)
         finished, obs, infos = res.finished, res.obs, res.info
         if last is not None and finished.any():
             obs = np.where(finished[:, None], last, obs)
@@ -174,7 +176,7 @@ class OvertakeVectorEnv(VectorEnv):
             self._renderer = None
 
 
-def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def _with_masks(info: dict[str, np.ndarray], mask: np.ndarray | None = None) -> dict[str, Any]:
     """Gymnasium's vector info layout: every key ``k`` paired with a boolean ``_k`` (rows that have it)."""
     out: dict[str, np.ndarray] = {}
     for key, value in info.items():

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from overtakezoo.envs.backend import Array
 from overtakezoo.envs.config import ABORT, MODE_NAMES, OVERTAKE, PlannerConfig
 from overtakezoo.envs.model.controllers import idm
 from overtakezoo.envs.ops import INF, NP, clip, first_argmin
@@ -203,7 +204,7 @@ def plan(
     lateral = xp.sum(xp.where(ahead, npc["lat_cost"], 0.0), axis=1)
     longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
     everywhere = allowed.all()  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
-    cost = 0.0
+    cost: Array = 0.0  # (R, N) once the first term is added
     for weight, term in (
         (cfg.weight_priority, priority),
         (cfg.weight_transition, transition),

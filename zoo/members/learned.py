@@ -4,17 +4,17 @@ One decider for every learned member: the network's scores (Q-values for dqn / d
 / cql, policy logits for ppo, class logits for bc and dagger) over follow / overtake / abort, argmax over the
 modes the action mask allows. No torch here (it is for training only, :mod:`overtakezoo.zoo.train`):
 the weights are a ``.npz`` (:mod:`.mlp`) beside a model card ``<name>.json`` that holds the
-architecture, the input features, the action repeat and mask, the provenance and the sha256 of the
-``.npz`` (the card's schema: ``zoo/train/card.schema.json``); loading refuses a file whose hash
-differs (truncated, modified) with :class:`WeightsError`. Loading reads local files only. Inference
-is in float64: float32 scores move by ~1e-6 with the batch's composition, enough to flip a near-tie
-argmax; in float64 a result does not depend on how rows happen to be batched.
+architecture, the input features, the training hold (``action_repeat``) and the mask, the
+provenance and the sha256 of the ``.npz`` (the card's schema: ``zoo/train/card.schema.json``);
+loading refuses a file whose hash differs (truncated, modified) with :class:`WeightsError`. Loading
+reads local files only. Inference is in float64: float32 scores move by ~1e-6 with the batch's
+composition, enough to flip a near-tie argmax; in float64 a result does not depend on how rows happen to be batched.
 
 Two holds, two names. The *training hold* is the core steps each decision was held in training, the
 card's ``action_repeat`` (10 for dqn, double-dqn, ps-dqn, ppo and dagger, 1 for bc and cql, whose
 datasets hold one transition per step). The *decision rate* (deployed hold) is the core steps between
 the member's decisions when deployed, the card's ``decide_every`` where it has one (chosen after
-training on the training splits, ``scripts/decision_rate.py``: a value learned for a 1 s hold,
+training on the training splits, ``overtakezoo decision-rate``: a value learned for a 1 s hold,
 re-read more often, is a receding horizon; dqn's is 1), else its training hold. The decider's
 ``action_repeat`` attribute is the decision rate (:func:`deployed_repeat`), not the card's
 ``action_repeat``. The decider only declares it, whoever steps the core
@@ -22,7 +22,7 @@ applies the hold (``overtakezoo.envs.hold``: the benchmark runner, the trainers)
 configuration's ``decision_interval``. A card's ``overtake_offset`` is added to the OVERTAKE score
 before the argmax: a decision threshold (cost-sensitive classification, Elkan 2001) that makes the
 member start an overtake, and keep one going, only with a margin. It is chosen after training on the
-training splits (``scripts/decision_rate.py --overtake-offsets``), as dagger's logit offset is.
+training splits (``overtakezoo decision-rate --overtake-offsets``), as dagger's logit offset is.
 
 **Action mask** (a mode-transition rule of the DQN members, the same in training and evaluation):
 ABORT is only offered while the current mode is OVERTAKE or ABORT (from follow there is nothing to
@@ -136,7 +136,7 @@ class MLPDecider(Decider):
     ``self.action_repeat`` core steps by the runner: the decision rate, :func:`deployed_repeat`)."""
 
     privileged = False
-    row_state = ()
+    row_state: tuple[str, ...] = ()
 
     def __init__(
         self, net: NumpyMLP, name: str, config: EnvConfig | None = None, card: dict[str, Any] | None = None
@@ -194,7 +194,7 @@ class MLPDecider(Decider):
 def deployed_repeat(name: str, card: dict[str, Any]) -> int:
     """The decision rate (deployed hold), the member's ``action_repeat``: core steps between its
     decisions when deployed, the card's ``decide_every`` (chosen after training on the training splits,
-    ``scripts/decision_rate.py``), else its training hold (the card's ``action_repeat``). A
+    ``overtakezoo decision-rate``), else its training hold (the card's ``action_repeat``). A
     network with memory reads one observation per decision, so it keeps the rate it was trained at."""
     held = card.get("action_repeat", 1)
     every = card.get("decide_every", held)

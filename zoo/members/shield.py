@@ -42,7 +42,7 @@ class Shielded(Decider):
         self.weights_sha256, self.action_repeat = inner.weights_sha256, inner.action_repeat
         self.privileged = bool(inner.privileged)
         if self.privileged:
-            self.bind = inner.bind
+            self.bind = inner.bind  # type: ignore[method-assign]  # (on purpose: the inner decider is bound)
         cfg = self.config
         self.layout = observation_layout(cfg)
         dist = ScenarioDistribution.from_dict(cfg.scenario)
@@ -51,8 +51,8 @@ class Shielded(Decider):
         overtake = cfg.planner.modes["overtake"]
         self.accel, self.v_mode = overtake.acceleration, overtake.velocity
 
-    @property
-    def row_state(self) -> tuple[str, ...] | None:  # all of it is the inner decider's
+    @property  # (read-only where Decider's is a class attribute: it follows the inner decider)
+    def row_state(self) -> tuple[str, ...] | None:  # type: ignore[override]  # all of it is the inner decider's
         return None if self.inner.row_state is None else ()
 
     def reset(self, mask: np.ndarray | None = None) -> None:

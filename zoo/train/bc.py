@@ -80,7 +80,7 @@ def cross_entropy_step(
     return loss
 
 
-def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[nn.Sequential, dict[str, Any]]:
+def fit(data: Transitions, hp: BCHyperparams, progress: bool = True) -> tuple[QNetwork, dict[str, Any]]:
     """Train the classifier; returns it with training statistics (accuracies, wall time)."""
     torch.manual_seed(hp.seed)
     torch.set_num_threads(hp.threads)

@@ -43,8 +43,14 @@ class CategoricalDistribution(Distribution):
     def update(self, mlp_output: torch.Tensor) -> None:
         self._distribution = Categorical(logits=mlp_output, validate_args=False)
 
+    @property
+    def _dist(self) -> Categorical:
+        """The distribution of the last :meth:`update`."""
+        assert self._distribution is not None, "update() first"
+        return self._distribution
+
     def sample(self) -> torch.Tensor:
-        return self._distribution.sample().unsqueeze(-1).to(self._distribution.logits.dtype)  # type: ignore
+        return self._dist.sample().unsqueeze(-1).to(self._dist.logits.dtype)
 
     def deterministic_output(self, mlp_output: torch.Tensor) -> torch.Tensor:
         return torch.argmax(mlp_output, dim=-1, keepdim=True).to(mlp_output.dtype)
@@ -59,33 +65,33 @@ class CategoricalDistribution(Distribution):
     @property
     def mean(self) -> torch.Tensor:
         """Expected category index, (N, 1) (only for logging: the index is not ordinal)."""
-        return (self._distribution.probs * self._index()).sum(-1, keepdim=True)  # type: ignore
+        return (self._dist.probs * self._index()).sum(-1, keepdim=True)
 
     @property
     def std(self) -> torch.Tensor:
         """Spread of the category index, (N, 1); the runner logs it as the action std."""
         idx = self._index()
-        var = (self._distribution.probs * (idx - self.mean) ** 2).sum(-1, keepdim=True)  # type: ignore
+        var = (self._dist.probs * (idx - self.mean) ** 2).sum(-1, keepdim=True)
         return var.clamp_min(0.0).sqrt()
 
     @property
     def entropy(self) -> torch.Tensor:
-        return self._distribution.entropy()  # type: ignore
+        return self._dist.entropy()
 
     @property
     def params(self) -> tuple[torch.Tensor, ...]:
         """Normalized log-probabilities (logits shifted so they logsumexp to 0)."""
-        return (self._distribution.logits,)  # type: ignore
+        return (self._dist.logits,)
 
     def log_prob(self, outputs: torch.Tensor) -> torch.Tensor:
-        return self._distribution.log_prob(outputs.squeeze(-1).round().long())  # type: ignore
+        return self._dist.log_prob(outputs.squeeze(-1).round().long())
 
     def kl_divergence(self, old_params: tuple[torch.Tensor, ...], new_params: tuple[torch.Tensor, ...]) -> torch.Tensor:
         old = torch.log_softmax(old_params[0], dim=-1)
         new = torch.log_softmax(new_params[0], dim=-1)
         return (old.exp() * (old - new)).sum(dim=-1)
 
-    def init_mlp_weights(self, mlp: nn.Module) -> None:
+    def init_mlp_weights(self, mlp: nn.Sequential) -> None:  # (rsl-rl's MLP, a Sequential)
         # Small last-layer weights: the initial policy is near uniform over the modes.
         last = mlp[-1]
         if isinstance(last, nn.Linear):
@@ -93,7 +99,7 @@ class CategoricalDistribution(Distribution):
             nn.init.zeros_(last.bias)
 
     def _index(self) -> torch.Tensor:
-        logits = self._distribution.logits  # type: ignore
+        logits = self._dist.logits
         return torch.arange(self.num_categories, device=logits.device, dtype=logits.dtype)
 
 

@@ -1,5 +1,5 @@
-"""The trainer contract: what every zoo trainer (:mod:`.dqn`, :mod:`.ppo`, :mod:`.bc`, :mod:`.cql`)
-reads and writes, written once.
+"""The trainer contract: what every zoo trainer (:mod:`.dqn`, :mod:`.ppo`, :mod:`.bc`, :mod:`.cql`;
+:mod:`.fastppo`, ppo-numpy, a trainer of its own: :data:`TRAINERS`) reads and writes, written once.
 
 A trainer takes what it learns from already loaded (suites, from
 ``overtakezoo.envs.suites.load_training``, or a dataset's transitions, :mod:`.offline`) and returns a
@@ -8,10 +8,11 @@ suites or the dataset, calls the trainer, evaluates what it returns with the ben
 writes the results file (``overtakezoo train`` is that).
 
 1. **Hyperparameters**: ``zoo/hyperparams/<member>.toml``, typed by the trainer's schema dataclass
-   (:mod:`.typed`). :func:`load_hyperparams` is the one reader: the file with ``overrides`` merged
-   (``--set``, :func:`parse_overrides`), the env's reward refused (every trainer learns from the
-   suite's ``RewardConfig``), a schema's own ``check(hp, where)`` applied (ppo checks rsl-rl's keys);
-   anything wrong is one :class:`~.typed.HyperparameterError` naming ``file: key``.
+   (:mod:`.typed`). :func:`load_hyperparams` is the one reader: the file (with its ``base``, another
+   file of ``zoo/hyperparams``, resolved as a suite's is: :func:`read_hyperparams`) with
+   ``overrides`` merged (``--set``, :func:`parse_overrides`), the env's reward refused (every
+   trainer learns from the suite's ``RewardConfig``), a schema's own ``check(hp, where)`` applied
+   (ppo checks rsl-rl's keys); anything wrong is one :class:`~.typed.HyperparameterError` naming ``file: key``.
 2. **The model card**: :func:`model_card` builds the keys every card has; ``card.schema.json`` (a
    JSON Schema) says what each one means and :func:`check_card` holds every card written to it
    (the tests hold every shipped card in ``zoo/pretrained`` to it too).
@@ -32,6 +33,7 @@ from typing import Any, TypeVar
 
 from overtakezoo.envs.config import ConfigError
 from overtakezoo.envs.io import atomic_write_bytes, atomic_write_json
+from overtakezoo.envs.suites import merged, resolve_base
 from overtakezoo.zoo.members.features import FEATURES_VERSION
 from overtakezoo.zoo.members.learned import MASK_VERSION, MLPDecider, sha256_bytes
 from overtakezoo.zoo.members.mlp import NumpyMLP
@@ -54,8 +56,16 @@ RUN_FILES = {
     "bc": (),
     "cql": (),
     "dagger": ("log.csv",),
+    "fastppo": ("train_log.csv",),
 }
 TORCH_WEIGHTS = ("dqn", "ppo")  # trainers whose member is exported from torch weights, <name>.pt
+# Trainers with a name of their own, which `overtakezoo train NAME` runs beside the learned members:
+# not members (the registry does not list them, nothing ships under the name) and never posing as
+# one: the run's files and card are named after the trainer (NAME.npz, NAME.json). NAME -> (its
+# module under zoo/train, what it is). One PPO trainer per name: ppo is rsl-rl's, ppo-numpy this one.
+TRAINERS: dict[str, tuple[str, str]] = {
+    "ppo-numpy": ("fastppo", "PPO in numpy without torch, a policy network like ppo's but not the ppo member"),
+}
 
 
 def run_files(trainer: str, name: str) -> list[str]:
@@ -76,7 +86,7 @@ def load_hyperparams(schema: type[T], path: str | Path, overrides: Mapping[str, 
     """Schema ``schema`` from the TOML file ``path`` with ``overrides`` merged (tables key by key),
     and the file's name. Errors name ``path: key``."""
     path, overrides = Path(path), overrides or {}
-    data = read_toml(path)
+    data = read_hyperparams(path)
     reject_reward_keys(data, f"hyperparameter file {path}")
     reject_reward_keys(overrides, "hyperparameter overrides")
     hp = build(schema, merged(data, overrides), str(path))
@@ -97,6 +107,35 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise HyperparameterError(f"{path}: {exc}") from None
 
 
+def read_hyperparams(path: str | Path) -> dict[str, Any]:
+    """A hyperparameter file as a dict, its ``base`` resolved: a file may name another file of
+    ``zoo/hyperparams`` (``base = "dqn"``, without ``.toml``) and give only the keys it changes; the
+    base's keys come first, its own over them (tables key by key), as a suite's tables over its
+    base's (:func:`overtakezoo.envs.suites.resolve_base`)."""
+    data = read_toml(path)
+    if "base" not in data:
+        return data
+    data, _ = resolve_base(
+        data, str(path), HYPERPARAMS, error=HyperparameterError, what="hyperparameter file of zoo/hyperparams"
+    )
+    del data["base"]
+    return data
+
+
+def refuse_other_trainers(path: str | Path, name: str, others: Mapping[str, tuple[str, ...]]) -> None:
+    """A hyperparameter file of another trainer given to ``overtakezoo train name`` is one
+    :class:`TrainError` naming the command that reads it, never a switch of trainer. ``others``: each
+    such trainer and the top-level keys only its files have (ppo's [runner], ppo-numpy's [ppo])."""
+    data = read_hyperparams(path)
+    for other, keys in others.items():
+        found = [key for key in keys if key in data]
+        if found:
+            raise TrainError(
+                f"{path} is a hyperparameter file of {other} (its key {found[0]!r}), not of {name}: "
+                f"train it with `overtakezoo train {other} --hyperparams {path}`"
+            )
+
+
 def reject_reward_keys(hp: Mapping[str, Any], where: str) -> None:
     """Every trainer learns from the env's reward (``RewardConfig``, set in a suite's ``[sim.reward]``
     table): a hyperparameter that would change it for training only is refused, not ignored."""
@@ -106,17 +145,6 @@ def reject_reward_keys(hp: Mapping[str, Any], where: str) -> None:
                 f"{where}: {key!r} is not a training setting: every trainer uses the env's "
                 "reward (RewardConfig); change it in the suite's [sim.reward] table"
             )
-
-
-def merged(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` with ``overrides`` applied (tables merged key by key, not replaced)."""
-    out = dict(base)
-    for key, value in overrides.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = merged(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 def parse_overrides(items: list[str] | tuple[str, ...], where: str = "--set") -> dict[str, Any]:

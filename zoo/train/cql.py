@@ -73,7 +73,7 @@ def cql_loss(
     return td + hp.alpha * conservative, td, conservative
 
 
-def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[nn.Sequential, dict[str, Any]]:
+def fit(data: Transitions, hp: CQLHyperparams, progress: bool = True) -> tuple[QNetwork, dict[str, Any]]:
     """Train the Q-network on every transition of ``data``; returns it with training statistics."""
     torch.manual_seed(hp.seed)
     torch.set_num_threads(hp.threads)

@@ -222,7 +222,7 @@ def select_offset(net: nn.Module, suites: list[Any], hp: DAggerHyperparams) -> t
 # ----------------------------------------------------------------------------- the loop
 def run(
     suites: list[Any], hp: DAggerHyperparams, out: Path | None, progress: bool
-) -> tuple[nn.Module, float, dict[str, Any]]:
+) -> tuple[QNetwork, float, dict[str, Any]]:
     torch.manual_seed(hp.seed)
     torch.set_num_threads(hp.threads)
     rng = np.random.default_rng(hp.seed)
@@ -282,7 +282,7 @@ def run(
     return net, offset, {**stats, "wall_time_s": time.perf_counter() - t0}
 
 
-def with_offset(net: nn.Module, offset: float) -> nn.Module:
+def with_offset(net: QNetwork, offset: float) -> QNetwork:
     """A copy of ``net`` whose OVERTAKE logit is shifted by ``offset`` (the threshold, in the weights)."""
     shipped = copy.deepcopy(net)
     with torch.no_grad():

@@ -222,9 +222,11 @@ class Trainer:
         # Done AVs waiting for their road made no decision: no transition. The others' transitions
         # enter the buffer once complete (at once for one-step targets).
         valid = None if res.waiting is None else ~res.waiting
+        assert self.nstep is not None  # (_start_core ran)
         self.buffer.add(**self.nstep.push(self.obs, act, reward, next_obs, done, finished, valid))
         self.transitions += len(act) if valid is None else int(valid.sum())
         if finished.any():
+            assert res.final_info is not None  # (set on an auto-reset core when rows finished)
             self.recent.extend(res.final_info["outcome"][finished].tolist())
             self.episodes += int(finished.sum())
         self.obs = obs

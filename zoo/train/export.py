@@ -7,7 +7,7 @@ the layers as a content-deterministic ``.npz`` (:func:`..members.mlp.npz_bytes`)
 copied, with ``weights_file`` / ``weights_sha256`` now naming the ``.npz`` and the torch file kept
 as provenance (``trained_weights_file``, ``trained_weights_sha256``). The trainers call it through
 :func:`.contract.finish`, ``overtakezoo eval --policy run/dqn.pt`` on a run's output, and
-:func:`export` (``scripts/seed_results.py --ship``) on a run directory to publish it into
+:func:`export` (``overtakezoo seeds --ship``) on a run directory to publish it into
 ``zoo/pretrained``. Torch is imported here only to read the ``.pt``.
 """
 

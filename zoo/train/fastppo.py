@@ -1,6 +1,8 @@
-"""A compact PPO in numpy (``overtakezoo train ppo --hyperparams zoo/hyperparams/ppo-fast.toml``):
-the fast path to a ppo policy, beside rsl-rl's (:mod:`.ppo`, which the shipped ppo member is
-trained with and which stays the reference PPO).
+"""A compact PPO in numpy, the trainer ``ppo-numpy`` (``overtakezoo train ppo-numpy``, hyperparameters
+``zoo/hyperparams/ppo-numpy.toml``): the fast path to a ppo-like policy, beside rsl-rl's (:mod:`.ppo`,
+``overtakezoo train ppo``, which the shipped ppo member is trained with and which stays the reference
+PPO). It is a trainer of its own, not a zoo member (:data:`.contract.TRAINERS`): its runs are named
+``ppo-numpy``, never ``ppo``.
 
 Why hand-written and not rsl-rl / torch: importing torch (and tensordict, which pulls in
 torch._dynamo) costs ~2-3 CPU s per process, more than this whole trainer needs to reach the paper's
@@ -12,9 +14,10 @@ with a global gradient-norm clip, as in the usual implementations (e.g. CleanRL'
 
 It steps the same cores as every trainer (:class:`~overtakezoo.envs.mixture.MixedCore`, the decision
 held ``action_repeat`` core steps by :func:`~overtakezoo.envs.hold.hold`), learns from the env's
-reward, and ships what the zoo loads: ``ppo.npz`` (the actor as a :class:`NumpyMLP`) and the card
-``ppo.json`` (no torch weights file). Every random draw comes from one seeded numpy generator and the
-matrix products run on one BLAS thread, so the same seed gives the same bits.
+reward, and writes what the zoo loads: ``ppo-numpy.npz`` (the actor as a :class:`NumpyMLP`) and the
+card ``ppo-numpy.json`` (no torch weights file; ``eval --policy`` and ``load_pretrained`` read them).
+Every random draw comes from one seeded numpy generator and the matrix products run on one BLAS
+thread, so the same seed gives the same bits.
 """
 
 from __future__ import annotations
@@ -31,8 +34,18 @@ import numpy as np
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT, observation_size
 from overtakezoo.envs.io import check_writable_dir
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.typed import param
+from overtakezoo.zoo.train.contract import (
+    RUN_FILES,
+    TrainError,
+    hyperparams_file,
+    load_hyperparams,
+    read_hyperparams,
+    refuse_other_trainers,
+)
+from overtakezoo.zoo.train.typed import HyperparameterError, param
 
+NAME = "ppo-numpy"  # the trainer's name (contract.TRAINERS): its runs' files, cards and results
+LEARNS_FROM = "suites"  # what train() takes: loaded training suites
 STEPS_UNIT = "decisions (env steps)"
 ALGORITHM = (
     "PPO (Schulman et al. 2017: clipped surrogate, GAE, minibatch advantage normalisation, Adam), "
@@ -86,7 +99,6 @@ class PPOSection:
 
 @dataclass(frozen=True)
 class FastPPOHyperparams:
-    trainer: str = param(choices=("numpy",))  # this module (ppo.py hands such a file over)
     train: TrainSection = param()
     env: EnvSection = param()
     ppo: PPOSection = param()
@@ -215,19 +227,38 @@ def gae(
 # ----------------------------------------------------------------------------- training
 def train(
     suites: list[Any],
-    hp: FastPPOHyperparams,
-    hp_file: str,
     *,
-    suite_name: str | None,
-    steps: int | None,
-    seed: int,
-    out: Path,
-    progress: bool,
+    member: str = NAME,
+    suite_name: str | None = None,
+    steps: int | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    resume: str | Path | None = None,
+    hyperparams: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: bool = True,
 ) -> Any:
-    """Train on the loaded training ``suites`` for ``steps`` decisions; write ``train_log.csv``,
-    ``ppo.npz`` and ``ppo.json`` into ``out``; return the :class:`~.contract.Trained` member."""
+    """Train on the loaded training ``suites`` (``suite_name``: the spec they came from) for ``steps``
+    decisions, seed ``seed`` (default 0), hyperparameters ``hyperparams`` (default
+    ``zoo/hyperparams/ppo-numpy.toml``) with ``overrides``; write ``train_log.csv``, ``ppo-numpy.npz``
+    and ``ppo-numpy.json`` into ``out`` (default ``runs/ppo-numpy-seed<seed>``); return the
+    :class:`~.contract.Trained` run. No checkpoints, so no ``resume``."""
     from threadpoolctl import threadpool_limits
 
+    if member != NAME:
+        raise TrainError(f"train/fastppo.py trains {NAME}, not {member!r}")
+    if resume is not None:
+        raise TrainError(f"--resume: {NAME} keeps no checkpoints")
+    path = hyperparams or hyperparams_file(NAME)
+    refuse_other_trainers(path, NAME, {"ppo": ("runner", "algorithm", "actor", "critic")})
+    if "trainer" in read_hyperparams(path):  # (a file from before ppo-numpy had its own name)
+        raise HyperparameterError(
+            f"{path}: trainer: not a key: the numpy PPO is a trainer of its own, `overtakezoo train {NAME}`; "
+            "delete the line"
+        )
+    hp, hp_file = load_hyperparams(FastPPOHyperparams, path, overrides)
+    seed = 0 if seed is None else int(seed)
+    out = Path(out) if out is not None else Path("runs") / f"{NAME}-seed{seed}"
     with threadpool_limits(limits=1, user_api="blas"):  # same bits on any core count (and faster here)
         return _train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
@@ -260,9 +291,7 @@ def _train(
     pools = [s.scenarios() for s in suites]
     multi = [s.name for s, q in zip(suites, pools, strict=True) if q.num_avs > 1]
     if multi:  # (waiting AVs of a multi-AV road would need their transitions dropped; rsl-rl's face has none)
-        from overtakezoo.zoo.train.contract import TrainError
-
-        raise TrainError(f"the numpy ppo trains single-AV suites; {', '.join(multi)} has several AVs per road")
+        raise TrainError(f"{NAME} trains single-AV suites; {', '.join(multi)} has several AVs per road")
 
     def pool_source(pool: Any) -> Any:  # rows drawn uniformly from the suite (rsl_rl.pool_source, without torch)
         return lambda k, g: pool.take(g.integers(0, pool.num, k))
@@ -295,6 +324,7 @@ def _train(
             res = hold(core, act, repeat)
             b_rew[t], b_done[t] = res.reward, res.finished
             if res.finished.any():
+                assert res.final_info is not None  # (set on an auto-reset core when rows finished)
                 outcome = res.final_info["outcome"][res.finished]
                 counts += [
                     len(outcome),
@@ -305,7 +335,7 @@ def _train(
             obs = speed_relative(res.obs, config).astype(DTYPE)
         c1 = clock()
         adv, ret = gae(b_rew, b_val, b_done, critic.forward(obs)[0][:, 0], p.gamma, p.lam)
-        batch = {
+        batch: dict[str, np.ndarray] = {
             "obs": b_obs.reshape(-1, dim),
             "act": b_act.reshape(-1),
             "logp": b_logp.reshape(-1).astype(DTYPE),
@@ -322,7 +352,11 @@ def _train(
         if last or (every and (it + 1) % every == 0 and it + 1 >= hp.train.select_from):
             layers = actor.layers()
             net = NumpyMLP(layers, "tanh")
-            score = greedy_score(lambda o, c, net=net: net(speed_relative(o, c)).argmax(axis=1), select_sets, repeat)
+
+            def greedy(o: np.ndarray, c: Any, net: NumpyMLP = net) -> np.ndarray:
+                return net(speed_relative(o, c)).argmax(axis=1)
+
+            score = greedy_score(greedy, select_sets, repeat)
             if score > best["score"]:
                 best = {"score": score, "iteration": it + 1, "layers": layers}
             cpu["select"] += clock() - c2
@@ -341,12 +375,12 @@ def _train(
         )
         if progress:
             print(
-                f"fastppo iteration {it + 1}/{iterations}: success {counts[1] / eps:.2f} crash {counts[2] / eps:.2f}"
+                f"{NAME} iteration {it + 1}/{iterations}: success {counts[1] / eps:.2f} crash {counts[2] / eps:.2f}"
                 + ("" if score is None else f", greedy score {score:.3f}"),
                 flush=True,
             )
     wall = time.perf_counter() - t0
-    with open(out / "train_log.csv", "w", newline="") as f:
+    with open(out / RUN_FILES["fastppo"][0], "w", newline="") as f:
         csv.writer(f).writerows([LOG_COLUMNS, *log_rows])
     return _finish(
         best,
@@ -379,7 +413,7 @@ def _finish(
     cpu: dict[str, float],
 ) -> Any:
     from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes, read_npz
-    from overtakezoo.zoo.train.contract import Trained, model_card, write_outputs
+    from overtakezoo.zoo.train.contract import Trained, model_card, reproduce, write_outputs
     from overtakezoo.zoo.train.export import npz_card
 
     npz = npz_bytes(NumpyMLP(best["layers"], "tanh").arrays())
@@ -392,9 +426,8 @@ def _finish(
         "iteration": best["iteration"],
         "score": round(best["score"], 4),
     }
-    what = f"--suite {source['train_suite']['name']}"
     card = model_card(
-        "ppo",
+        NAME,
         algorithm=ALGORITHM,
         architecture={"kind": "policy"},
         hp=hp,
@@ -407,10 +440,10 @@ def _finish(
         seed=seed,
         wall_time_s=wall,
         training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)", "cpu_s": cpu},
-        reproduce=f"overtakezoo train ppo {what} --hyperparams zoo/hyperparams/{hp_file} --steps {asked} --seed {seed}",
+        reproduce=reproduce(NAME, source, asked, seed),  # (model_card adds --hyperparams and --set where needed)
         versions={"numpy": np.__version__},
         torch=False,
     )
-    trained = Trained(npz_card(card, net, npz, "ppo"), npz, net)
+    trained = Trained(npz_card(card, net, npz, NAME), npz, net)
     write_outputs(out, trained)
     return trained

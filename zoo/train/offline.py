@@ -126,7 +126,7 @@ def identity(dataset: Any, data: Transitions, about: dict[str, Any]) -> dict[str
 
 def train_offline(
     member: str,
-    schema: type,
+    schema: type[Any],
     fit: Callable[..., tuple[Any, dict[str, Any]]],
     algorithm: str,
     kind: str,

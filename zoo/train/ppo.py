@@ -45,7 +45,7 @@ from overtakezoo.zoo.train.contract import (
     hyperparams_file,
     load_hyperparams,
     model_card,
-    read_toml,
+    refuse_other_trainers,
     reproduce,
     suite_source,
 )
@@ -54,9 +54,10 @@ from overtakezoo.zoo.train.typed import HyperparameterError, param
 
 if TYPE_CHECKING:
     import torch
+    from rsl_rl.models.mlp_model import MLPModel  # (rsl-rl has no type hints: Any to mypy)
 
-# torch, tensordict and rsl-rl are imported where they are used: a hyperparameter file naming the
-# numpy trainer (trainer = "numpy", ppo-fast.toml) is handed to .fastppo without importing them.
+# torch, tensordict and rsl-rl are imported where they are used: a hyperparameter file of the numpy
+# PPO (ppo-numpy.toml, `overtakezoo train ppo-numpy`, :mod:`.fastppo`) is refused without importing them.
 os.environ.setdefault("GIT_PYTHON_REFRESH", "quiet")  # rsl_rl imports GitPython, which wants a git binary
 
 LEARNS_FROM = "suites"  # what train() takes: loaded training suites, or a loaded dataset
@@ -187,7 +188,7 @@ def weights_blob(actor: torch.nn.Module, obs_dim: int, actor_cfg: dict[str, Any]
     return buf.getvalue()
 
 
-def greedy_actor(actor: torch.nn.Module) -> Any:
+def greedy_actor(actor: MLPModel) -> Any:
     """The actor being trained, acting greedily (float32, through torch) for model selection:
     ``act(obs, config)`` as :func:`.selection.greedy_score` calls it."""
     import torch
@@ -203,14 +204,14 @@ def greedy_actor(actor: torch.nn.Module) -> Any:
 
 
 # ----------------------------------------------------------------------------- training
-def make_runner(env: Any, hp: dict[str, Any]) -> Any:
+def make_runner(env: Any, hp: PPOHyperparams) -> Any:
     from rsl_rl.runners import OnPolicyRunner
 
     with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints the models and observation sets
         return OnPolicyRunner(env, train_cfg(hp), log_dir=None, device="cpu")
 
 
-def start_biased(actor: torch.nn.Module, overtake_bias: float) -> None:
+def start_biased(actor: MLPModel, overtake_bias: float) -> None:
     """Add ``overtake_bias`` to the untrained ``actor``'s OVERTAKE logit (the bias of its last layer,
     which :class:`.categorical.CategoricalDistribution` initializes to zero): the initial policy overtakes
     with probability e^b / (e^b + 2) per decision (b = 2: ~0.79) instead of 1/3."""
@@ -267,8 +268,8 @@ def train(
     file (default ``zoo/hyperparams/ppo.toml``)."""
     if member != "ppo":
         raise TrainError(f"train/ppo.py trains ppo, not {member!r}")
-    if read_toml(hyperparams or hyperparams_file("ppo")).get("trainer") == "numpy":
-        return _train_numpy(suites, suite_name, steps, seed, out, resume, hyperparams, overrides, progress)
+    # One PPO trainer per name: the numpy PPO's files ([ppo]) are ppo-numpy's, never a switch of trainer.
+    refuse_other_trainers(hyperparams or hyperparams_file("ppo"), "ppo", {"ppo-numpy": ("ppo",)})
     try:
         import rsl_rl  # noqa: F401
         import torch
@@ -419,29 +420,6 @@ def train(
         versions={"rsl-rl-lib": _library_version()},
     )
     return finish(card, weights=blob, module=actor, out=out)
-
-
-def _train_numpy(
-    suites: list[Any],
-    suite_name: str | None,
-    steps: int | None,
-    seed: int | None,
-    out: str | Path | None,
-    resume: Any,
-    hyperparams: str | Path,
-    overrides: dict[str, Any] | None,
-    progress: bool,
-) -> Trained:
-    """A hyperparameter file with ``trainer = "numpy"`` (``zoo/hyperparams/ppo-fast.toml``): PPO in
-    numpy, :mod:`.fastppo` (no torch, no rsl-rl)."""
-    from overtakezoo.zoo.train import fastppo
-
-    if resume is not None:
-        raise TrainError('--resume: the numpy ppo trainer (trainer = "numpy") keeps no checkpoints')
-    hp, hp_file = load_hyperparams(fastppo.FastPPOHyperparams, hyperparams, overrides)
-    seed = 0 if seed is None else int(seed)
-    out = Path(out) if out is not None else Path("runs") / f"ppo-seed{seed}"
-    return fastppo.train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
 
 ALGORITHM = (

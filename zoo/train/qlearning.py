@@ -139,7 +139,7 @@ class NStepReturns:
         self.t += 1
         emit = (self.age > 0) & valid[None] & ((self.age >= self.n) | np.asarray(finished, bool)[None])
         k, row = np.nonzero(emit)
-        out = {
+        out: dict[str, np.ndarray] = {
             "obs": self.obs[k, row],
             "action": self.action[k, row],
             "reward": self.ret[k, row].astype(np.float32),

@@ -41,7 +41,7 @@ def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tu
 
     rates = []
     for config, scenarios in sets:
-        live = {"core": OvertakeCore(config), "success": 0, "crash": 0}
+        live: dict[str, Any] = {"core": OvertakeCore(config), "success": 0, "crash": 0}
 
         def count(outcome: np.ndarray, live: dict[str, Any] = live) -> None:
             live["success"] += int((outcome == SUCCESS).sum())
@@ -56,11 +56,14 @@ def outcome_rates(act: Act, sets: list[tuple[Any, Any]], repeat: int) -> list[tu
             live["core"] = live["core"].clone(keep)
             return live["core"], obs[keep]
 
+        def decide(o: np.ndarray, _: int, c: Any = config) -> np.ndarray:
+            return act(o, c)
+
         obs = live["core"].reset(scenarios)
         run_to_end(
             live["core"],
             obs,
-            lambda o, _, c=config: act(o, c),
+            decide,
             hold_steps(config.decision_interval, repeat),
             compact=compact,
         )

@@ -1,0 +1,72 @@
+"""``overtakezoo seeds`` (benchmark/leaderboard/seeds.py): every training seed of a learned member run on its
+training splits and the test suites, written as the seeds file the leaderboard's headline reads; --ship
+publishes the chosen seed with its selection in the card."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from conftest import PRETRAINED, last_error_line, suite_file
+from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.leaderboard import headline
+
+
+@pytest.fixture
+def runs(tmp_path):
+    """Two runs of dqn (the shipped weights under seeds 0 and 1), as `overtakezoo train` leaves them."""
+    out = []
+    for seed in (0, 1):
+        run = tmp_path / f"dqn-s{seed}"
+        run.mkdir()
+        shutil.copy(PRETRAINED / "dqn.npz", run / "dqn.npz")
+        card = json.loads((PRETRAINED / "dqn.json").read_text())
+        (run / "dqn.json").write_text(json.dumps({**card, "seed": seed}))
+        out.append(run)
+    return out
+
+
+def test_the_command_writes_a_seeds_file_the_headline_accepts_and_ships_the_chosen_seed(tmp_path, tiny_suite, runs):
+    test_suite = tiny_suite(6)
+    split = suite_file(tmp_path / "tiny-train.toml", 6, base="occluded")
+    root = tmp_path / "leaderboards"
+    root.mkdir()
+    argv = ["seeds", "dqn", *map(str, runs), "--suites", test_suite, "--train-suite", str(split), "--root", str(root)]
+    assert main(argv) == 0
+    path = root / "seeds" / "dqn.json"
+    text = path.read_text()
+    doc = json.loads(text)
+    assert text == json.dumps(doc, indent=1, sort_keys=True) + "\n"  # the format the board keeps
+    assert doc["member"] == "dqn" and doc["train_suite"] == str(split) and doc["shipped_seed"] in (0, 1)
+    assert [e["seed"] for e in doc["seeds"]] == [0, 1]
+    for entry in doc["seeds"]:
+        assert set(entry["suites"]) == {"tiny-train", "tiny"} and entry["suites"]["tiny"]["n"] == 6
+        assert (tmp_path / entry["run"] / "seed-eval.json").is_file()  # each run's evaluations, cached
+    assert doc["seeds"][0]["suites"] == doc["seeds"][1]["suites"]  # the same weights score the same
+
+    seeds = headline.load_seeds(root)  # the shipped seed's weights are the zoo's: accepted
+    assert seeds["dqn"] == doc
+    assert f"| dqn | {doc['shipped_seed']} |" in headline.seed_lines(seeds, "tiny")
+
+    # Again from the runs' caches, and shipped into a folder of our own: the same file, and a card
+    # that carries the selection.
+    shipped = tmp_path / "pretrained"
+    shipped.mkdir()
+    assert main([*argv, "--ship", "--pretrained", str(shipped)]) == 0
+    assert path.read_text() == text
+    card = json.loads((shipped / "dqn.json").read_text())
+    assert card["selection_rule"] == doc["selection_rule"] and set(card["seed_results"]) == {"0", "1"}
+    assert card["results"]["tiny"]["count"] == 6
+    assert (shipped / "dqn.npz").read_bytes() == (PRETRAINED / "dqn.npz").read_bytes()
+
+
+def test_bad_seeds_calls_are_one_error_line(tmp_path, capsys):
+    root = tmp_path / "leaderboards"
+    root.mkdir()
+    assert "run directories" in last_error_line(capsys, ["seeds", "dqn", "--root", str(root)])
+    missing = str(tmp_path / "nowhere")
+    assert "no such run directory" in last_error_line(capsys, ["seeds", "dqn", missing, "--root", str(root)])
+    err = last_error_line(capsys, ["seeds", "dqn", "--compare-only", "--compare", "ppo", "--root", str(root)])
+    assert "no seeds file" in err
