@@ -12,7 +12,7 @@ each other, v_{i,rho} = v_i + rho a_accel,i):
           + (v_2 + v_{2,rho}) rho / 2 + v_{2,rho}^2 / (2 b_min)
 
 ad-rss-lib (``ad::rss::structured::calculateSafeLongitudinalDistance{Same,Opposite}Direction``)
-computes the same two formulas with per-vehicle dynamics; tests/test_safety_metrics.py checks them
+computes the same two formulas with per-vehicle dynamics; tests/benchmark/test_safety_metrics.py checks them
 against it on a grid.
 """
 

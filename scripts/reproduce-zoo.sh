@@ -17,7 +17,7 @@ cd "$(dirname "$0")/.."
 runs="${1:-runs/zoo}"
 mkdir -p "$runs"
 # --seeds writes $runs/<algo>-s0, -s1, -s2: the seeds in parallel on Ray when it is installed, one
-# after the other otherwise (the same files either way: tests/test_seed_sweep.py).
+# after the other otherwise (the same files either way: tests/zoo/test_seed_sweep.py).
 # The shipped ppo was trained before ppo.toml gained its OVERTAKE bias (overtake_bias = 2.0, which
 # lets every seed leave the follow-only start on table1-train): its card's recipe is bias 0.
 for algo in dqn double-dqn ppo; do

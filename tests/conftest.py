@@ -22,6 +22,7 @@ settings.load_profile("overtakezoo")
 
 # ----------------------------------------------------------------------------- learned members
 import json  # noqa: E402
+import threading  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -185,3 +186,21 @@ def home(tmp_path, monkeypatch):
     monkeypatch.setenv("OVERTAKEZOO_REGISTRY", str(tmp_path / "registry.json"))
     (tmp_path / "registry.json").write_text(json.dumps({"datasets": {}}))
     return tmp_path
+
+
+# ------------------------------------------------------------------ file-safety helpers (envs/io.py)
+def leftovers(folder):
+    """Temp files the writers would leave beside their targets."""
+    return sorted(p.name for p in folder.iterdir() if ".tmp-" in p.name or ".old-" in p.name)
+
+
+def read_fifo(path, into):
+    """Read a FIFO to its end in a thread (a FIFO's writer blocks until a reader opens it)."""
+
+    def run():
+        with open(path, "rb") as f:
+            into.append(f.read())
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t

@@ -1,6 +1,6 @@
 """The fenced code blocks of the README and the documentation pages, with how each one is run.
 
-A block is *run* by ``tests/test_doc_blocks.py`` as written unless the HTML comment on the line
+A block is *run* by ``tests/docs/test_doc_blocks.py`` as written unless the HTML comment on the line
 just above its fence says otherwise (both are invisible on GitHub and on the site):
 
 - ``<!-- run by TEST_FILE ... -->`` (a path under ``tests/``): that test runs it (a slow one, usually, as training

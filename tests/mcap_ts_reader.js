@@ -1,7 +1,7 @@
 // The TypeScript MCAP reader (@mcap/core, CRCs on), Foxglove's ROS 2 CDR decoder
 // (@foxglove/rosmsg + @foxglove/rosmsg2-serialization) and the official Foxglove JSON Schemas
 // (@foxglove/schemas, with ajv and fzstd) on an archive: node tests/mcap_ts_reader.js FILE.mcap -> JSON.
-// Run by tests/test_archive.py when node finds those packages (NODE_PATH).
+// Run by tests/benchmark/test_archive.py when node finds those packages (NODE_PATH).
 const fs = require("fs");
 const { McapIndexedReader } = require("@mcap/core");
 const fzstd = require("fzstd");

@@ -8,7 +8,7 @@ sizes, and writes chunks, message indexes and the summary itself, with mcap's ow
 (``mcap.records``) for the few records per file, and packs the many ones itself (chunks, message
 indexes as numpy little-endian (log time, offset) u64 pairs, metadata), as the spec lays them out
 (https://mcap.dev/spec). The file is a
-plain MCAP file: mcap's readers (Python and TypeScript, CRCs checked) read it; tests/test_archive.py
+plain MCAP file: mcap's readers (Python and TypeScript, CRCs checked) read it; tests/benchmark/test_archive.py
 checks that.
 """
 

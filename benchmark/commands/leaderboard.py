@@ -145,7 +145,7 @@ def run(args: Any) -> int:
         return 0
     # Measured files that miss a zoo member (or list a removed one): a warning, since a scratch board
     # may measure a few deciders (`crossplay --deciders`); the shipped board must cover the zoo
-    # (tests/test_adding_a_member.py).
+    # (tests/zoo/test_adding_a_member.py).
     short = uncovered(args.root)
     if args.check:
         stale = stale_files(args.root)

@@ -86,7 +86,7 @@ def _run_group(args: tuple[str, list[tuple[str, str]], int]) -> list[dict[str, A
     """Pairs run as one batch: each pair's :class:`~.pairing.Pairing` drives its own block of roads (a
     copy of the suite's first ``scenarios``), stacked as verify stacks rows (:class:`.batching.Stacked`).
     Roads never interact and every decider sees the rows it would see alone, so each pair's counts
-    are those of its own run (``tests/test_crossplay_verify.py`` holds them to a pair run alone)."""
+    are those of its own run (``tests/benchmark/test_crossplay_verify.py`` holds them to a pair run alone)."""
     from overtakezoo.benchmark.leaderboard.batching import Stacked
     from overtakezoo.benchmark.results.results import round_per_scenario, summary_of
     from overtakezoo.benchmark.run.runner import run_scenarios

@@ -1,8 +1,8 @@
 """The prose of the generated ``leaderboards/README.md``: how to submit a policy, and the security model."""
 
 # The one "Submit your policy" guide: the leaderboard page (generate.py, under GUIDE_HEADING) and the
-# repository README (its "Submit your policy" section, verbatim: tests/test_guide_submit.py) both show
-# this text, and tests/test_guide_submit.py (slow) runs its code blocks as written.
+# repository README (its "Submit your policy" section, verbatim: tests/docs/test_guide_submit.py) both show
+# this text, and tests/docs/test_guide_submit.py (slow) runs its code blocks as written.
 GUIDE_HEADING = "## Submit your policy"
 
 GUIDE = """A row is a results file plus the policy that produced it, so anyone can re-run it:
@@ -10,7 +10,7 @@ GUIDE = """A row is a results file plus the policy that produced it, so anyone c
 value (outcome, times, aborts, ...) to equal the recorded one. A hand-edited results file, or one
 whose policy does not reproduce it, is refused with one line naming the first scenario that differs.
 Run these steps from the root of a clone of the repository (its `leaderboards/` is the one you add
-your rows to); `tests/test_guide_submit.py` runs them as written.
+your rows to); `tests/docs/test_guide_submit.py` runs them as written.
 
 **1. Train** on the training world, each decision held as the zoo holds its own: one env step of
 `overtakezoo/Overtake-v1` is one decision (0 follow, 1 overtake, 2 abort) held 1 s, 10 core steps,
@@ -59,7 +59,7 @@ The results file records the suite's sha256, the environment config's sha256, th
 version (`overtakezoo.envs.SIM_VERSION`), the OvertakeZoo version and commit, and your policy's
 sha256. Trained as above (seed 0, 200,000 decisions: 28 CPU minutes, 70 wall minutes on a 2-core
 machine shared with other jobs), this policy scored **table1 success 90.2 %, crash 9.8 %** (3000
-scenarios; rule-fsm: 71 % / 29 %, the bar `tests/test_guide_submit.py` holds it to).
+scenarios; rule-fsm: 71 % / 29 %, the bar `tests/docs/test_guide_submit.py` holds it to).
 
 **4. Submit** under a name of your own (the zoo's names, `overtakezoo zoo list`, are reserved):
 

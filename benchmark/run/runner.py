@@ -7,7 +7,7 @@ core steps; finished rows are frozen by the core, so the loop simply steps until
 Finished rows are dropped from the batch (:class:`Compaction`) once at most half of it still runs,
 where every part with per-row state can drop them: the decider (a declared ``row_state``), the
 recorder (``keep_rows``) and the safety monitor. Rows never interact, so the results are the same
-bits either way (``tests/test_benchmark_runner.py`` checks it); single-ego suites only.
+bits either way (``tests/benchmark/test_benchmark_runner.py`` checks it); single-ego suites only.
 
 On a multi-AV suite the decider drives every AV (self-play), or a :class:`~.pairing.Pairing` drives
 AV e with its e-th decider (cross-play); the per-scenario arrays then hold one value per AV,

@@ -2,7 +2,7 @@
 //   overtakezoo replay RUN.mcap --episode K --out episode.json
 // (benchmark/archive/web.py writes the format; envs/faces/render.py's TopView is the drawing it follows).
 // Plain JavaScript and one <canvas>, no network beyond the episode file: ?episode=URL (default
-// episode.json beside this page), a file picked or dropped on the page. Tested by tests/test_web_viewer.py.
+// episode.json beside this page), a file picked or dropped on the page. Tested by tests/benchmark/test_web_viewer.py.
 "use strict";
 
 (() => {

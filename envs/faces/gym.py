@@ -9,10 +9,10 @@ longer loads ``gymnasium.envs`` entry-point plugins, so the import is what regis
   zoo's 1 s, ``hold_steps=10``), so the id a guide names trains on what table1 evaluates: Stable-
   Baselines3's ``DQN("MlpPolicy", gym.make("overtakezoo/Overtake-v1"), seed=0)``, 200k steps,
   scores table1 success 90.2 %, crash 9.8 % (rule-fsm: 71 % / 29 %; the leaderboard's "Submit your
-  policy" guide, ``tests/test_guide_submit.py``). Its policy card is
+  policy" guide, ``tests/docs/test_guide_submit.py``). Its policy card is
   ``overtakezoo card model.zip --action-repeat 10 --suite table1-train``. A new version rather than a
   new meaning for v0 (Gymnasium's rule: changed dynamics, new version); its kwargs are pinned to
-  table1-train v2 (``tests/test_suite_envs.py``), so a new table1-train version means a new
+  table1-train v2 (``tests/envs/test_suite_envs.py``), so a new table1-train version means a new
   Overtake version;
 - ``"overtakezoo/Overtake-v0"`` (:data:`ENV_ID_V0`): the env's defaults (table1-reactive's world,
   one core step, 0.1 s, per env step), kept as it always was for old code and for the faces'
