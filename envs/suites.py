@@ -36,24 +36,6 @@ SUITES_DIR = Path(__file__).with_name("suites")
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")  # also a directory name on the leaderboard
 MAX_COUNT = 1_000_000
 CHUNK_SIZE = 4096  # roads the runner steps at once (runner.run_suite's chunk_size)
-# The public single-ego suites (the OvertakeZoo score's), and the training mixture of their splits.
-CORE = (
-    "table1",
-    "table1-reactive",
-    "oncoming-2",
-    "oncoming-4",
-    "oncoming-8",
-    "dense",
-    "urban-50",
-    "adversarial",
-    "occluded",
-)
-# The multi-agent suites: several automated vehicles on one road (not part of the single-ego score).
-MULTI = ("duel", "platoon", "mixed-traffic")
-MIXTURES = {
-    "core-train": tuple(f"{name}-train" for name in CORE),
-    "multi-train": tuple(f"{name}-train" for name in MULTI),
-}
 _KEYS = {"name", "version", "count", "seed", "description", "scenario", "sim", "base", "scenarios", "search"}
 SUITE_TABLES = ("scenario", "sim")  # what a suite takes from its base, its own merged over them
 
@@ -218,16 +200,6 @@ def suite_env_ids() -> dict[str, SuiteEnvId]:
         held = zoo_hold(dt, interval)
         out[f"overtakezoo/{name}-v{doc['version']}"] = SuiteEnvId(name, int(doc["version"]), held, multi)
     return out
-
-
-def load_training(spec: str) -> list[Suite]:
-    """The suites a trainer draws from: a mixture's name (``core-train``: every core suite's
-    training split), suites or mixtures joined by ``+`` (``table1-train+urban-50-train``,
-    ``core-train+multi-train``), or one suite."""
-    names = tuple(name for part in str(spec).split("+") if part for name in MIXTURES.get(part, (part,)))
-    if not names:
-        raise SuiteError(f"no training suite in {spec!r}")
-    return [load_suite(n) for n in names]
 
 
 def load_suite(name_or_path: str | Path) -> Suite:

@@ -88,8 +88,9 @@ def write_suites() -> list[Path]:
     """``<suite>-wide-train.toml`` for each core suite: its own [scenario] and [sim] tables (its
     base's, if it names one, with its own over them) with the ranges in WIDE_KEYS widened, the
     training split's count and seed."""
+    from overtakezoo.benchmark.suite_groups import CORE
     from overtakezoo.envs.explicit import to_toml
-    from overtakezoo.envs.suites import CORE, SUITES_DIR, suite_document
+    from overtakezoo.envs.suites import SUITES_DIR, suite_document
 
     SUITES.mkdir(exist_ok=True)
     paths = []
@@ -128,7 +129,7 @@ def write_suites() -> list[Path]:
 
 
 def wide_spec() -> str:
-    from overtakezoo.envs.suites import CORE
+    from overtakezoo.benchmark.suite_groups import CORE
 
     return "+".join(str((SUITES / f"{n}-wide-train.toml").relative_to(ROOT)) for n in CORE)
 
@@ -184,7 +185,8 @@ def decider(run: Path, config, remove_offset: bool):
 def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
     """Per seed, per core suite: the outcome counts (cached in each run as ablation-<variant>.json)."""
     from overtakezoo.benchmark.run.runner import run_suite
-    from overtakezoo.envs.suites import CORE, load_suite
+    from overtakezoo.benchmark.suite_groups import CORE
+    from overtakezoo.envs.suites import load_suite
 
     out = []
     for run in dirs:
@@ -230,7 +232,8 @@ def evaluate(variant: str, dirs: list[Path]) -> list[dict]:
 def kept_variants(rerun: set[str], seeds: list[int]) -> dict[str, list[dict]]:
     """Variants not re-run this time, from the last ``docs/ablation.json``: their per-seed counts as
     they were measured, kept only while every core suite's hash is the one they were measured on."""
-    from overtakezoo.envs.suites import CORE, load_suite
+    from overtakezoo.benchmark.suite_groups import CORE
+    from overtakezoo.envs.suites import load_suite
 
     path = ROOT / "docs" / "ablation.json"
     if not path.is_file():
@@ -251,7 +254,7 @@ def kept_variants(rerun: set[str], seeds: list[int]) -> dict[str, list[dict]]:
 
 def report(results: dict[str, list[dict]], command: str) -> tuple[str, dict]:
     from overtakezoo.benchmark.leaderboard.headline import Counts, mean_over_seeds, score
-    from overtakezoo.envs.suites import CORE
+    from overtakezoo.benchmark.suite_groups import CORE
 
     doc = {"command": command, "variants": {}}
     head = [

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from overtakezoo.envs.suites import load_training
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.zoo.members.learned import MLPDecider, load_pretrained, load_weights, read_card
 from overtakezoo.zoo.train.selection import decider_act, held_back_sets, outcome_rates
 

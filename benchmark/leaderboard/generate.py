@@ -5,7 +5,7 @@ with the policy that re-runs them, and ``submissions/artifacts/``: see submissio
 ``reference/paper.json`` (the paper's reported numbers, input), and the generated files
 ``README.md``, ``index.json``, ``<suite>.md`` and ``<suite>.png``. Generated files are never edited by
 hand; ``leaderboard --check`` fails when they differ from what the submissions give. The multi-agent
-suites (``suites.MULTI``) get their own tables (multi_leaderboard.py) and index section
+suites (``suite_groups.MULTI``) get their own tables (multi_leaderboard.py) and index section
 (``multi_agent``); a cross-play matrix measured by ``overtakezoo crossplay`` (``crossplay/<suite>.json``,
 an input like the submissions) becomes ``crossplay-<suite>.md`` and ``.png`` (crossplay.py).
 
@@ -37,9 +37,10 @@ from overtakezoo.benchmark.leaderboard.untrusted import (
     plain_name,
 )
 from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
+from overtakezoo.benchmark.suite_groups import CORE, MULTI
 from overtakezoo.envs import safe_json
 from overtakezoo.envs.io import atomic_write_bytes
-from overtakezoo.envs.suites import CORE, MULTI, load_suite, suite_names
+from overtakezoo.envs.suites import load_suite, suite_names
 
 REFERENCE = Path("reference") / "paper.json"
 REFERENCE_NOTE = "reported in the paper, different simulator"

@@ -25,8 +25,8 @@ import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard.untrusted import md
+from overtakezoo.benchmark.suite_groups import CORE
 from overtakezoo.envs import safe_json
-from overtakezoo.envs.suites import CORE
 
 K = 2.0  # crash weight in the score
 SAMPLES = 2000

@@ -1,4 +1,4 @@
-"""Leaderboard tables of the multi-agent suites (``suites.MULTI``): joint and per-agent columns.
+"""Leaderboard tables of the multi-agent suites (``suite_groups.MULTI``): joint and per-agent columns.
 
 A row is a decider in self-play: it drives every AV of every road. Rows are ranked by the joint
 success (every AV of the road succeeds), then the AV-AV crash rate. The metrics are those of

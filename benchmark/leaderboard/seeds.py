@@ -28,17 +28,16 @@ from typing import Any
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.multi_metrics import run_joint_rates
+from overtakezoo.benchmark.suite_groups import CORE, load_training
 from overtakezoo.envs.io import atomic_write_bytes
-from overtakezoo.envs.suites import CORE, MIXTURES, Suite, load_suite, load_training
+from overtakezoo.envs.suites import Suite, load_suite
 
 TRAIN_SUITE = "core-train"
-TRAIN_SPLITS = MIXTURES[TRAIN_SUITE]
 RULE = (
     "the median seed by mean success rate over the training splits of the core suites (core-train; ties: "
     "lower mean crash rate there, then the lower seed), fixed before any seed was evaluated; test suites "
     "never enter the choice"
 )
-DEFAULT_SUITES = tuple(CORE)
 
 
 def rule(train_suite: str) -> str:
@@ -178,7 +177,7 @@ def run_seeds(
     false: then only each run's cache is filled) and, with ``ship``, publish the chosen seed into
     ``pretrained`` (default ``zoo/pretrained``). Returns the seeds file's document (None without
     ``write``)."""
-    suites = list(suites or DEFAULT_SUITES)
+    suites = list(suites or CORE)
     train = load_training(train_suite)  # (a split given by path is known by its name from here on)
     train_splits = [s.name for s in train]
     todo = {s.name: s for s in train}

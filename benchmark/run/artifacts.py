@@ -729,7 +729,7 @@ def write_card(
     _check_policy_file(path, data)
     card: dict[str, Any] = {"card_version": 1, "action_repeat": action_repeat}
     if suite is not None:
-        from overtakezoo.envs.suites import load_training
+        from overtakezoo.benchmark.suite_groups import load_training
 
         try:
             config = load_training(suite)[0].config

@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from overtakezoo.benchmark.results.multi_metrics import run_joint_rates
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs.io import atomic_write_json
-from overtakezoo.envs.suites import load_training
 
 # How a candidate is scored, as the selection in a card says it (cards shipped before the command
 # existed name the script it replaced instead).

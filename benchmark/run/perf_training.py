@@ -188,7 +188,7 @@ def _recipe(recipe: dict[str, Any]) -> str:
 
 
 def _time_to_zoo_quality(report: Any, tmp: str, progress: Callable[[str], None]) -> None:
-    from overtakezoo.envs.suites import load_training
+    from overtakezoo.benchmark.suite_groups import load_training
     from overtakezoo.zoo.members.learned import MLPDecider, load_pretrained, load_weights, read_card
     from overtakezoo.zoo.train.selection import held_back_sets
 

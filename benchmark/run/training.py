@@ -5,7 +5,7 @@ loaded and return the trained member (a ``Trained``: model card, weights, the nu
 ships); they know nothing of the benchmark. Here, for every trainer alike, :func:`train`
 
 1. asks the zoo's registry which trainer trains the member, and the trainer what it learns from;
-2. loads it: the training suites (``overtakezoo.envs.suites.load_training``) or a dataset of the
+2. loads it: the training suites (``overtakezoo.benchmark.suite_groups.load_training``) or a dataset of the
    benchmark's registry (:mod:`.datasets`, with its content hash);
 3. calls the trainer (which writes its log, checkpoints and outputs into ``out``);
 4. evaluates what ships, the numpy network, on ``eval_suite`` with the benchmark runner, records
@@ -26,9 +26,10 @@ from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.results.metrics import wilson
 from overtakezoo.benchmark.run.runner import run_suite
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs import CRASH, SUCCESS, TIMEOUT
 from overtakezoo.envs.config import ConfigError
-from overtakezoo.envs.suites import Suite, load_suite, load_training
+from overtakezoo.envs.suites import Suite, load_suite
 
 
 def trainer(member: str) -> Any:

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from overtakezoo.envs.suites import CORE, load_suite
+from overtakezoo.benchmark.suite_groups import CORE
+from overtakezoo.envs.suites import load_suite
 
 SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 

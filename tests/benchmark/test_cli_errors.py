@@ -84,7 +84,7 @@ def test_integer_settings_take_integers_only():
 
 def test_unwritable_train_out_fails_before_training(tmp_path, capsys, monkeypatch):
     from overtakezoo.benchmark.run import training
-    from overtakezoo.envs.suites import load_training
+    from overtakezoo.benchmark.suite_groups import load_training
     from overtakezoo.zoo.train import dqn
 
     def must_not_run(*args, **kwargs):

@@ -10,10 +10,11 @@ pytest.importorskip("cma")
 
 from test_benchmark_cli import one_line_error  # noqa: E402
 
+from conftest import suite_file  # noqa: E402
 from overtakezoo import zoo  # noqa: E402
 from overtakezoo.benchmark.cli import main  # noqa: E402
 from overtakezoo.benchmark.failures.search import Archive, cma_search, random_search  # noqa: E402
-from overtakezoo.envs.suites import SUITES_DIR, load_suite  # noqa: E402
+from overtakezoo.envs.suites import load_suite  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -125,17 +126,13 @@ def test_rss_target_and_params(tmp_path, capsys):
 
 
 def fixed_suite(tmp_path):
-    text = (SUITES_DIR / "table1.toml").read_text()
-    for key, value in (
-        ("lead_speed", "[2.0, 2.0]"),
-        ("oncoming_speed", "[2.0, 2.0]"),
-        ("lead_gap", "[9.0, 9.0]"),
-        ("oncoming_gap", "[60.0, 60.0]"),
-    ):
-        text = text.replace(f"{key} = [", f"{key} = {value} #[", 1)
-    path = tmp_path / "fixed.toml"
-    path.write_text(text.replace('name = "table1"', 'name = "fixed"'))
-    return path
+    fixed = {
+        "lead_speed": [2.0, 2.0],
+        "oncoming_speed": [2.0, 2.0],
+        "lead_gap": [9.0, 9.0],
+        "oncoming_gap": [60.0, 60.0],
+    }
+    return suite_file(tmp_path / "fixed.toml", 3000, **fixed)
 
 
 @pytest.mark.parametrize(

@@ -8,10 +8,11 @@ import hashlib
 import numpy as np
 import pytest
 
+from overtakezoo.benchmark.suite_groups import CORE, load_training, mixtures
 from overtakezoo.envs import FOLLOW, OVERTAKE, EnvConfig, OvertakeCore, make_scenario, observation_layout
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore, split_rows
-from overtakezoo.envs.suites import CORE, MIXTURES, SuiteError, load_suite, load_training
+from overtakezoo.envs.suites import SuiteError, load_suite
 from overtakezoo.zoo.members.features import speed_relative
 
 
@@ -90,7 +91,7 @@ def test_a_variant_is_its_base_with_its_own_tables_merged_over_and_hashes_every_
 
 def test_the_core_mixture_is_every_core_suites_split():
     assert [s.name for s in load_training("core-train")] == [f"{n}-train" for n in CORE]
-    assert MIXTURES["core-train"] == tuple(f"{n}-train" for n in CORE)
+    assert mixtures()["core-train"] == tuple(f"{n}-train" for n in CORE)
     assert [s.name for s in load_training("table1-train+urban-50-train")] == ["table1-train", "urban-50-train"]
     with pytest.raises(SuiteError, match="unknown suite"):
         load_training("table1-train+nope")

@@ -7,7 +7,7 @@ import pytest
 
 from overtakezoo.benchmark.leaderboard import headline, paper_table
 from overtakezoo.benchmark.leaderboard.headline import Counts, score
-from overtakezoo.envs.suites import CORE
+from overtakezoo.benchmark.suite_groups import CORE
 
 REFERENCE = Path(__file__).resolve().parents[2] / "leaderboards" / "reference" / "paper.json"
 

@@ -10,9 +10,10 @@ from hypothesis import strategies as st
 
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.results.multi_metrics import run_joint_rates
+from overtakezoo.benchmark.suite_groups import CORE, MULTI, load_training, mixtures
 from overtakezoo.envs import ConfigError, ScenarioDistribution, make_scenario
 from overtakezoo.envs.scenarios import OPPOSITE_LANE, Scenarios
-from overtakezoo.envs.suites import CORE, MIXTURES, MULTI, load_suite, load_training
+from overtakezoo.envs.suites import load_suite
 
 # sha256 of every core suite's (and training split's) scenario arrays, computed on the code before
 # the multi-AV keys existed (commit 4262421): adding AVs must not move a single bit of them.
@@ -138,7 +139,7 @@ def test_multi_suites_layouts():
     assert mixed.num_avs == 2 and mixed.num_npcs == 6 and (mixed.npc_behaviour == 0).all()
     assert not set(MULTI) & set(CORE)
     assert [s.name for s in load_training("multi-train")] == [f"{n}-train" for n in MULTI]
-    assert MIXTURES["multi-train"] == tuple(f"{n}-train" for n in MULTI)
+    assert mixtures()["multi-train"] == tuple(f"{n}-train" for n in MULTI)
 
 
 def test_adding_avs_leaves_the_single_ego_draws_alone():

@@ -12,7 +12,7 @@ from overtakezoo.benchmark.leaderboard import safety_board
 from overtakezoo.benchmark.leaderboard.rows import Row
 from overtakezoo.benchmark.results.results import SAFETY_PER_SCENARIO, Results
 from overtakezoo.benchmark.run.runner import run_suite
-from overtakezoo.envs.suites import CORE
+from overtakezoo.benchmark.suite_groups import CORE
 
 
 def rows(tmp_path, names, count=40):

@@ -15,7 +15,6 @@ import pytest
 from conftest import suite_file
 from overtakezoo import zoo
 from overtakezoo.benchmark.cli import main
-from overtakezoo.envs.suites import SUITES_DIR
 from overtakezoo.zoo.train.contract import TRAINERS, run_files
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,7 +34,7 @@ def test_eval_never_imports_torch(tmp_path):
         "import sys; sys.modules['torch'] = None; from overtakezoo.benchmark.cli import main; "
         "sys.exit(main(['eval', '--suite', sys.argv[1], '--decider', 'dqn', '--out', sys.argv[2], '--no-progress']))"
     )
-    tiny = SUITES_DIR / "table1.toml"
+    tiny = suite_file(tmp_path / "tiny.toml", 20)
     done = subprocess.run(
         [sys.executable, "-c", code, str(tiny), str(tmp_path / "dqn.json")], capture_output=True, text=True, timeout=300
     )

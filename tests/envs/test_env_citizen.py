@@ -74,7 +74,7 @@ def test_trainers_have_no_reward_of_their_own(tmp_path):
 
 
 def test_dqn_trainer_refuses_a_reward_override():
-    from overtakezoo.envs.suites import load_training
+    from overtakezoo.benchmark.suite_groups import load_training
     from overtakezoo.zoo.train.dqn import train
     from overtakezoo.zoo.train.typed import HyperparameterError
 

@@ -13,10 +13,11 @@ with warnings.catch_warnings():  # pettingzoo.test imports its own example envs 
     warnings.simplefilter("ignore", DeprecationWarning)
     from pettingzoo.test import parallel_api_test, parallel_seed_test
 
+from overtakezoo.benchmark.suite_groups import MULTI
 from overtakezoo.envs import ConfigError, OvertakeCore, make_scenario, observation_layout, parallel_env, sb3_vec_env
 from overtakezoo.envs.config import OVERTAKE
 from overtakezoo.envs.faces.spaces import ego_observation_space
-from overtakezoo.envs.suites import MULTI, load_suite
+from overtakezoo.envs.suites import load_suite
 
 KMH = 1 / 3.6
 # With NPC agents PettingZoo's checker notes that AVs and NPCs observe different sizes.

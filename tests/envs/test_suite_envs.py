@@ -16,10 +16,11 @@ from gymnasium.utils.env_checker import check_env
 import overtakezoo.envs  # noqa: F401  (registers the ids)
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
+from overtakezoo.benchmark.suite_groups import MULTI
 from overtakezoo.envs import ConfigError, OvertakeEnv, OvertakeVectorEnv, make_vec, parallel_env
 from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 from overtakezoo.envs.faces.gym import ENV_ID, ENV_ID_V0
-from overtakezoo.envs.suites import MULTI, SuiteError, load_suite, suite_env_ids, suite_names
+from overtakezoo.envs.suites import SuiteError, load_suite, suite_env_ids, suite_names
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", DeprecationWarning)

@@ -10,8 +10,9 @@ import pytest
 pytest.importorskip("torch")
 
 from overtakezoo import zoo  # noqa: E402
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs import CRASH, OVERTAKE, SUCCESS  # noqa: E402
-from overtakezoo.envs.suites import load_suite, load_training  # noqa: E402
+from overtakezoo.envs.suites import load_suite  # noqa: E402
 from overtakezoo.zoo.members.learned import MLPDecider  # noqa: E402
 from overtakezoo.zoo.train import dagger  # noqa: E402
 from overtakezoo.zoo.train.contract import TrainError, check_card  # noqa: E402

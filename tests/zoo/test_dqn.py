@@ -12,6 +12,7 @@ import torch
 
 from conftest import needs_shipped_weights
 from overtakezoo import zoo
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs import (
     ABORT,
     FOLLOW,
@@ -23,7 +24,7 @@ from overtakezoo.envs import (
     observation_size,
 )
 from overtakezoo.envs.hold import hold, hold_steps
-from overtakezoo.envs.suites import load_suite, load_training
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
 from overtakezoo.zoo.members.learned import MLPDecider, WeightsError, action_mask, load_pretrained
 from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams

@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs import CRASH, SUCCESS
-from overtakezoo.envs.suites import load_training
 from overtakezoo.zoo.train import fastppo
 from overtakezoo.zoo.train.contract import HYPERPARAMS, check_card, load_hyperparams, run_files
 from overtakezoo.zoo.train.typed import HyperparameterError

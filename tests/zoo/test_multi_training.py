@@ -11,10 +11,11 @@ import pytest
 
 from conftest import needs_shipped_weights
 from overtakezoo import zoo
+from overtakezoo.benchmark.suite_groups import load_training
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.mixture import MixedCore
-from overtakezoo.envs.suites import load_suite, load_training
+from overtakezoo.envs.suites import load_suite
 from overtakezoo.zoo.train.contract import hyperparams_file, load_hyperparams
 from overtakezoo.zoo.train.dqn import DQNHyperparams, Trainer, row_split, train
 

@@ -14,9 +14,9 @@ pytest.importorskip("rsl_rl")
 from tensordict import TensorDict  # noqa: E402
 
 from conftest import needs_shipped_weights, suite_file  # noqa: E402
+from overtakezoo.benchmark.suite_groups import load_training  # noqa: E402
 from overtakezoo.envs import EnvConfig, ScenarioDistribution, observation_size  # noqa: E402
 from overtakezoo.envs.faces.rsl_rl import OvertakeRslRlEnv  # noqa: E402
-from overtakezoo.envs.suites import load_training  # noqa: E402
 from overtakezoo.zoo import load  # noqa: E402
 from overtakezoo.zoo.members.learned import PRETRAINED, MLPDecider, WeightsError, load_pretrained, sha256_bytes  # noqa: E402
 from overtakezoo.zoo.train import ppo  # noqa: E402

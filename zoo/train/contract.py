@@ -2,7 +2,7 @@
 :mod:`.fastppo`, ppo-numpy, a trainer of its own: :data:`TRAINERS`) reads and writes, written once.
 
 A trainer takes what it learns from already loaded (suites, from
-``overtakezoo.envs.suites.load_training``, or a dataset's transitions, :mod:`.offline`) and returns a
+``overtakezoo.benchmark.suite_groups.load_training``, or a dataset's transitions, :mod:`.offline`) and returns a
 :class:`Trained`; it never imports the benchmark. ``overtakezoo.benchmark.run.training`` loads the
 suites or the dataset, calls the trainer, evaluates what it returns with the benchmark runner and
 writes the results file (``overtakezoo train`` is that).

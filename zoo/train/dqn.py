@@ -36,7 +36,7 @@ Training reward: the env's own (the suite's ``RewardConfig``, which every face a
 the hyperparameter file cannot change it). A timeout ends the episode as a failure
 (``timeout_terminal``): the observation has no clock, and the time limit is part of the task.
 
-:func:`train` takes the training suites loaded (``overtakezoo.envs.suites.load_training``) and
+:func:`train` takes the training suites loaded (``overtakezoo.benchmark.suite_groups.load_training``) and
 returns the :class:`~.contract.Trained` member; into ``out`` it writes ``log.csv``,
 ``checkpoint.pt`` and the contract's outputs: ``<algo>.pt`` (the Q-network's ``state_dict``), its
 numpy export ``<algo>.npz`` and the model card ``<algo>.json`` (:mod:`.contract`). Acting needs
