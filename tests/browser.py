@@ -1,6 +1,8 @@
 """Headless Chromium for the site's and the episode viewer's tests: Debian's ``/usr/bin/chromium``
 driven by the ``playwright`` package (the ``[browser]`` extra; no ``playwright install``, which
-downloads a browser). Tests skip, saying why, when either is absent."""
+downloads a browser). Tests skip, saying why, when either is absent, except where
+``OVERTAKEZOO_BROWSER_TESTS=required`` (set by ``.ci/run``, which installs chromium first): there a
+missing browser fails the run instead of hiding the tests."""
 
 from __future__ import annotations
 
@@ -29,9 +31,19 @@ CHROMIUM_ARGS = [
 
 
 def need_browser() -> None:
+    required = os.environ.get("OVERTAKEZOO_BROWSER_TESTS") == "required"
+    missing = None
     if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} is absent (apt-get install chromium)")
-    pytest.importorskip("playwright.sync_api", reason="the playwright package is absent (pip install -e '.[browser]')")
+        missing = f"{CHROMIUM} is absent (apt-get install chromium)"
+    else:
+        try:
+            import playwright.sync_api  # noqa: F401
+        except ImportError:
+            missing = "the playwright package is absent (pip install -e '.[browser]')"
+    if missing and required:
+        pytest.fail(f"OVERTAKEZOO_BROWSER_TESTS=required but {missing}")
+    if missing:
+        pytest.skip(missing)
 
 
 @contextlib.contextmanager
