@@ -10,7 +10,10 @@ Nothing here is copied by hand, so a page cannot drift from its source:
   guide the leaderboard page shows too;
 - ``changelog.md`` is ``CHANGELOG.md``;
 - ``metrics.md``'s table of every per-scenario array is generated from the arrays' declarations
-  (:func:`overtakezoo.benchmark.results.registry.docs_table`) where the page holds :data:`METRICS_TABLE`.
+  (:func:`overtakezoo.benchmark.results.registry.docs_table`) where the page holds :data:`METRICS_TABLE`;
+- every measured number on a page of ``docs/`` is a quote (``tools/doc_quotes.py``), written in from
+  the file that holds it. Generated pages are never expanded: the leaderboard's carry text from
+  pull requests.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import atexit
 import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -26,6 +30,7 @@ from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))  # doc_quotes beside this file
 METRICS_TABLE = "<!-- the table of arrays: generated from benchmark/results/registry.py by tools/mkdocs_hooks.py -->"
 
 
@@ -90,6 +95,13 @@ def on_files(files: Files, config) -> Files:
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
+    if page.file.generated_by is None:  # a page of docs/, written by hand
+        import doc_quotes
+
+        try:
+            markdown = doc_quotes.expand(markdown)
+        except doc_quotes.QuoteError as exc:
+            raise PluginError(f"docs/{page.file.src_uri}: {exc}") from None
     if page.file.src_uri != "metrics.md":
         return markdown
     if METRICS_TABLE not in markdown:  # the page was edited: say so rather than drop the table
