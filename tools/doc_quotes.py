@@ -30,7 +30,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("docs/", "leaderboards/", "zoo/pretrained/", "zoo/hyperparams/", "envs/suites/")
-QUOTE = re.compile(r"\{\{\s*(?P<file>[\w./-]+\.(?:json|toml))\s+(?P<path>[^|}]*?)\s*(?:\|\s*(?P<fmt>[^}]*?)\s*)?\}\}")
+QUOTE = re.compile(r"\{\{\s*(?P<file>[\w./+-]+\.(?:json|toml))\s+(?P<path>[^|}]*?)\s*(?:\|\s*(?P<fmt>[^}]*?)\s*)?\}\}")
 _PICK = re.compile(r"^(?P<name>[^\[\]]*)\[(?P<key>[\w-]+)=(?P<value>[^\]]*)\]$")
 
 

@@ -31,6 +31,8 @@ from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))  # doc_quotes beside this file
+import doc_quotes  # noqa: E402  (found through the line above: mkdocs loads hooks by path)
+
 METRICS_TABLE = "<!-- the table of arrays: generated from benchmark/results/registry.py by tools/mkdocs_hooks.py -->"
 
 
@@ -96,8 +98,6 @@ def on_files(files: Files, config) -> Files:
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
     if page.file.generated_by is None:  # a page of docs/, written by hand
-        import doc_quotes
-
         try:
             markdown = doc_quotes.expand(markdown)
         except doc_quotes.QuoteError as exc:

@@ -257,6 +257,7 @@ def _builtin() -> dict[str, Member]:
         Member("rule-fsm", "rule", "rule_fsm", shieldable=True),
         Member("fuzzy", "rule", "fuzzy", shieldable=True),
         Member("oracle", "privileged", "oracle"),
+        Member("joint-oracle", "privileged", "joint_oracle"),  # plans every AV of a multi-AV road together
         # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
         *(Member(n, "learned", "learned", trainer=t, shieldable=True) for n, t in learned.items()),
     ]

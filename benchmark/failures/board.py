@@ -46,10 +46,11 @@ UPPER_BOUNDS = ("oracle",)
 
 
 def board_deciders() -> list[str]:
-    """The zoo's members without the shield wrapper and not privileged (the rows)."""
+    """The zoo's members without the shield wrapper and not privileged (the rows; the single-ego
+    oracle joins them as an upper bound, :data:`UPPER_BOUNDS`)."""
     from overtakezoo import zoo
 
-    return [n for n in zoo.known_names() if "+" not in n and n not in UPPER_BOUNDS]
+    return [n for n in zoo.known_names() if "+" not in n and zoo.member(n).kind != "privileged"]
 
 
 def suite_file_name(suite: str, decider: str) -> str:

@@ -99,12 +99,13 @@ def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -
     """What a multi-AV suite cannot run: clear errors instead of wrong rows."""
     if scenarios.num_avs == 1:
         return
-    if getattr(decider, "privileged", False):
+    if getattr(decider, "privileged", False) and not getattr(decider, "joint", False):
         # The oracle simulates clones of its rows assuming nobody else decides; beside another AV it
-        # would have to predict that AV's decider, so it is no upper bound there (README: Multi-agent suites).
+        # would have to predict that AV's decider, so it is no upper bound there. The joint oracle
+        # plans every AV of the road itself (zoo/members/joint_oracle.py).
         raise UserError(
-            f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: privileged "
-            f"deciders ({decider.name}) run on single-ego suites only"
+            f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: {decider.name} "
+            "plans one AV and runs on single-ego suites only (joint-oracle plans every AV of a road)"
         )
     if recorder is not None:
         raise UserError(

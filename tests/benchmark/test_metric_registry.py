@@ -96,7 +96,7 @@ def test_it_is_in_the_docs_table_of_arrays(with_steps):
     spec = importlib.util.spec_from_file_location("mkdocs_hooks_under_test", REPO / "tools" / "mkdocs_hooks.py")
     hooks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hooks)
-    page = type("Page", (), {"file": type("File", (), {"src_uri": "metrics.md"})()})()
+    page = type("Page", (), {"file": type("File", (), {"src_uri": "metrics.md", "generated_by": None})()})()
     text = hooks.on_page_markdown((REPO / "docs" / "metrics.md").read_text(), page, None, None)
     row = next(line for line in text.splitlines() if line.startswith("| `steps` |"))
     assert "`OvertakeCore.info()['episode_steps']`" in row and "steps per scenario" in row

@@ -98,16 +98,16 @@ def test_the_front_page_types_no_measured_number():
 def test_a_quote_reads_the_value_a_command_wrote_and_names_a_bad_one(tmp_path):
     (tmp_path / "docs").mkdir()
     report = {"figures": [{"id": "a", "median": 0.97125}, {"id": "b", "median": 12345.6}]}
-    (tmp_path / "docs" / "r.json").write_text(json.dumps(report))
-    page = "a {{ docs/r.json figures[id=a]/median | pct }} % b {{ docs/r.json figures[id=b]/median | ,.0f }}"
+    (tmp_path / "docs" / "R.json").write_text(json.dumps(report))
+    page = "a {{ docs/R.json figures[id=a]/median | pct }} % b {{ docs/R.json figures[id=b]/median | ,.0f }}"
     assert doc_quotes.expand(page, tmp_path) == "a 97.1 % b 12,346"
     for bad, why in (
-        ("{{ docs/r.json figures[id=c]/median }}", "0 elements of 'figures' have id = c"),
-        ("{{ docs/r.json figures/0/mean }}", "no 'mean'"),
-        ("{{ docs/nope.json a }}", "docs/nope.json"),
+        ("{{ docs/R.json figures[id=c]/median }}", "0 elements of 'figures' have id = c"),
+        ("{{ docs/R.json figures/0/mean }}", "no 'mean'"),
+        ("{{ docs/NOPE.json a }}", "docs/NOPE.json"),
         ("{{ docs/../pyproject.toml project }}", "quotes read only files under"),
-        ("{{ tests/conftest.json a }}", "quotes read only files under"),
-        ("{{ docs/r.json figures | pct }}", "not a number or a string"),
+        ("{{ tests/CONFTEST.json a }}", "quotes read only files under"),
+        ("{{ docs/R.json figures | pct }}", "not a number or a string"),
     ):
         with pytest.raises(doc_quotes.QuoteError, match=re.escape(why)):
             doc_quotes.expand(bad, tmp_path)

@@ -1,0 +1,52 @@
+"""The joint oracle: a privileged upper bound on multi-AV roads that plans every AV of a road together.
+It drives suites the single-ego oracle refuses, beats the zoo's members in self-play on the same
+roads, and its choice for a road does not depend on which other roads share the batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from overtakezoo import zoo
+from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.run.runner import run_indices
+from overtakezoo.envs import SUCCESS
+from overtakezoo.envs.suites import load_suite
+from overtakezoo.zoo.members.joint_oracle import joint_plans
+
+
+def joint_success(per: dict[str, np.ndarray], num_avs: int) -> np.ndarray:
+    return (per["outcome"].reshape(num_avs, -1) == SUCCESS).all(axis=0)
+
+
+def test_every_joint_plan_once():
+    plans = joint_plans(3)
+    assert plans.shape == (8, 3) and len({tuple(p) for p in plans.tolist()}) == 8
+
+
+@pytest.mark.parametrize("suite_name, count", [("duel", 40), ("platoon", 24)])
+def test_it_succeeds_jointly_at_least_as_often_as_any_member_in_self_play(suite_name, count):
+    suite = load_suite(suite_name)
+    idx = np.arange(count)
+    e = suite.num_avs
+    oracle = run_indices(suite, zoo.load("joint-oracle"), idx)
+    best = joint_success(oracle, e)
+    assert (oracle["crash_av"] < 0).all()  # it never drives two of its AVs into each other
+    for name in ("rule-fsm", "fuzzy", "ps-dqn"):
+        member = joint_success(run_indices(suite, zoo.load(name), idx), e)
+        assert best.sum() >= member.sum(), f"{name} succeeds jointly on more {suite_name} roads than the joint oracle"
+    assert best.mean() > 0.5
+
+
+def test_a_roads_plan_does_not_depend_on_the_other_roads_in_its_batch():
+    suite = load_suite("duel")
+    idx = np.arange(12)
+    whole = run_indices(suite, zoo.load("joint-oracle"), idx)
+    chunked = run_indices(suite, zoo.load("joint-oracle"), idx, chunk_size=5)
+    for key in ("outcome", "episode_time", "switches"):
+        np.testing.assert_array_equal(whole[key], chunked[key])
+
+
+def test_the_single_ego_oracle_is_refused_on_a_multi_av_suite_naming_the_joint_one():
+    with pytest.raises(UserError, match="joint-oracle plans every AV of a road"):
+        run_indices(load_suite("duel"), zoo.load("oracle"), np.arange(2))

@@ -1,0 +1,135 @@
+"""``joint-oracle``: a privileged, centralised upper bound for roads with several automated vehicles.
+
+The single-ego ``oracle`` plans one AV assuming nobody else decides; beside other AVs it would have
+to predict their deciders. The joint oracle drives every AV of a road itself and plans their modes
+together. Every ``replan_s`` seconds (its ``action_repeat``), for each road with an open decision,
+it clones the road from the live core (``OvertakeCore.clone``: every state array, the NPCs' hidden
+state included) once per *joint plan*, a choice for each AV between
+
+- *overtake*: OVERTAKE now and hold it to the end of the episode, and
+- *retreat*: drop back (ABORT while in the opposite lane, FOLLOW once back),
+
+2^E plans for E AVs, and simulates all of them for all roads in one batch (no loop over roads or
+plans). A simulated road ends when every overtaking AV of it is done and ``retreat_horizon_s`` has
+passed (its retreating AVs survived that long). The road takes the plan that scores best: AVs that
+succeed minus 2 x AVs that crash (the leaderboard's weights), then the later first crash, then fewer
+overtakes. A plan in which every AV still driving overtakes and succeeds is exact (the simulator on
+a copy of the real state, held constant) and is not re-checked. Its rows on the multi-agent boards
+say how many roads are solvable by joint follow-then-overtake decisions at 1 s resolution. Never train
+on it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_size
+from overtakezoo.envs.core import CRASH, RUNNING, SUCCESS
+from overtakezoo.zoo.base import Decider, ObservationError, register
+
+CRASH_WEIGHT = 2.0  # the leaderboard's K: a crash counts twice a success
+
+
+def joint_plans(num_avs: int) -> np.ndarray:
+    """(2^E, E) bool: every joint plan, True where that AV overtakes."""
+    plan = np.arange(2**num_avs)[:, None]
+    return ((plan >> np.arange(num_avs)[None, :]) & 1).astype(bool)
+
+
+class JointOracle(Decider):
+    """Privileged joint look-ahead: plans every AV of a road together by simulating each joint plan
+    of overtake / retreat on clones of the live road (an upper bound; never train on it)."""
+
+    name = "joint-oracle"
+    version = "1"
+    privileged = True
+    joint = True  # plans every AV of a road: the runner lets it drive multi-AV suites
+
+    def __init__(self, config: EnvConfig | None = None, replan_s: float = 1.0, retreat_horizon_s: float = 8.0) -> None:
+        super().__init__(config)
+        self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
+        self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
+        self.core = None
+        self.sim_steps = 0  # road copies x steps simulated (cost accounting)
+        self._size(0, 1)
+
+    def _size(self, rows: int, num_avs: int) -> None:
+        self.decision = np.full(rows, FOLLOW, np.int64)
+        self.verified = np.zeros(rows // max(1, num_avs), bool)  # per road
+
+    def bind(self, core) -> None:
+        if core.obs_size != observation_size(self.config):
+            raise ObservationError(
+                f"{self.name}: the bound core's observations have {core.obs_size} features, "
+                f"expected {observation_size(self.config)} (observation_size of the joint oracle's config)"
+            )
+        self.core = core
+        self._size(core.num, core.num_avs)
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        core = self.core
+        if mask is None or core is None or self.decision.shape[0] != len(mask):
+            self._size(self.decision.shape[0] if mask is None else len(mask), 1 if core is None else core.num_avs)
+            return
+        mask = np.asarray(mask, bool)
+        self.decision[mask] = FOLLOW
+        self.verified[mask.reshape(core.num_avs, -1).any(axis=0)] = False
+
+    def act_batch(self, obs: np.ndarray) -> np.ndarray:
+        core = self.core
+        if core is None:
+            raise RuntimeError("the joint oracle is privileged: call bind(core) after core.reset")
+        if obs.shape[0] != core.num:
+            raise ValueError(f"observation has {obs.shape[0]} rows but the bound core has {core.num}")
+        if self.decision.shape[0] != core.num:
+            self._size(core.num, core.num_avs)
+        open_road = ~core.done.reshape(core.num_avs, -1).all(axis=0) & ~self.verified
+        roads = np.flatnonzero(open_road)
+        if roads.size:
+            self._replan(roads)
+        return self.decision.copy()
+
+    def _replan(self, roads: np.ndarray) -> None:
+        core, e = self.core, self.core.num_avs
+        plans = joint_plans(e)  # (P, E)
+        p = plans.shape[0]
+        sim = core.clone(np.repeat(roads, p))  # road r's plans side by side
+        n = sim.num_roads
+        overtakes = np.tile(plans, (roads.size, 1)).T.reshape(-1)  # (E * n,), AV-major as the core's rows
+        lane_w = np.tile(sim.scen.lane_width, e)
+        steps = 0
+        while not sim.done.all():
+            aborting = ~overtakes & (sim.y > 0.25 * lane_w)
+            sim.step(np.where(overtakes, OVERTAKE, np.where(aborting, ABORT, FOLLOW)))
+            steps += 1
+            if steps >= self.retreat_steps:  # end a road once its overtaking AVs are done
+                settled = (sim.done | ~overtakes).reshape(e, n).all(axis=0)
+                sim.done |= np.tile(settled, e)
+        self.sim_steps += steps * n
+        outcome = sim.outcome.reshape(e, n)
+        crashed = outcome == CRASH
+        score = (outcome == SUCCESS).sum(axis=0) - CRASH_WEIGHT * crashed.sum(axis=0)
+        first_crash = np.where(crashed, sim.t.reshape(e, n), np.inf).min(axis=0)
+        live = ~core.done.reshape(e, -1)[:, roads]  # (E, R): the AVs still driving
+        n_over = (overtakes.reshape(e, n).reshape(e, roads.size, p) & live[:, :, None]).sum(axis=0)
+        # Best plan per road: score, then the later first crash, then fewer overtakes (lexicographic).
+        order = np.lexsort((n_over, -first_crash.reshape(-1, p), -score.reshape(-1, p)), axis=1)
+        best = order[:, 0]  # (R,)
+        chosen = plans[best]  # (R, E)
+        cols = np.arange(e)[:, None] * core.num_roads + roads[None, :]  # (E, R) live rows
+        y, lw = core.y[cols], core.scen.lane_width[roads][None, :]
+        self.decision[cols] = np.where(chosen.T, OVERTAKE, np.where(y > 0.25 * lw, ABORT, FOLLOW))
+        out = outcome.reshape(e, roads.size, p)[:, np.arange(roads.size), best]  # (E, R)
+        everyone = (chosen.T | ~live).all(axis=0) & ((out == SUCCESS) | ~live).all(axis=0)
+        self.verified[roads] = everyone & (out != RUNNING).all(axis=0)
+
+    def card(self) -> str:
+        return (
+            "joint-oracle v1 (privileged, multi-AV): every 1 s clones each road once per joint plan "
+            "(each AV overtakes now and holds it, or drops back and follows) and simulates all plans of all "
+            "roads in one batch; the road takes the plan with the most successes minus 2 x crashes. An upper "
+            "bound on joint follow-then-overtake decisions at 1 s resolution; never train on it."
+        )
+
+
+register("joint-oracle", lambda config=None, **kw: JointOracle(config, **kw))
