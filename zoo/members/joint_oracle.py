@@ -93,25 +93,13 @@ class JointOracle(Decider):
         core, e = self.core, self.core.num_avs
         plans = joint_plans(e)  # (P, E)
         p = plans.shape[0]
-        sim = core.clone(np.repeat(roads, p))  # road r's plans side by side
-        n = sim.num_roads
-        overtakes = np.tile(plans, (roads.size, 1)).T.reshape(-1)  # (E * n,), AV-major as the core's rows
-        lane_w = np.tile(sim.scen.lane_width, e)
-        steps = 0
-        while not sim.done.all():
-            aborting = ~overtakes & (sim.y > 0.25 * lane_w)
-            sim.step(np.where(overtakes, OVERTAKE, np.where(aborting, ABORT, FOLLOW)))
-            steps += 1
-            if steps >= self.retreat_steps:  # end a road once its overtaking AVs are done
-                settled = (sim.done | ~overtakes).reshape(e, n).all(axis=0)
-                sim.done |= np.tile(settled, e)
-        self.sim_steps += steps * n
-        outcome = sim.outcome.reshape(e, n)
+        overtakes = np.tile(plans, (roads.size, 1)).T  # (E, R * P): road r's plans side by side
+        outcome, t = self._simulate(core.clone(np.repeat(roads, p)), overtakes)
         crashed = outcome == CRASH
         score = (outcome == SUCCESS).sum(axis=0) - CRASH_WEIGHT * crashed.sum(axis=0)
-        first_crash = np.where(crashed, sim.t.reshape(e, n), np.inf).min(axis=0)
+        first_crash = np.where(crashed, t, np.inf).min(axis=0)
         live = ~core.done.reshape(e, -1)[:, roads]  # (E, R): the AVs still driving
-        n_over = (overtakes.reshape(e, n).reshape(e, roads.size, p) & live[:, :, None]).sum(axis=0)
+        n_over = (overtakes.reshape(e, roads.size, p) & live[:, :, None]).sum(axis=0)
         # Best plan per road: score, then the later first crash, then fewer overtakes (lexicographic).
         order = np.lexsort((n_over, -first_crash.reshape(-1, p), -score.reshape(-1, p)), axis=1)
         best = order[:, 0]  # (R,)
@@ -122,6 +110,35 @@ class JointOracle(Decider):
         out = outcome.reshape(e, roads.size, p)[:, np.arange(roads.size), best]  # (E, R)
         everyone = (chosen.T | ~live).all(axis=0) & ((out == SUCCESS) | ~live).all(axis=0)
         self.verified[roads] = everyone & (out != RUNNING).all(axis=0)
+
+    def _simulate(self, sim, overtakes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Run each simulated road under its plan (``overtakes``: (E, n) bool) to its end; returns
+        the (E, n) outcomes and clocks. Roads that ended are dropped from the batch once they are a
+        quarter of it (a clone of the rest), so the long plans do not carry the finished ones: the
+        look-ahead's cost follows the roads still running."""
+        e, n = overtakes.shape
+        outcome, t = np.empty((e, n), sim.outcome.dtype), np.empty((e, n))
+        where = np.arange(n)  # the batch's roads -> their plan columns
+        steps = 0
+        while where.size:
+            lane_w = sim.scen.lane_width[None, :]
+            aborting = ~overtakes & (sim.y.reshape(e, -1) > 0.25 * lane_w)
+            modes = np.where(overtakes, OVERTAKE, np.where(aborting, ABORT, FOLLOW))
+            sim.step(modes.reshape(-1))
+            steps += 1
+            self.sim_steps += where.size
+            if steps >= self.retreat_steps:  # end a road once its overtaking AVs are done
+                settled = (sim.done.reshape(e, -1) | ~overtakes).all(axis=0)
+                sim.done |= np.tile(settled, e)
+            ended = sim.done.reshape(e, -1).all(axis=0)
+            if 4 * ended.sum() >= where.size:
+                outcome[:, where[ended]] = sim.outcome.reshape(e, -1)[:, ended]
+                t[:, where[ended]] = sim.t.reshape(e, -1)[:, ended]
+                keep = np.flatnonzero(~ended)
+                where, overtakes = where[keep], overtakes[:, keep]
+                if keep.size:
+                    sim = sim.clone(keep)
+        return outcome, t
 
     def card(self) -> str:
         return (
