@@ -105,7 +105,8 @@ def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -
         # plans every AV of the road itself (zoo/members/joint_oracle.py).
         raise UserError(
             f"suite {suite.name!r} has {scenarios.num_avs} automated vehicles per scenario: {decider.name} "
-            "plans one AV and runs on single-ego suites only (joint-oracle plans every AV of a road)"
+            "is privileged and plans one AV, so it runs on single-ego suites only "
+            "(joint-oracle plans every AV of a road)"
         )
     if recorder is not None:
         raise UserError(
