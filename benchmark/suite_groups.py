@@ -26,6 +26,28 @@ CORE = (
 )
 # The multi-agent suites: several automated vehicles on one road (not part of the single-ego score).
 MULTI = ("duel", "platoon", "mixed-traffic")
+# Driver populations: how the other road users drive. Each is a variant of two suites, the single-ego
+# ``drivers-<population>`` (table1-reactive's roads) and the multi-AV ``mixed-drivers-<population>``
+# (mixed-traffic's); all populations of a family share their roads (one seed), so they differ only in
+# the drivers. The zoo trained against the standard drivers; the others are held out (Melting Pot's
+# background populations). Their own section of the board, outside the score.
+DRIVERS = {
+    "standard": "train",
+    "timid": "held-out",
+    "aggressive": "held-out",
+    "slow": "held-out",
+    "gap-closer": "held-out",
+}
+DRIVER_FAMILIES = {"drivers": "table1-reactive", "mixed-drivers": "mixed-traffic"}  # family -> its roads
+
+
+def driver_suite(name: str) -> tuple[str, str] | None:
+    """(family, population) of a driver-population suite's name, else None."""
+    for family in sorted(DRIVER_FAMILIES, key=len, reverse=True):  # (mixed-drivers before drivers)
+        population = name.removeprefix(f"{family}-")
+        if population != name and population in DRIVERS:
+            return family, population
+    return None
 
 
 def mixtures() -> dict[str, tuple[str, ...]]:

@@ -397,6 +397,25 @@ class OvertakeCore:
     def step(self, modes: Any, npc_accel: Any = None) -> StepResult:
         """Advance every road by one ``dt`` under ``modes`` (B,), one per AV row. ``npc_accel`` (N, M)
         overrides the IDM acceleration of NPCs where it is finite (NPCs exposed as agents)."""
+        reward, terminated, truncated, info, geo = self.advance(modes, npc_accel)
+        finished = terminated | truncated
+        obs = self.observe(geo)
+        final_obs = None
+        if self.auto_reset and finished.any():
+            final_obs = obs  # (an AV that finished while its road runs on keeps this observation)
+            ended = self._ended_roads()
+            if ended.any():
+                roads = self.xp.nonzero(ended)
+                obs = self.xp.copy(obs)
+                cols = roads if self.num_avs == 1 else self._av_rows(roads)
+                assert self.source is not None, "auto_reset needs a scenario source"
+                obs[cols] = self.restart(roads, self.source(len(roads), self.rng))  # only those rows change
+        return StepResult(obs, reward, terminated, truncated, final_obs, info)
+
+    def advance(self, modes: Any, npc_accel: Any = None) -> tuple[Any, Any, Any, dict[str, Any], dict[str, Any]]:
+        """:meth:`step` without the observation and the auto-reset: (reward, terminated, truncated,
+        info, the geometry after the move). A look-ahead on a clone that reads only outcomes steps
+        with it (the observation is about a seventh of a platoon step)."""
         xp, cfg, pc, E = self.xp, self.cfg, self.cfg.planner, self._ego
         modes = xp.asarray(modes, xp.int).reshape(-1)
         if modes.shape[0] != self.num:
@@ -482,20 +501,7 @@ class OvertakeCore:
         self._update_stats(geo, active, jerk)
         reward = step_reward(cfg.reward, self.x, self.outcome, E, terminated, truncated, switched, active, xp)
         self.episode_return += reward
-        finished = terminated | truncated
-        info = self.info()
-        obs = self.observe(geo)
-        final_obs = None
-        if self.auto_reset and finished.any():
-            final_obs = obs  # (an AV that finished while its road runs on keeps this observation)
-            ended = self._ended_roads()
-            if ended.any():
-                roads = xp.nonzero(ended)
-                obs = xp.copy(obs)
-                cols = roads if self.num_avs == 1 else self._av_rows(roads)
-                assert self.source is not None, "auto_reset needs a scenario source"
-                obs[cols] = self.restart(roads, self.source(len(roads), self.rng))  # only those rows change
-        return StepResult(obs, reward, terminated, truncated, final_obs, info)
+        return reward, terminated, truncated, self.info(), geo
 
     def _contacts(self, geo: dict[str, Any]) -> Any:
         E, T = self._ego, self._sc

@@ -22,7 +22,7 @@ from typing import Any
 
 from overtakezoo import zoo
 from overtakezoo.benchmark.errors import UserError
-from overtakezoo.benchmark.leaderboard import crossplay, fresh, headline, paper_table, safety_board
+from overtakezoo.benchmark.leaderboard import crossplay, drivers, fresh, headline, paper_table, safety_board
 from overtakezoo.benchmark.leaderboard import multi as multi_leaderboard
 from overtakezoo.benchmark.leaderboard.guide import GUIDE, GUIDE_HEADING, SECURITY
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
@@ -37,7 +37,7 @@ from overtakezoo.benchmark.leaderboard.untrusted import (
     plain_name,
 )
 from overtakezoo.benchmark.results.metrics import TABLE, crash_same_scenarios, format_metric, render_table
-from overtakezoo.benchmark.suite_groups import CORE, MULTI
+from overtakezoo.benchmark.suite_groups import CORE, DRIVER_FAMILIES, MULTI, driver_suite
 from overtakezoo.envs import safe_json
 from overtakezoo.envs.io import atomic_write_bytes
 from overtakezoo.envs.suites import load_suite, suite_names
@@ -85,6 +85,8 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     files.update(cross_files)
     multi: dict[str, Any] = {}
     live_rows: dict[str, list[Row]] = {}
+    driver_rows: dict[str, dict[str, list[Row]]] = {}  # family -> population -> live rows
+    driver_index: dict[str, Any] = {}  # the drivers suites' own entries (apart from the ranked suites)
     seeds = headline.load_seeds(root)
     for name in sorted(set(subs) | ({ref["suite"]} if ref else set())):
         suite = load_suite(name) if name in suite_names() else None
@@ -96,8 +98,12 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         ranked = [row for row in live if not row.privileged]
         bounds = [row for row in live if row.privileged]  # they see the future: shown apart, never ranked
         stale = [(row, reasons[row.rel]) for row in rows if reasons[row.rel]]
-        if name in MULTI:
-            multi[name] = _multi_suite(name, suite, live, flagged, stale, files, cross_index.get(name))
+        population = driver_suite(name)  # (family, population) of a held-out drivers suite
+        if population:
+            driver_rows.setdefault(population[0], {})[population[1]] = live
+        if name in MULTI or (population and DRIVER_FAMILIES[population[0]] in MULTI):
+            entry = _multi_suite(name, suite, live, flagged, stale, files, cross_index.get(name))
+            (driver_index if population else multi)[name] = entry
             continue
         suite_ref = ref if ref and ref["suite"] == name else None
         live_rows[name] = live
@@ -113,7 +119,7 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         files[f"{name}.md"] = _markdown(name, suite, ranked, bounds, stale, suite_ref, paper, flagged).encode()
         if live:
             files[f"{name}.png"] = rate_plot(name, ranked, bounds)
-        index["suites"][name] = {
+        (driver_index if population else index["suites"])[name] = {
             "version": suite.version if suite else None,
             "hash": suite.hash if suite else None,
             "count": suite.count if suite else None,
@@ -136,6 +142,13 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
     if multi or cross_index:  # (absent until a multi-agent row or matrix exists)
         index["multi_agent"] = multi
         index["crossplay"] = cross_index
+    if driver_rows:  # (absent until a row on a drivers suite exists)
+        families = {
+            f: drivers.family_entry(f, driver_rows[f], DRIVER_FAMILIES[f] in MULTI) for f in sorted(driver_rows)
+        }
+        files[drivers.TABLE] = drivers.markdown(families, driver_rows).encode()
+        index["drivers"] = {"table": drivers.TABLE, "populations": drivers.DRIVERS, "families": families}
+        index["drivers"]["suites"] = driver_index
     for rel in files:  # suite names come from input (folder names, reference/paper.json)
         if not plain_name(rel):
             raise UserError(
@@ -159,19 +172,20 @@ def _multi_suite(
 ) -> dict[str, Any]:
     """A multi-agent suite's table and plot (into ``files``); returns its index entry."""
     ml = multi_leaderboard
-    ranked = sorted(live, key=ml.rank_key)
+    ranked, bounds = ml.split(live)
     files[f"{name}.md"] = ml.markdown(
-        name, suite, ranked, stale, _policy_cell, cross and cross["table"], flagged
+        name, suite, ranked, bounds, stale, _policy_cell, cross and cross["table"], flagged
     ).encode()
-    if ranked:
-        files[f"{name}.png"] = ml.plot(name, ranked)
+    if live:
+        files[f"{name}.png"] = ml.plot(name, ranked, bounds)
     return {
         "version": suite.version if suite else None,
         "hash": suite.hash if suite else None,
         "count": suite.count if suite else None,
         "table": f"{name}.md",
-        "plot": f"{name}.png" if ranked else None,
-        "entries": [ml.entry(row, _entry(row)) for row in ranked],
+        "plot": f"{name}.png" if live else None,
+        "entries": [ml.entry(row, _entry(row), bounds) for row in ranked],
+        "upper_bounds": [ml.entry(row, _entry(row)) for row in bounds],
         "flagged": [{**ml.entry(row, _entry(row)), "why": fresh.flag(row.results)} for row in flagged],
         "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]} for row, why in stale],
     }
@@ -431,4 +445,5 @@ def _readme(index: dict[str, Any], head: str = "") -> str:
             f"{len(s['entries'])} | {best_txt} |"
         )
     multi = multi_leaderboard.readme_section(index.get("multi_agent", {}), index.get("crossplay", {}))
+    multi += ([""] if multi else []) + drivers.readme_section(index.get("drivers", {}))
     return "\n".join(out + ([""] + multi if multi else [])) + "\n\n" + GUIDE_HEADING + "\n\n" + GUIDE + "\n" + SECURITY

@@ -200,6 +200,26 @@ def test_multi_agent_rows_leave_the_single_ego_files_and_the_score_alone(tmp_pat
     }
 
 
+def test_the_joint_oracle_is_an_upper_bound_apart_and_every_ranked_row_shows_its_gap(tmp_path):
+    root = tmp_path / "lb"  # the shipped duel rows of two members and the privileged joint oracle
+    (root / "submissions" / "duel").mkdir(parents=True)
+    for stem in ("rule-fsm", "fuzzy", "joint-oracle"):
+        shutil.copy(REPO_LEADERBOARDS / "submissions" / "duel" / f"{stem}.json", root / "submissions" / "duel")
+    files = generate(root)
+    duel = json.loads(files["index.json"])["multi_agent"]["duel"]
+    assert [e["name"] for e in duel["upper_bounds"]] == ["joint-oracle"]
+    assert sorted(e["name"] for e in duel["entries"]) == ["fuzzy", "rule-fsm"]  # never ranked with them
+    bound = duel["upper_bounds"][0]["joint"]["all_succeed"]
+    assert bound > max(e["joint"]["all_succeed"] for e in duel["entries"])
+    for e in duel["entries"]:
+        assert e["gap_to_bound_points"] == round(100 * (bound - e["joint"]["all_succeed"]), 1) > 0
+    page = files["duel.md"].decode()
+    ranked, bounds = page.split("## Upper bounds (privileged deciders, not ranked)")
+    assert "joint-oracle" not in ranked.split("### Per AV index")[0]
+    assert "| [joint-oracle](" in bounds and "gap to upper bound (points)" in ranked
+    assert f"{100 * bound:.1f} % (joint-oracle)" in files["README.md"].decode()
+
+
 def test_crossplay_regenerates_byte_identically_and_check_catches_edits(tmp_path, capsys):
     root = tmp_path / "lb"
     args = [

@@ -102,6 +102,9 @@ def test_privileged_rows_are_upper_bounds_not_ranked():
     for s in index["suites"].values():
         assert [e["name"] for e in s["upper_bounds"]] == ["oracle"]
         assert all(not e["privileged"] for e in s["entries"])
+    for s in index["multi_agent"].values():  # the joint oracle bounds every multi-agent suite, with a gap per row
+        assert [e["name"] for e in s["upper_bounds"]] == ["joint-oracle"]
+        assert all(not e["privileged"] and e["gap_to_bound_points"] is not None for e in s["entries"])
 
 
 # ------------------------------------------------------------------ refusals

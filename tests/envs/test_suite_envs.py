@@ -16,7 +16,7 @@ from gymnasium.utils.env_checker import check_env
 import overtakezoo.envs  # noqa: F401  (registers the ids)
 from overtakezoo import zoo
 from overtakezoo.benchmark.run.runner import run_indices
-from overtakezoo.benchmark.suite_groups import MULTI
+from overtakezoo.benchmark.suite_groups import DRIVERS, MULTI
 from overtakezoo.envs import ConfigError, OvertakeEnv, OvertakeVectorEnv, make_vec, parallel_env
 from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium 1.1+'s own, or its stand-in on 1.0
 from overtakezoo.envs.faces.gym import ENV_ID, ENV_ID_V0
@@ -54,7 +54,11 @@ def test_every_builtin_suite_is_a_registered_id_with_the_zoo_hold():
         refuses = gymnasium.spec(env_id).entry_point == "overtakezoo.envs.faces.pettingzoo:gymnasium_refusal"
         assert refuses == multi
     assert "overtakezoo/table1-train-v2" in gymnasium.registry
-    assert {entry.name for entry in ids.values() if entry.multi_av} == {*MULTI, *(f"{m}-train" for m in MULTI)}
+    mixed_drivers = {f"mixed-drivers-{p}" for p in DRIVERS}  # (held-out drivers on mixed-traffic's roads)
+    assert {entry.name for entry in ids.values() if entry.multi_av} == {
+        *MULTI,
+        *(f"{m}-train" for m in MULTI),
+    } | mixed_drivers
 
 
 def test_a_suite_id_is_the_suites_world_and_overtake_v0_is_unchanged():

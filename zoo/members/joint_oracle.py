@@ -124,7 +124,7 @@ class JointOracle(Decider):
             lane_w = sim.scen.lane_width[None, :]
             aborting = ~overtakes & (sim.y.reshape(e, -1) > 0.25 * lane_w)
             modes = np.where(overtakes, OVERTAKE, np.where(aborting, ABORT, FOLLOW))
-            sim.step(modes.reshape(-1))
+            sim.advance(modes.reshape(-1))  # (outcomes only: no observation)
             steps += 1
             self.sim_steps += where.size
             if steps >= self.retreat_steps:  # end a road once its overtaking AVs are done

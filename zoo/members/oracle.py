@@ -38,7 +38,7 @@ def simulate(core, rows: np.ndarray, cand: np.ndarray, retreat_steps: int) -> tu
     while not sim.done.all():
         aborting = retreat & (sim.y > 0.25 * lane_w)
         modes = np.where(cand == CAND_OVERTAKE, OVERTAKE, np.where(aborting, ABORT, FOLLOW))
-        sim.step(modes)
+        sim.advance(modes)  # (outcomes only: no observation)
         steps += 1
         if steps >= retreat_steps:
             sim.done |= retreat  # a retreat survived its horizon: freeze it, no crash
