@@ -147,8 +147,12 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
             f: drivers.family_entry(f, driver_rows[f], DRIVER_FAMILIES[f] in MULTI) for f in sorted(driver_rows)
         }
         files[drivers.TABLE] = drivers.markdown(families, driver_rows).encode()
-        index["drivers"] = {"table": drivers.TABLE, "populations": drivers.DRIVERS, "families": families}
-        index["drivers"]["suites"] = driver_index
+        index["drivers"] = {
+            "table": drivers.TABLE,
+            "populations": drivers.DRIVERS,
+            "families": families,
+            "suites": driver_index,
+        }
     for rel in files:  # suite names come from input (folder names, reference/paper.json)
         if not plain_name(rel):
             raise UserError(
@@ -373,14 +377,7 @@ def _markdown(
         out += _rows_table(ranked, ranked=True) if ranked else ["No ranked submissions yet."]
         out += ["", md_image("success vs crash rate", f"{name}.png"), ""]
         if bounds:
-            out += [
-                "## Upper bounds (privileged deciders, not ranked)",
-                "",
-                "These deciders read the simulator's state, the future included (`privileged = True`): "
-                "they show what a decision could reach, not what a decider that sees only observations "
-                "achieves, so they are never ranked with the rows above.",
-                "",
-            ]
+            out += multi_leaderboard.upper_bounds_heading()
             out += _rows_table(bounds, ranked=False) + [""]
         out += ["### Table I, every metric", ""]
         cols = [(md(row.name), row.results.summary) for row in ranked]

@@ -11,6 +11,7 @@ row shows its gap to the best of them in points of joint success.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from overtakezoo.benchmark.leaderboard import fresh
@@ -62,16 +63,16 @@ def _joint_success(row: Row) -> float:
     return row.results.summary["joint"]["all_succeed"]["value"] or 0.0
 
 
-def gap_points(row: Row, bounds: list[Row]) -> float | None:
+def gap_points(row: Row, bounds: Sequence[Row]) -> float | None:
     """How many points of joint success the best upper bound is above ``row`` (None without a bound)."""
     return round(100 * (max(map(_joint_success, bounds)) - _joint_success(row)), 1) if bounds else None
 
 
-def entry(row: Row, policy_entry: dict[str, Any], bounds: list[Row] = ()) -> dict[str, Any]:
+def entry(row: Row, policy_entry: dict[str, Any], bounds: Sequence[Row] = ()) -> dict[str, Any]:
     s = row.results.summary
     return {
         **policy_entry,
-        "gap_to_bound_points": None if row.privileged else gap_points(row, list(bounds)),
+        "gap_to_bound_points": None if row.privileged else gap_points(row, bounds),
         "num_avs": row.results.num_avs,
         "joint": {k: s["joint"][k]["value"] for k in _JOINT},
         "per_agent": {
@@ -83,7 +84,7 @@ def entry(row: Row, policy_entry: dict[str, Any], bounds: list[Row] = ()) -> dic
 GAP_LABEL = "gap to upper bound (points)"
 
 
-def _rows_table(rows: list[Row], policy_cell: Any, bounds: list[Row] = (), ranked: bool = True) -> list[str]:
+def _rows_table(rows: list[Row], policy_cell: Any, bounds: Sequence[Row] = (), ranked: bool = True) -> list[str]:
     gap = ranked and bool(bounds)
     head = [
         *(["rank"] if ranked else []),
@@ -104,7 +105,7 @@ def _rows_table(rows: list[Row], policy_cell: Any, bounds: list[Row] = (), ranke
             md_link(row.name, row.rel),
             policy_cell(row),
             *[format_metric(r.summary["joint"][k], *_JOINT[k][1:]) for k in JOINT_COLUMNS],
-            *([f"{gap_points(row, list(bounds)):.1f}"] if gap else []),
+            *([f"{gap_points(row, bounds):.1f}"] if gap else []),
             *[format_metric(r.summary[k], kind, unit) for k, kind, unit in AGENT_COLUMNS],
             fresh.cell(r),
             md(r.meta["package"]["version"]),
@@ -196,14 +197,7 @@ def markdown(
         out += _rows_table(ranked, policy_cell, bounds) if ranked else ["No ranked submissions yet."]
         out += ["", md_image("joint success vs any crash", f"{name}.png"), ""]
         if bounds:
-            out += [
-                "## Upper bounds (privileged deciders, not ranked)",
-                "",
-                "These deciders read the simulator's state, the future included, and plan every AV of the road "
-                "together (`privileged = True`): they show what joint decisions could reach, not what AVs that "
-                "see only their own observations achieve, so they are never ranked with the rows above.",
-                "",
-            ]
+            out += upper_bounds_heading(", and plan every AV of the road together")
             out += _rows_table(bounds, policy_cell, ranked=False) + [""]
         out += [
             "### Per AV index",
@@ -230,6 +224,19 @@ def markdown(
         out.append("")
     out += safety_section(shown, "## Safety (per AV, pooled)")
     return "\n".join(out + flagged_section(flagged, policy_cell) + stale_section(stale))
+
+
+def upper_bounds_heading(how: str = "") -> list[str]:
+    """The heading of a suite page's privileged rows (single-ego and multi-agent alike); ``how`` adds
+    what else such a decider does."""
+    return [
+        "## Upper bounds (privileged deciders, not ranked)",
+        "",
+        f"These deciders read the simulator's state, the future included{how} (`privileged = True`): they "
+        "show what decisions could reach, not what a decider that sees only observations achieves, so they "
+        "are never ranked with the rows above.",
+        "",
+    ]
 
 
 FRESH_LABEL = "fresh draw: success / crash (scenarios)"

@@ -10,15 +10,11 @@ torch thread the run is deterministic on one machine (the same policy.onnx bytes
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from guide_cli import RULE_FSM_TABLE1, overtakezoo
+from guide_cli import RULE_FSM_TABLE1, overtakezoo, run_example
 
 pytest.importorskip("torch")
 pytest.importorskip("onnx")
@@ -31,19 +27,7 @@ EXAMPLE = REPO / "examples" / "cleanrl_ppo.py"
 
 
 def test_cleanrl_guide_trains_past_rule_fsm_then_submits_and_verifies(tmp_path):
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    t0 = time.perf_counter()
-    # As the guide writes it (from a directory of the user's own).
-    done = subprocess.run(
-        [sys.executable, str(EXAMPLE), "--seed", "0", "--out", "runs/cleanrl-ppo"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=1800,
-    )
-    total_min = (time.perf_counter() - t0) / 60
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    total_min = run_example(EXAMPLE, "--seed", "0", "--out", "runs/cleanrl-ppo", cwd=tmp_path, timeout=1800)
     run = tmp_path / "runs" / "cleanrl-ppo"
     policy = run / "policy.onnx"
     assert policy.is_file()

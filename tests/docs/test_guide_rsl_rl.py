@@ -5,14 +5,11 @@ to the guide's target, submits to a leaderboard and verifies there."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from guide_cli import run_example
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.results.results import Results
 
@@ -24,19 +21,9 @@ def test_rsl_rl_guide_trains_exports_evaluates_submits_and_verifies(tmp_path, ca
     pytest.importorskip("rsl_rl")
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    t0 = time.perf_counter()
-    # As the guide writes it (from a directory of the user's own).
-    run = subprocess.run(
-        [sys.executable, str(EXAMPLE), "--iterations", "60", "--seed", "0", "--out", "runs/rsl-ppo"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=1800,
+    minutes = run_example(
+        EXAMPLE, "--iterations", "60", "--seed", "0", "--out", "runs/rsl-ppo", cwd=tmp_path, timeout=1800
     )
-    minutes = (time.perf_counter() - t0) / 60
-    assert run.returncode == 0, run.stderr[-3000:]
     policy = tmp_path / "runs" / "rsl-ppo" / "policy.onnx"
     assert policy.is_file()
     print(f"training + export: {minutes:.1f} min")

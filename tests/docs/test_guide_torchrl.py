@@ -11,15 +11,11 @@ and verifies there.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from guide_cli import overtakezoo
+from guide_cli import overtakezoo, run_example
 
 pytestmark = pytest.mark.slow
 
@@ -40,19 +36,7 @@ def test_torchrl_guide_trains_past_fuzzy_on_duel_then_submits_and_verifies(tmp_p
     for extra in ("torchrl", "onnx", "onnxruntime"):  # (here, not at import: a deselected test is no skip)
         pytest.importorskip(extra)
     assert "tests/docs/test_guide_torchrl.py" in (REPO / GUIDE).read_text()
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    t0 = time.perf_counter()
-    # As the guide writes it (from a directory of the user's own).
-    done = subprocess.run(
-        [sys.executable, str(EXAMPLE), "--seed", "0", "--out", "runs/torchrl"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=2400,
-    )
-    total_min = (time.perf_counter() - t0) / 60
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    total_min = run_example(EXAMPLE, "--seed", "0", "--out", "runs/torchrl", cwd=tmp_path, timeout=2400)
     run = tmp_path / "runs" / "torchrl"
     policy = run / "policy.onnx"
     assert policy.is_file()
