@@ -247,3 +247,51 @@ def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None) -> 
     if name == "torch":
         return TorchBackend(device, dtype)
     raise ValueError(f"backend: {name!r} is not 'numpy' or 'torch'")
+
+
+def to_host(value: Any) -> Any:
+    """``value`` with every torch tensor in it (also inside tuples, lists, dicts and dataclasses such
+    as StepResult) turned into a numpy array; numpy arrays and everything else pass unchanged."""
+    if type(value).__module__.startswith("torch"):  # (a tensor; checked without importing torch)
+        return value.detach().cpu().numpy()
+    if isinstance(value, dict):
+        return {k: to_host(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return type(value)(to_host(v) for v in value)
+    if hasattr(value, "__dataclass_fields__"):
+        import dataclasses
+
+        return dataclasses.replace(value, **{f.name: to_host(getattr(value, f.name)) for f in dataclasses.fields(value)})
+    return value
+
+
+NUMPY_DEVICE = "cpu"  # the default device: the numpy core on the CPU
+
+
+def core_backend(device: str | None = None, backend: str | None = None) -> dict[str, Any]:
+    """The core's ``backend`` and ``device`` keywords for a command's ``--device`` / ``--backend``:
+    ``cpu`` is the numpy core (the default, the reference bits); ``cuda`` / ``cuda:N`` is the torch
+    core on that GPU (float64: the same per-scenario results as numpy); ``--backend torch`` with
+    ``--device cpu`` runs the torch core on the CPU (how the GPU path is tested without a GPU).
+    Raises ValueError with one line for a device that is not there."""
+    device = (device or NUMPY_DEVICE).strip().lower()
+    if not (device == "cpu" or device == "cuda" or (device.startswith("cuda:") and device[5:].isdigit())):
+        raise ValueError(f"--device {device!r}: expected cpu, cuda or cuda:N")
+    backend = backend or ("numpy" if device == "cpu" else "torch")
+    if backend not in ("numpy", "torch"):
+        raise ValueError(f"--backend {backend!r}: expected numpy or torch")
+    if backend == "numpy":
+        if device != "cpu":
+            raise ValueError(f"--device {device}: the numpy core runs on the CPU; use --backend torch (or leave it out)")
+        return {"backend": "numpy", "device": None}
+    try:
+        import torch
+    except ImportError:
+        raise ValueError("--backend torch needs torch (pip install 'overtakezoo[train]')") from None
+    if device != "cpu":
+        if not torch.cuda.is_available():
+            raise ValueError(f"--device {device}: torch sees no CUDA device on this machine (torch {torch.__version__})")
+        index = int(device[5:]) if ":" in device else 0
+        if index >= torch.cuda.device_count():
+            raise ValueError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return {"backend": "torch", "device": device}

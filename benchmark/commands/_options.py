@@ -88,6 +88,36 @@ def add_decider_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_device_options(p: argparse.ArgumentParser, what: str = "the simulation") -> None:
+    """``--device`` / ``--backend``: where the core runs (envs/backend.py ``core_backend``)."""
+    p.add_argument(
+        "--device",
+        default="cpu",
+        metavar="DEV",
+        help=f"where {what} runs: cpu (the numpy core, the default) or cuda / cuda:N (the torch core on "
+        "that GPU, float64: the same per-scenario results as the CPU, so its rows verify anywhere)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("numpy", "torch"),
+        default=None,
+        help="the core's array library (default: numpy on cpu, torch on cuda); --backend torch "
+        "--device cpu runs the GPU path on the CPU",
+    )
+
+
+def device_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The core's ``backend`` / ``device`` keywords from ``--device`` / ``--backend``; a device that is
+    not there is a UserError."""
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.envs.backend import core_backend
+
+    try:
+        return core_backend(args.device, args.backend)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
 def decider_from_args(args: argparse.Namespace, config: Any = None) -> Any:
     if args.policy is not None:
         from overtakezoo.benchmark.run.policy import load_policy

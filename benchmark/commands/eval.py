@@ -6,7 +6,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_decider_options, add_parser, decider_from_args
+from overtakezoo.benchmark.commands._options import (
+    add_decider_options,
+    add_device_options,
+    add_parser,
+    decider_from_args,
+    device_from_args,
+)
 from overtakezoo.envs.io import check_writable
 
 
@@ -29,6 +35,7 @@ def register(subparsers: Any) -> None:
             "overtakezoo eval --suite table1 --policy model.zip            # Stable-Baselines3 ([sb3] extra)",
             "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
             "overtakezoo eval --suite table1 --decider shielded:dqn         # dqn behind the RSS shield",
+            "overtakezoo eval --suite table1 --decider dqn --device cuda     # the core on a GPU",
             "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards",
         ],
     )
@@ -66,6 +73,7 @@ def register(subparsers: Any) -> None:
         "and merge them into one results file; needs the [ray] extra",
     )
     p.add_argument("--shards", type=int, default=4, help="with --ray: number of shards (default 4)")
+    add_device_options(p, "the suite's simulation")
     p.set_defaults(handler=run)
 
 
@@ -79,14 +87,16 @@ def run(args: Any) -> int:
     shard_bounds(suite.count, shard)  # validates the shard against the suite
     if args.chunk_size < 1:
         raise UserError(f"--chunk-size {args.chunk_size}: must be >= 1")
+    on = device_from_args(args)  # (a missing GPU is refused before anything runs)
     decider = decider_from_args(args, suite.config)
     suffix = f".shard-{shard[0]}-of-{shard[1]}" if shard else ""
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
     if args.ray is not None:
-        if shard or args.archive or args.no_safety:
+        if shard or args.archive or args.no_safety or on["backend"] != "numpy":
             raise UserError(
-                "--ray runs every shard itself: it cannot be combined with --shard, --archive or --no-safety"
+                "--ray runs every shard itself: it cannot be combined with --shard, --archive, --no-safety "
+                "or --device / --backend"
             )
         from overtakezoo.benchmark.run.distributed import parse_address, run_suite_ray
 
@@ -106,6 +116,7 @@ def run(args: Any) -> int:
             chunk_size=args.chunk_size,
             progress=not args.no_progress,
             safety=not args.no_safety,
+            **on,
         )
         return _report(results, suite, decider, out)
     # the MCAP archive of every episode (benchmark/archive/recorder.py)
@@ -131,6 +142,7 @@ def run(args: Any) -> int:
                 progress=not args.no_progress,
                 recorder=recorder,
                 safety=not args.no_safety,
+                **on,
             )
     except KeyboardInterrupt:
         print(f"interrupted: {args.archive} holds the {recorder.episodes} whole episodes", file=sys.stderr)

@@ -32,6 +32,8 @@ from overtakezoo.benchmark.results.schema import recorded_keys
 from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
 from overtakezoo.benchmark.safety import SafetyMonitor
 from overtakezoo.envs import OvertakeCore
+from overtakezoo.envs.backend import core_backend
+from overtakezoo.envs.host import host_core
 from overtakezoo.envs.hold import hold_steps, run_to_end
 from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
 from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
@@ -46,6 +48,8 @@ def run_suite(
     recorder: Any = None,
     limit: int | None = None,
     safety: bool = True,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> Results:
     """Evaluate ``decider`` on ``suite`` (or its shard ``(i, k)``, 0-based) and return the results.
 
@@ -53,6 +57,8 @@ def run_suite(
     step_result)`` after every step and ``end_chunk(core)``; its creator closes it. ``limit`` keeps
     only the first ``limit`` scenarios of the (shard's) range. ``safety`` (default on) records the
     safety metrics (benchmark/safety, docs/metrics.md); off, the file has only the older arrays.
+    ``device`` / ``backend`` pick the core (envs/backend.py ``core_backend``: the numpy core by
+    default; ``cuda`` runs the torch core on a GPU in float64, with the same per-scenario results).
     """
     start, stop = shard_bounds(suite.count, shard)
     scenarios = suite.scenarios(shard)
@@ -61,7 +67,9 @@ def run_suite(
         stop = min(stop, start + limit)
         scenarios = scenarios.take(slice(0, stop - start))
     t0, started = time.perf_counter(), datetime.now(UTC)
-    per, total_steps = _run(suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder, safety)
+    per, total_steps = _run(
+        suite, decider, scenarios, np.arange(start, stop), chunk_size, progress, recorder, safety, device, backend
+    )
     timing = {
         "wall_time_s": round(time.perf_counter() - t0, 3),
         "started": started.isoformat(timespec="seconds"),
@@ -73,7 +81,13 @@ def run_suite(
 
 
 def run_indices(
-    suite: Suite, decider: Any, indices: np.ndarray, chunk_size: int = CHUNK_SIZE, safety: bool = True
+    suite: Suite,
+    decider: Any,
+    indices: np.ndarray,
+    chunk_size: int = CHUNK_SIZE,
+    safety: bool = True,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-scenario arrays (rounded as results files store them) for the suite's scenarios ``indices``.
 
@@ -82,17 +96,25 @@ def run_indices(
     indices = np.asarray(indices, dtype=np.int64)
     if indices.size and not (0 <= indices.min() and indices.max() < suite.count):
         raise ValueError(f"scenario indices must lie in [0, {suite.count})")
-    return run_scenarios(suite, decider, suite.scenarios().take(indices), indices, chunk_size, safety)
+    return run_scenarios(suite, decider, suite.scenarios().take(indices), indices, chunk_size, safety, device, backend)
 
 
 def run_scenarios(
-    suite: Suite, decider: Any, scenarios: Any, labels: np.ndarray, chunk_size: int = CHUNK_SIZE, safety: bool = True
+    suite: Suite,
+    decider: Any,
+    scenarios: Any,
+    labels: np.ndarray,
+    chunk_size: int = CHUNK_SIZE,
+    safety: bool = True,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-scenario arrays of ``decider`` on ``scenarios`` (any batch drawn from ``suite``'s distribution,
     run with its settings; ``labels`` name the rows in errors): what verify runs on a public sample, a
     fresh draw and its own draw at once."""
     _check_multi_av(suite, scenarios, decider, None)
-    return _run(suite, decider, scenarios, np.asarray(labels, np.int64), chunk_size, False, None, safety)[0]
+    labels = np.asarray(labels, np.int64)
+    return _run(suite, decider, scenarios, labels, chunk_size, False, None, safety, device, backend)[0]
 
 
 def _check_multi_av(suite: Suite, scenarios: Any, decider: Any, recorder: Any) -> None:
@@ -124,10 +146,16 @@ def _run(
     progress: bool,
     recorder: Any,
     safety: bool = True,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> tuple[dict[str, np.ndarray], int]:
     """Step ``scenarios`` (suite rows ``index``) in chunks; returns (per-scenario arrays, steps)."""
     if chunk_size < 1:
         raise ValueError("chunk_size must be >= 1")
+    try:
+        on = core_backend(device, backend)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     cfg = suite.config
     held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
@@ -150,7 +178,7 @@ def _run(
     try:
         for lo in range(0, scenarios.num, chunk_size):
             chunk = scenarios.take(slice(lo, lo + chunk_size))
-            core = OvertakeCore(cfg)
+            core = host_core(OvertakeCore(cfg, **on))  # (numpy: the core itself; torch: read from the host)
             obs = core.reset(chunk)
             decider.reset()
             if getattr(decider, "privileged", False):

@@ -1,0 +1,77 @@
+"""`--device` / `--backend`: the torch core (the GPU path, here on the CPU) gives the numpy core's
+per-scenario results bit for bit, so a row measured on a GPU verifies on a CPU; a device that is not
+there is one error line before anything runs."""
+
+import json
+
+import numpy as np
+import pytest
+from test_benchmark_cli import one_line_error
+
+from overtakezoo.benchmark.cli import main
+from overtakezoo.benchmark.run.policy import load_zoo
+from overtakezoo.benchmark.run.runner import run_suite
+from overtakezoo.envs.backend import core_backend
+from overtakezoo.envs.suites import load_suite
+
+torch = pytest.importorskip("torch")
+
+
+@pytest.mark.parametrize(
+    "suite_name, decider_name, count",
+    [
+        ("table1", "rule-fsm", 300),
+        ("table1-reactive", "dqn", 300),  # a learned member; reactive NPCs
+        ("dense", "fuzzy", 200),  # more oncoming cars, NPC-NPC contacts
+        ("table1", "oracle", 30),  # privileged: it clones and steps the (torch) core itself
+        ("duel", "ps-dqn", 150),  # two AVs per road (self-play)
+    ],
+)
+def test_the_torch_core_gives_the_numpy_results(suite_name, decider_name, count):
+    suite = load_suite(suite_name)
+    runs = {}
+    for backend in ("numpy", "torch"):
+        decider = load_zoo(decider_name, suite.config)
+        runs[backend] = run_suite(suite, decider, limit=count, progress=False, backend=backend, device="cpu")
+    ref, got = runs["numpy"], runs["torch"]
+    assert set(got.per) == set(ref.per)
+    for key, value in ref.per.items():
+        np.testing.assert_array_equal(got.per[key], value, err_msg=key)
+    assert got.summary == ref.summary
+    assert ref.per["outcome"].size == count * suite.num_avs
+
+
+def test_eval_device_flags_write_the_same_file(tmp_path, capsys):
+    out = {}
+    for backend in ("numpy", "torch"):
+        path = tmp_path / f"{backend}.json"
+        argv = ["eval", "--suite", "table1", "--decider", "fuzzy", "--shard", "3/20", "--no-progress"]
+        assert main([*argv, "--backend", backend, "--out", str(path)]) == 0
+        out[backend] = json.loads(path.read_text())
+    capsys.readouterr()
+    for data in out.values():
+        data.pop("timing")
+    assert out["torch"] == out["numpy"]
+
+
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--device", "tpu"], "--device 'tpu': expected cpu, cuda or cuda:N"),
+        (["--device", "cuda", "--backend", "numpy"], "the numpy core runs on the CPU"),
+        (["--device", "cuda:99"], "--device cuda:99"),
+    ],
+)
+def test_a_device_that_is_not_there_is_one_line(tmp_path, capsys, flags, needle):
+    out = tmp_path / "r.json"
+    err = one_line_error(capsys, ["eval", "--suite", "table1", "--decider", "fuzzy", "--out", str(out), *flags])
+    assert needle in err
+    assert not out.exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a GPU")
+def test_cuda_without_a_gpu_says_so(capsys):
+    with pytest.raises(ValueError, match="torch sees no CUDA device"):
+        core_backend("cuda")
+    err = one_line_error(capsys, ["eval", "--suite", "table1", "--decider", "fuzzy", "--device", "cuda"])
+    assert "no CUDA device" in err
