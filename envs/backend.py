@@ -261,7 +261,8 @@ def to_host(value: Any) -> Any:
     if hasattr(value, "__dataclass_fields__"):
         import dataclasses
 
-        return dataclasses.replace(value, **{f.name: to_host(getattr(value, f.name)) for f in dataclasses.fields(value)})
+        fields = {f.name: to_host(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        return dataclasses.replace(value, **fields)
     return value
 
 
@@ -282,7 +283,7 @@ def core_backend(device: str | None = None, backend: str | None = None) -> dict[
         raise ValueError(f"--backend {backend!r}: expected numpy or torch")
     if backend == "numpy":
         if device != "cpu":
-            raise ValueError(f"--device {device}: the numpy core runs on the CPU; use --backend torch (or leave it out)")
+            raise ValueError(f"--device {device}: the numpy core runs on the CPU; use --backend torch or leave it out")
         return {"backend": "numpy", "device": None}
     try:
         import torch
@@ -290,7 +291,7 @@ def core_backend(device: str | None = None, backend: str | None = None) -> dict[
         raise ValueError("--backend torch needs torch (pip install 'overtakezoo[train]')") from None
     if device != "cpu":
         if not torch.cuda.is_available():
-            raise ValueError(f"--device {device}: torch sees no CUDA device on this machine (torch {torch.__version__})")
+            raise ValueError(f"--device {device}: torch {torch.__version__} sees no CUDA device on this machine")
         index = int(device[5:]) if ":" in device else 0
         if index >= torch.cuda.device_count():
             raise ValueError(f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)")

@@ -33,8 +33,8 @@ from overtakezoo.benchmark.run.sandbox import PolicyFailure, check_modes
 from overtakezoo.benchmark.safety import SafetyMonitor
 from overtakezoo.envs import OvertakeCore
 from overtakezoo.envs.backend import core_backend
-from overtakezoo.envs.host import host_core
 from overtakezoo.envs.hold import hold_steps, run_to_end
+from overtakezoo.envs.host import host_core
 from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
 from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
 
