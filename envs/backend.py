@@ -45,6 +45,7 @@ class Backend(Protocol):
     def any(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
     def all(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
     def sum(self, a: Array, /, axis: builtins.int = 0) -> Array: ...
+    def cumsum(self, a: Array, /) -> Array: ...
     def concatenate(self, xs: Any, /, axis: builtins.int = 0) -> Array: ...
     def stack(self, xs: Any, /, axis: builtins.int = 0) -> Array: ...
     def zeros(self, shape: Any, dtype: Any = None) -> Array: ...
@@ -57,6 +58,14 @@ class Backend(Protocol):
     def nonzero(self, mask: Array) -> Array: ...
     def nonzero2(self, mask: Array) -> tuple[Array, ...]: ...
     def to_numpy(self, x: Any) -> np.ndarray: ...
+    def scatter_add(self, out: Array, index: Array, values: Array) -> None: ...
+
+    # Sync-free stepping (a GPU): ``some(mask)`` is the guard of a branch that only saves work when
+    # ``mask`` is all False; a sync-free backend answers True without reading the mask (reading it
+    # would wait for the device), and the branch computes what skipping it would have given.
+    sync_free: builtins.bool
+
+    def some(self, mask: Array, /) -> builtins.bool: ...
 
 
 class NumpyBackend:
@@ -80,10 +89,16 @@ class NumpyBackend:
     any = staticmethod(np.logical_or.reduce)
     all = staticmethod(np.logical_and.reduce)
     sum = staticmethod(np.add.reduce)
+    cumsum = staticmethod(np.cumsum)
     concatenate = staticmethod(np.concatenate)
+    sync_free = False
 
-    def __init__(self, device: Any = None, dtype: Any = None) -> None:
+    def __init__(self, device: Any = None, dtype: Any = None, sync_free: Any = None) -> None:
         self.float = np.dtype(dtype or np.float64).type
+
+    @staticmethod
+    def some(mask: np.ndarray) -> bool:
+        return bool(mask.any())
 
     def zeros(self, shape: Any, dtype: Any = None) -> np.ndarray:
         return np.zeros(shape, dtype or self.float)
@@ -122,18 +137,25 @@ class NumpyBackend:
     def to_numpy(self, x: Any) -> np.ndarray:
         return x
 
+    @staticmethod
+    def scatter_add(out: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+        """``out[index[i, j], j] += values[i, j]`` (repeated indices add up)."""
+        np.add.at(out, (index, np.arange(out.shape[1])[None, :]), values)
+
 
 class TorchBackend:
     """The same namespace over torch tensors on ``device`` (float64 by default, so results match
-    numpy to rounding; float32 trades that for GPU speed)."""
+    numpy to rounding; float32 trades that for GPU speed). ``sync_free`` (default: on a GPU) never
+    reads a device value on the host inside a step (see :meth:`some`)."""
 
     name = "torch"
 
-    def __init__(self, device: Any = None, dtype: Any = None) -> None:
+    def __init__(self, device: Any = None, dtype: Any = None, sync_free: Any = None) -> None:
         import torch
 
         self.torch = torch
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.sync_free = bool(self.device.type != "cpu" if sync_free is None else sync_free)
         self.float = dtype or torch.float64
         self.int, self.int8, self.bool = torch.int64, torch.int8, torch.bool
         self.cos, self.sin, self.tan, self.arctan = torch.cos, torch.sin, torch.tan, torch.atan
@@ -180,6 +202,9 @@ class TorchBackend:
     def sum(self, a: Any, axis: int = 0) -> Any:
         return self.torch.sum(a, dim=axis)
 
+    def cumsum(self, a: Any) -> Any:
+        return self.torch.cumsum(a, dim=0)
+
     def concatenate(self, xs: Any, axis: int = 0) -> Any:
         return self.torch.cat([self._t(x) for x in xs], dim=axis)
 
@@ -217,6 +242,9 @@ class TorchBackend:
     def copy(self, x: Any) -> Any:
         return x.clone()
 
+    def some(self, mask: Any) -> bool:
+        return True if self.sync_free else bool(mask.any())
+
     def nonzero(self, mask: Any) -> Any:
         return self.torch.nonzero(mask).flatten()
 
@@ -225,6 +253,9 @@ class TorchBackend:
 
     def to_numpy(self, x: Any) -> np.ndarray:
         return x.detach().cpu().numpy() if isinstance(x, self.torch.Tensor) else np.asarray(x)
+
+    def scatter_add(self, out: Any, index: Any, values: Any) -> None:
+        out.scatter_add_(0, index, values)
 
     def _dtype(self, dtype: Any) -> Any:
         t = self.torch
@@ -241,11 +272,11 @@ class TorchBackend:
         return mapping.get(dtype, dtype)
 
 
-def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None) -> Backend:
+def make_backend(name: str = "numpy", device: Any = None, dtype: Any = None, sync_free: Any = None) -> Backend:
     if name == "numpy":
         return NumpyBackend(device, dtype)
     if name == "torch":
-        return TorchBackend(device, dtype)
+        return TorchBackend(device, dtype, sync_free)
     raise ValueError(f"backend: {name!r} is not 'numpy' or 'torch'")
 
 

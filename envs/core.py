@@ -108,12 +108,17 @@ class OvertakeCore:
         backend: str = "numpy",
         device: Any = None,
         dtype: Any = None,
+        bank: Scenarios | None = None,
+        sync_free: bool | None = None,
     ) -> None:
         self.cfg = config or EnvConfig()
         self.auto_reset = auto_reset
         self.source = source
         self.rng = np.random.default_rng(seed)
-        self.xp = make_backend(backend, device, dtype)
+        self.xp = make_backend(backend, device, dtype, sync_free)
+        if bank is not None and (not auto_reset or source is not None or bank.num_avs != 1 or not bank.num):
+            raise ValueError("bank: auto-reset from a bank needs auto_reset=True, no source and single-AV scenarios")
+        self.bank = bank
         self.table = ModeTable.from_config(self.cfg.planner).to(self.xp)
         self.last_plan: Plan | None = None
         self.scen: Scenarios | None = None
@@ -161,7 +166,11 @@ class OvertakeCore:
         if self.auto_reset:  # auto-reset rewrites rows of the batch in place: keep a private copy
             scenarios = Scenarios.from_arrays({k: v.copy() for k, v in scenarios.to_arrays().items()})
         self.scen = scenarios
+        if self.bank is not None:
+            self._setup_bank(scenarios)
         self._set_scenarios(scenarios)
+        if self.bank is not None:
+            self._lane_mates = self._lane_mates or self._bank_lane_mates
         self._start_rows(xp.arange(n), scenarios)
         self.last_plan = None
         self._step_geo: dict[str, Any] | None = None
@@ -260,6 +269,68 @@ class OvertakeCore:
         self.episode_steps[cols] = 0
         for key, arr in self.stats.items():
             arr[cols] = _STAT_INIT[key]
+
+    # ---------------------------------------------------------- scenario bank
+    def _setup_bank(self, batch: Scenarios) -> None:
+        """The bank's scenarios in the backend's layout, once: the constants (_constants) and the
+        start state of every entry, so that a restart is a gather and a masked write (no host)."""
+        xp, bank = self.xp, self.bank
+        assert bank is not None
+        if batch.num_avs != 1:
+            raise ValueError("bank: auto-reset from a bank runs single-AV batches")
+        m = max(bank.num_npcs, batch.num_npcs)
+        if batch.num_npcs < m:
+            raise ValueError(
+                f"bank: its scenarios have {bank.num_npcs} NPC slots, more than the batch's {batch.num_npcs}"
+            )
+        bank = bank.pad_npcs(m)
+        ego, npc = self._constants(bank)
+        behind_ego = (bank.npc_lane == 0) & (bank.npc_s < bank.ego_s[:, None])
+        start = {
+            "x": xp.asarray(bank.ego_s, xp.float),
+            "y": xp.asarray(bank.ego_d, xp.float),
+            "v": xp.asarray(bank.ego_v, xp.float),
+            "_npc_s": xp.batch_last(bank.npc_s, xp.float),
+            "_npc_v": xp.batch_last(bank.npc_v, xp.float),
+            "_npc_aware": xp.batch_last(np.where(behind_ego, np.inf, 0.0), xp.float)[None],
+        }
+        self._bank = {"ego": ego, "npc": npc, "start": start}
+        self._bank_lane_mates = bool(npc["lane_mates"].any())
+        self._bank_next = xp.zeros((), xp.int)  # the next entry to start (a device scalar: never read on the host)
+        self.bank_row = xp.full(batch.num, -1, xp.int)  # each road's bank entry (-1: the reset batch's own)
+
+    def _restart_from_bank(self, ended: Any) -> None:
+        """Start the next bank entries (in order, cycling) in the roads ``ended`` (N,) bool, by masked
+        writes: no index list, no host read, so the step stays sync-free. ``self.scen`` keeps the
+        reset batch; ``bank_row`` says which entry each road now runs."""
+        xp, bank = self.xp, self._bank
+        k = self.bank.num if self.bank is not None else 1
+        idx = (self._bank_next + xp.cumsum(xp.astype(ended, xp.int)) - 1) % k  # (N,): ended rows in order
+        self._bank_next = (self._bank_next + xp.sum(xp.astype(ended, xp.int))) % k
+
+        def put(old: Any, new: Any) -> Any:
+            return xp.astype(xp.where(ended, new, old), old.dtype)
+
+        for key, value in bank["ego"].items():
+            self._ego[key] = put(self._ego[key], value[idx])
+        for key, value in bank["npc"].items():
+            self._npc[key] = put(self._npc[key], value[..., idx])
+        self._sc = self._npc
+        for key, value in bank["start"].items():
+            setattr(self, key, put(getattr(self, key), value[..., idx]))
+        for name in ("psi", "a", "steer", "yaw_rate", "t", "episode_return", "_npc_a"):
+            setattr(self, name, put(getattr(self, name), 0.0))
+        for name in ("_npc_boosted", "_npc_crashed", "done"):
+            setattr(self, name, put(getattr(self, name), False))
+        for name in ("mode", "rollout", "episode_steps"):
+            setattr(self, name, put(getattr(self, name), 0))
+        for name in ("crash_npc", "crash_lane", "crash_av", "_npc_leader"):
+            setattr(self, name, put(getattr(self, name), -1))
+        self.outcome = put(self.outcome, RUNNING)
+        self.stats = {key: put(value, _STAT_INIT[key]) for key, value in self.stats.items()}
+        if self.last_plan is not None:
+            self.last_plan.blocked = xp.where(ended[:, None], False, self.last_plan.blocked)
+        self.bank_row = put(self.bank_row, idx)
 
     def _replace_rows(self, rows: Any, fresh: Scenarios) -> None:
         """Put ``fresh`` scenarios into roads ``rows`` (auto-reset) without touching other roads."""
@@ -401,7 +472,11 @@ class OvertakeCore:
         finished = terminated | truncated
         obs = self.observe(geo)
         final_obs = None
-        if self.auto_reset and finished.any():
+        if self.bank is not None:  # sync-free: every step, masked (the rows that did not end keep theirs)
+            final_obs, ended = obs, self.done
+            self._restart_from_bank(ended)
+            obs = self.xp.where(ended[:, None], self.observe(), obs)
+        elif self.auto_reset and finished.any():
             final_obs = obs  # (an AV that finished while its road runs on keeps this observation)
             ended = self._ended_roads()
             if ended.any():
@@ -420,14 +495,14 @@ class OvertakeCore:
         modes = xp.asarray(modes, xp.int).reshape(-1)
         if modes.shape[0] != self.num:
             raise ValueError(f"expected {self.num} modes, got {modes.shape[0]}")
-        if ((modes < 0) | (modes > 2)).any():
+        if not xp.sync_free and ((modes < 0) | (modes > 2)).any():  # (sync-free: the caller's modes are trusted)
             raise ValueError("modes must be 0 (follow), 1 (overtake) or 2 (abort)")
         active = ~self.done
         dt = cfg.dt * xp.astype(active, xp.float)  # finished rows are frozen: their clock does not run
         prev_mode = self.mode
         modes = xp.where(active, modes, prev_mode)
         switched = modes != prev_mode  # (all False on the usual step, where no row changes its mode)
-        if switched.any():
+        if xp.some(switched):
             # An abort counts only when it ends an overtake under way (from OVERTAKE): ABORT chosen
             # while following changes nothing the planner does, so it is no abort.
             self.stats["aborts"] += active & (modes == ABORT) & (prev_mode == OVERTAKE)
@@ -549,9 +624,9 @@ class OvertakeCore:
         """NPCs hit by an AV, and NPC-NPC contacts (both parties): a crashed NPC stops where it is."""
         xp, m = self.xp, self.num_npcs
         crashed = None
-        if m and hit.any():  # (the usual step: no AV touches anything)
+        if m and xp.some(hit):  # (the usual step: no AV touches anything)
             struck = xp.any(hit[:m].reshape(m, self.num_avs, -1), axis=1)
-            if struck.any():
+            if xp.some(struck):
                 crashed = self._npc_crashed | struck
         if self._lane_mates:  # (at most one NPC per lane in every road: no NPC-NPC contact)
             follower, lead = lane_contacts(
@@ -562,10 +637,14 @@ class OvertakeCore:
                 self._npc_leader,
                 self._npc["present"],
             )
-            if follower.any():
+            if xp.some(follower):
                 crashed = (self._npc_crashed if crashed is None else crashed) | follower
-                rows_j, rows_n = xp.nonzero2(follower)
-                crashed[lead[rows_j, rows_n], rows_n] = True  # the NPC it ran into
+                if xp.sync_free:  # NPC i is run into where some follower's lead is i: (M, M, N), no indices
+                    struck_lead = follower[:, None] & (lead[:, None] == xp.arange(m)[None, :, None])
+                    crashed = crashed | xp.any(struck_lead, axis=0)
+                else:
+                    rows_j, rows_n = xp.nonzero2(follower)
+                    crashed[lead[rows_j, rows_n], rows_n] = True  # the NPC it ran into
         if crashed is not None:
             self._npc_crashed, self._npc_crashed_any = crashed, True
 

@@ -32,7 +32,7 @@ def av_contacts(
     he_l, he_w, hn_l, hn_w = half_length, half_width, other_half_length, other_half_width
     if other_psi is None:
         hit = xp.abs(dx) <= hn_l + he_l * c + he_w * s
-        if not hit.any():  # (no vehicle overlaps the AV along the road: no contact, skip the other axes)
+        if not xp.some(hit):  # (no vehicle overlaps the AV along the road: no contact, skip the other axes)
             return hit
         hit &= xp.abs(dy) <= hn_w + he_l * s + he_w * c
         hit &= xp.abs(dx * cs + dy * sn) <= he_l + hn_l * c + hn_w * s

@@ -79,7 +79,7 @@ def npc_accelerations(
     if dx.shape[0] > 1:  # (the single AV is always on its road while it drives)
         in_lane &= avs["present"][:, None]
     aware = xp.where(in_lane, aware + dt, 0.0)
-    if in_lane.any():  # (no AV in any NPC's lane: every NPC keeps its lead)
+    if xp.some(in_lane):  # (no AV in any NPC's lane: every NPC keeps its lead)
         sees = in_lane & T["notices_ego"] & (aware >= T["reaction"]) & (av_gap < gap)
         if sees.shape[0] == 1:  # one AV (the single-ego road): no choice among AVs
             gap = xp.where(sees[0], av_gap[0], gap)
@@ -93,7 +93,7 @@ def npc_accelerations(
             lead_v = xp.where(closer, direction * av_v, lead_v)
     # A speed-up lead raises its desired speed once an AV draws level in the other lane.
     v_des = T["v_des"]
-    if T["speedup"].any():  # (no speed-up lead in the batch: nothing to boost)
+    if xp.some(T["speedup"]):  # (no speed-up lead in the batch: nothing to boost)
         beside = direction * dy < -half_wid  # the AV in the lane it passes through
         passing = T["speedup"] & beside & (direction * dx - half_len < nc.speedup_trigger)
         boosted = boosted | (xp.any(passing & avs["present"][:, None], axis=0) & (dt > 0))

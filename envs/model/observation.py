@@ -85,7 +85,7 @@ def observe(
     dist = xp.abs(dx)
     m = dist.shape[0]
     if m:
-        if view["lane_mates"][sel].any():
+        if xp.some(view["lane_mates"][sel]):
             j = xp.arange(m)
             before = (dist[None, :] < dist[:, None]) | (
                 (dist[None, :] == dist[:, None]) & (j[None, :, None] < j[:, None, None])
@@ -94,24 +94,37 @@ def observe(
             rank = xp.sum(before & seen[None, :] & same_lane, axis=1)  # (M, N)
         else:  # (at most one vehicle per lane in these rows, e.g. table1: each is first in its lane)
             rank = xp.zeros(dist.shape, xp.int)
-        vj, vn = xp.nonzero2(seen & (rank < k))
+        kept = seen & (rank < k)
+        base = EGO_FEATURES + 3 + r
+        if xp.sync_free:  # every vehicle's features, masked, added into its slot: no data-dependent shape
+            feats = _slot_features(xp.cos(psi), xp.sin(psi), dx, dy, v, v_along, lane_width, oc, xp)
+            slot = base + (lanes * k + xp.minimum(rank, k - 1)) * SLOT_FEATURES  # (M, N); unkept add zeros
+            index = slot[None] + xp.arange(SLOT_FEATURES)[:, None, None]
+            values = xp.astype(xp.where(kept[None], feats, 0.0), np.float32)
+            xp.scatter_add(out, index.reshape(SLOT_FEATURES * m, -1), values.reshape(SLOT_FEATURES * m, -1))
+            return rows_out
+        vj, vn = xp.nonzero2(kept)
         if len(vn):
-            # Relative position and velocity of the kept vehicles in the ego frame.
             c, s = xp.cos(psi)[vn], xp.sin(psi)[vn]
-            ddx, ddy, vv = dx[vj, vn], dy[vj, vn], v[vn]
-            rvx, rvy = v_along[vj, vn] - vv * c, -vv * s
-            feats = xp.stack(
-                [
-                    xp.ones_like(ddx),
-                    (ddx * c + ddy * s) / oc.position_scale,
-                    (-ddx * s + ddy * c) / lane_width[vn],
-                    (rvx * c + rvy * s) / oc.speed_scale,
-                    (-rvx * s + rvy * c) / oc.speed_scale,
-                ]
-            )
-            row = EGO_FEATURES + 3 + r + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
+            feats = _slot_features(c, s, dx[vj, vn], dy[vj, vn], v[vn], v_along[vj, vn], lane_width[vn], oc, xp)
+            row = base + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
             out[row[None, :] + xp.arange(SLOT_FEATURES)[:, None], vn[None, :]] = xp.astype(feats, np.float32)
     return rows_out
+
+
+def _slot_features(c: Any, s: Any, ddx: Any, ddy: Any, vv: Any, v_along: Any, lane_width: Any, oc: Any, xp: Any) -> Any:
+    """(5, ...) features of perceived vehicles: presence, position and velocity relative to the ego
+    in its frame (``c``, ``s``: cos and sin of its heading; ``vv``: its speed)."""
+    rvx, rvy = v_along - vv * c, -vv * s
+    return xp.stack(
+        [
+            xp.ones_like(ddx),
+            (ddx * c + ddy * s) / oc.position_scale,
+            (-ddx * s + ddy * c) / lane_width,
+            (rvx * c + rvy * s) / oc.speed_scale,
+            (-rvx * s + rvy * c) / oc.speed_scale,
+        ]
+    )
 
 
 INF = float("inf")

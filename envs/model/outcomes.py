@@ -56,7 +56,7 @@ def resolve(
     # Out of time, or out of road (a follower stuck behind the lead past the goal): truncation.
     timeout = going & ~success & ((t >= ego["time_up"]) | (x > ego["road_length"]))
     crash_npc, crash_lane, crash_av = prev.crash_npc, prev.crash_lane, prev.crash_av
-    if crash.any():  # (which vehicle was hit matters only in a crash)
+    if xp.some(crash):  # (which vehicle was hit matters only in a crash)
         hit_idx = xp.minimum(first_true(hit, 0, xp), max(hit.shape[0] - 1, 0))
         cols = xp.arange(x.shape[0])
         by_npc = crash & (hit_idx < num_npcs)

@@ -118,7 +118,7 @@ def _swept_conflict(y, v, offsets, dj, margin, lane_width, roll_in, tip, t_from,
 def _longitudinal_window(dx, rel_v, reach, xp):
     """Times [t0, t1] (M, N) during which |dx + rel_v t| < reach (constant relative speed)."""
     still = xp.abs(rel_v) < 1e-9
-    if not still.any():  # (every vehicle moves relative to the ego: no special case to mask)
+    if not xp.some(still):  # (every vehicle moves relative to the ego: no special case to mask)
         a, b = (-reach - dx) / rel_v, (reach - dx) / rel_v
         return xp.minimum(a, b), xp.maximum(a, b)
     safe_v = xp.where(still, 1.0, rel_v)
@@ -187,12 +187,12 @@ def plan(
     roll_in = cfg.roll_in_speed_factor * v + cfg.roll_in_margin
     blocked = lead_block  # (R, N)
     watch = visible & ~ahead_same
-    if watch.any():  # (no other perceived vehicle: nothing to predict)
+    if xp.some(watch):  # (no other perceived vehicle: nothing to predict)
         rel_v = npc["v_along"] * cfg.enable_prediction - v  # (M, N) NPC speed relative to the ego
         lon_t0, lon_t1 = _longitudinal_window(dx, rel_v, npc["lon_reach"], xp)
         t_from, t_to = xp.maximum(lon_t0, 0.0), xp.minimum(lon_t1, cfg.horizon_time)
         watch = watch & (t_from <= t_to)  # (M, N): longitudinally in reach in the horizon
-        if watch.any():
+        if xp.some(watch):
             swept = _swept_conflict(y, v, offsets, dj, lat_margin, w, roll_in, cfg.car_tip_margin, t_from, t_to, xp)
             blocked = lead_block | xp.any(swept & watch, axis=1)
 
@@ -203,7 +203,7 @@ def plan(
     transition = xp.abs(k - current_rollout) / n
     lateral = xp.sum(xp.where(ahead, npc["lat_cost"], 0.0), axis=1)
     longitudinal = xp.sum(xp.where(ahead & inside, 1.0 / xp.maximum(gap, 1.0), 0.0), axis=1)
-    everywhere = allowed.all()  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
+    everywhere = not xp.some(~allowed)  # (every rollout allowed in every row, e.g. all overtaking: nothing to mask)
     cost: Array = 0.0  # (R, N) once the first term is added
     for weight, term in (
         (cfg.weight_priority, priority),
@@ -222,7 +222,7 @@ def plan(
     keep = free[current_rollout, cols] & (cost[current_rollout, cols] <= free_cost[best, cols] + cfg.keep_margin)
     choice = xp.where(keep, current_rollout, best)
     none_free = ~xp.any(free, axis=0)
-    if none_free.any():  # (some row has every allowed rollout blocked)
+    if xp.some(none_free):  # (some row has every allowed rollout blocked)
         fallback = xp.where(mode == OVERTAKE, current_rollout, 0)
         choice = xp.where(none_free, fallback, choice)
     forced = table.rollout_id[mode]
@@ -233,7 +233,7 @@ def plan(
     # and drop back below the speed of the vehicle alongside (or keep going if it is behind us).
     v0 = xp.minimum(table.velocity[mode], ego["speed_limit"])
     aborting = mode == ABORT
-    if aborting.any():  # (no row aborting: no speed cap, the target stands)
+    if xp.some(aborting):  # (no row aborting: no speed cap, the target stands)
         beside = visible & same_dir & (xp.abs(dx) < npc["beside_reach"])
         waiting = aborting & xp.any(beside, axis=0)
         target_d = xp.where(waiting, y, target_d)
