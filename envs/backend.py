@@ -97,8 +97,8 @@ class NumpyBackend:
         self.float = np.dtype(dtype or np.float64).type
 
     @staticmethod
-    def some(mask: np.ndarray) -> bool:
-        return bool(mask.any())
+    def some(mask: np.ndarray) -> builtins.bool:
+        return builtins.bool(mask.any())
 
     def zeros(self, shape: Any, dtype: Any = None) -> np.ndarray:
         return np.zeros(shape, dtype or self.float)

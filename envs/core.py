@@ -170,7 +170,7 @@ class OvertakeCore:
             self._setup_bank(scenarios)
         self._set_scenarios(scenarios)
         if self.bank is not None:
-            self._lane_mates = self._lane_mates or self._bank_lane_mates
+            self._lane_mates: bool = self._lane_mates or self._bank_lane_mates
         self._start_rows(xp.arange(n), scenarios)
         self.last_plan = None
         self._step_geo: dict[str, Any] | None = None

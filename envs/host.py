@@ -37,7 +37,7 @@ class HostCore:
 
     def __setattr__(self, name: str, value: Any) -> None:
         # A host array written back (``sim.done |= retreat``) goes to the device in the dtype it had.
-        old = getattr(self._core, name, None)
+        old: Any = getattr(self._core, name, None)
         if isinstance(value, np.ndarray) and type(old).__module__.startswith("torch"):
             value = self._core.xp.torch.as_tensor(value, dtype=old.dtype, device=old.device)
         setattr(self._core, name, value)
