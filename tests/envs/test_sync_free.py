@@ -98,3 +98,29 @@ def test_bank_needs_auto_reset_and_single_av_scenarios():
         OvertakeCore(bank=bank)
     with pytest.raises(ValueError, match="no source"):
         OvertakeCore(auto_reset=True, bank=bank, source=lambda k, g: bank)
+
+
+def test_static_step_keeps_every_state_buffer_and_steps_like_the_core():
+    """What a CUDA graph replays: the step with its results copied back into the same tensors."""
+    from overtakezoo.envs.graph import StaticStep
+
+    dist = ScenarioDistribution(oncoming_count=2, follower_count=1, time_limit=6.0)
+    bank, batch = dist.sample(97, 3), dist.sample(64, 4)
+    ref = OvertakeCore(auto_reset=True, bank=bank)
+    dev = OvertakeCore(auto_reset=True, bank=bank, backend="torch", device="cpu", sync_free=True)
+    ref.reset(batch), dev.reset(batch)
+    modes = torch.ones(batch.num, dtype=torch.int64)
+    for _ in range(3):  # StaticStep's warm-up steps
+        ref.step(np.ones(batch.num, int))
+    static = StaticStep(dev, modes)
+    buffers = {name: id(value) for name, value in vars(dev).items() if isinstance(value, torch.Tensor)}
+    for t in range(300):
+        m = (np.arange(batch.num) + t) % 3
+        modes.copy_(torch.as_tensor(m))
+        got, want = static.step(), ref.step(m)
+        np.testing.assert_allclose(got.obs.numpy(), want.obs, atol=1e-5)
+        np.testing.assert_array_equal(got.terminated.numpy(), want.terminated)
+    assert {name: id(getattr(dev, name)) for name in buffers} == buffers
+    np.testing.assert_allclose(dev.x.numpy(), ref.x, atol=1e-9)
+    with pytest.raises(ValueError, match="sync-free torch core"):
+        StaticStep(ref, modes)
