@@ -156,7 +156,7 @@ class TorchBackend:
         self.torch = torch
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.sync_free = bool(self.device.type != "cpu" if sync_free is None else sync_free)
-        self._scalars: dict[tuple[type, Any], Any] = {}
+        self._scalars: dict[tuple[type, str], Any] = {}
         self.float = dtype or torch.float64
         self.int, self.int8, self.bool = torch.int64, torch.int8, torch.bool
         self.cos, self.sin, self.tan, self.arctan = torch.cos, torch.sin, torch.tan, torch.atan
@@ -169,7 +169,7 @@ class TorchBackend:
         if isinstance(x, bool | int | float):
             # A Python scalar becomes a cached 0-d tensor: made once by a fill on the device (no copy from
             # the host, which a CUDA graph capture forbids); floats follow the backend's float dtype.
-            key = (type(x), x)
+            key = (type(x), repr(x))  # (repr: NaN is one key)
             if key not in self._scalars:
                 dtype = self.float if isinstance(x, float) else self.torch.bool if isinstance(x, bool) else self.int
                 self._scalars[key] = self.torch.full((), x, dtype=dtype, device=self.device)

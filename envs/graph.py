@@ -19,9 +19,11 @@ _STATE_DICTS = ("stats", "_ego", "_npc")
 class StaticStep:
     """``step()`` advances ``core`` (torch backend, sync-free, reset, auto-reset from a bank if it
     resets) under ``modes`` (a fixed (B,) tensor: write new modes into it), keeping every state
-    tensor in place. ``capture()`` records one step in a CUDA graph; ``step()`` then replays it."""
+    tensor in place. ``compile`` fuses the step with ``torch.compile`` (one graph, no break: the
+    step has no data-dependent branch; the first steps compile, about half a minute).
+    ``capture()`` records one step in a CUDA graph; ``step()`` then replays it."""
 
-    def __init__(self, core: OvertakeCore, modes: Any, warmup: int = 3) -> None:
+    def __init__(self, core: OvertakeCore, modes: Any, warmup: int = 3, compile: bool = False) -> None:
         if core.xp.name != "torch" or not core.xp.sync_free:
             raise ValueError("StaticStep needs a sync-free torch core (OvertakeCore(backend='torch', sync_free=True))")
         if core.auto_reset and core.bank is None:
@@ -30,9 +32,13 @@ class StaticStep:
         self.result: Any = None
         for _ in range(warmup):  # the step's Python branches settle (e.g. the first plan exists)
             self._eager()
+        import torch
+        self._fn = torch.compile(self._eager, fullgraph=True, dynamic=False) if compile else self._eager
+        if compile:
+            self._fn()  # (compiles now, not inside a capture)
 
     def _buffers(self) -> dict[tuple[str, str | None], Any]:
-        torch = self.core.xp.torch
+        import torch
         out: dict[tuple[str, str | None], Any] = {}
         for name, value in vars(self.core).items():
             if isinstance(value, torch.Tensor):
@@ -57,19 +63,19 @@ class StaticStep:
 
     def capture(self) -> None:
         """Record one step in a CUDA graph (the core must be on a CUDA device)."""
-        torch = self.core.xp.torch
+        import torch
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(stream):
-            self._eager()  # (a step on the side stream before capture, as torch's docs advise)
+            self._fn()  # (a step on the side stream before capture, as torch's docs advise)
         torch.cuda.current_stream().wait_stream(stream)
         self.graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(self.graph):
-            self._eager()
+            self._fn()
 
     def step(self) -> Any:
         """One step; its StepResult's tensors are rewritten by the next step (copy what you keep)."""
         if self.graph is None:
-            return self._eager()
+            return self._fn()
         self.graph.replay()
         return self.result

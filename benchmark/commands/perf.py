@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser
+from overtakezoo.benchmark.commands._options import add_device_options, add_parser, device_from_args
+
+GPU_SIZES = [4096, 65_536, 262_144, 1_048_576, 4_194_304]
 
 
 def register(subparsers: Any) -> None:
@@ -21,9 +23,11 @@ def register(subparsers: Any) -> None:
             "overtakezoo perf --sizes 1 4096 --seconds 0.5 --no-suites",
             "overtakezoo perf --out docs/perf",
             "overtakezoo perf --only-training --out docs/perf-training",
+            "overtakezoo perf --device cuda --out docs/perf-gpu   # the GPU rows beside the numpy core",
+            "overtakezoo perf --backend torch --sizes 256 4096 --seconds 0.5   # the same rows, torch on the CPU",
         ],
     )
-    p.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 256, 4096, 16384], help="core batch sizes N")
+    p.add_argument("--sizes", type=int, nargs="+", default=None, help="core batch sizes N (default 1 8 256 4096 16384)")
     p.add_argument("--batch", type=int, default=8, help="N of the make_vec batches compared with highway-env")
     p.add_argument("--seconds", type=float, default=1.0, help="measuring window per run")
     p.add_argument("--repeats", type=int, default=3, help="runs per figure (median and range reported)")
@@ -37,6 +41,17 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--only-training", action="store_true", help="only the training rows")
     p.add_argument("--out", default=None, help="write OUT.json and OUT.md (e.g. docs/perf)")
+    p.add_argument(
+        "--compile",
+        action="store_true",
+        help="with --device / --backend torch: also the step fused by torch.compile (about half a minute "
+        "of compiling per N; needs a C++ compiler on the CPU, Triton on a GPU)",
+    )
+    add_device_options(
+        p,
+        "the device rows' core (given: only the device rows, --sizes defaulting to "
+        "4096 65536 262144 1048576 4194304 on a GPU)",
+    )
     p.set_defaults(handler=run)
 
 
@@ -44,6 +59,14 @@ def run(args: Any) -> int:
     from overtakezoo.benchmark.errors import UserError
     from overtakezoo.benchmark.run.perf import measure, write_report
 
+    on = device_from_args(args)
+    device = (on["device"] or "cpu") if on["backend"] == "torch" else None  # None: the CPU report
+    if args.sizes is None:
+        args.sizes = GPU_SIZES if device and device != "cpu" else [256, 4096] if device else [1, 8, 256, 4096, 16384]
+    if args.compile and not device:
+        raise UserError("--compile: only with --device cuda or --backend torch (the numpy core is not compiled)")
+    if device and (args.only_training or args.no_suites):
+        raise UserError("--device / --backend torch measures the device rows only: no --only-training or --no-suites")
     if any(n < 1 for n in args.sizes) or min(args.batch, args.repeats, args.eval_runs) < 1 or args.seconds <= 0:
         raise UserError("--sizes, --batch, --repeats and --eval-runs must be >= 1 and --seconds > 0")
     if args.no_training and args.only_training:
@@ -62,6 +85,8 @@ def run(args: Any) -> int:
         suites=not args.no_suites,
         training=not args.no_training,
         only_training=args.only_training,
+        device=device,
+        compile=args.compile,
     )
     if args.out:
         write_report(report, args.out)

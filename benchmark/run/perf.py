@@ -343,7 +343,11 @@ def measure(
     progress: Callable[[str], None] = print,
     training: bool = True,
     only_training: bool = False,
+    device: str | None = None,
+    compile: bool = False,
 ) -> dict[str, Any]:
+    """Every row of the report; with ``device`` (cuda, cuda:N, or cpu for the torch core on the
+    CPU), the device rows instead (perf_device.py): the torch core beside the numpy core."""
     started = time.perf_counter()
     meta: dict[str, Any] = {
         "machine": machine(),
@@ -353,9 +357,13 @@ def measure(
         "seconds_per_window": seconds,
     }
     r = Report(progress)
-    if not only_training:
+    if device is not None:
+        from overtakezoo.benchmark.run.perf_device import add_device_rows
+
+        add_device_rows(r, meta, sizes, seconds, repeats, device, compile)
+    elif not only_training:
         _simulation_rows(r, meta, sizes, seconds, repeats, batch, eval_runs, suites, progress)
-    if training:
+    if training and device is None:
         from overtakezoo.benchmark.run.perf_training import add_training_rows
 
         add_training_rows(r, repeats, progress)
@@ -517,11 +525,23 @@ def _fmt(x: float) -> str:
 
 def to_markdown(report: dict[str, Any]) -> str:
     m = report["machine"]
+    dev = report.get("device")
+    on = (
+        f" Device rows: torch {dev['torch']} on {dev['device']}"
+        + (
+            f" ({dev['gpu']}, {dev['gpu_memory_gib']} GiB, CUDA {dev['cuda']}, driver {dev['driver']})"
+            if "gpu" in dev
+            else ""
+        )
+        + "."
+        if dev
+        else ""
+    )
     lines = [
-        "# Performance report",
+        "# Performance report" + (f" on {dev['device']}" if dev else ""),
         "",
         f"Written by `overtakezoo perf` on {report['date']}: {m['cpu']}, {m['cores']} cores, {m['os']}, "
-        f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.",
+        f"Python {m['python']}, numpy {m['numpy']}, highway-env {report.get('highway_env') or 'not installed'}.{on}",
         f"Load average (1, 5, 15 min) {report['load_average_at_start']} at the start, "
         f"{report['load_average_at_end']} at the end. Each figure is the median of {report['repeats']} "
         f"windows of {report['seconds_per_window']} s (whole runs for the `runner-`, `eval-`, `train-` and "

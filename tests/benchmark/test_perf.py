@@ -113,3 +113,28 @@ def test_training_rows_time_whole_processes_to_the_paper_level(tmp_path, monkeyp
     card = json.loads((Path(perf_training.__file__).parents[2] / "zoo/pretrained/ppo.json").read_text())
     assert f"decision every {card['decide_every']} core steps" in zoo_row["what"]
     assert f"{card['overtake_offset']:+g} on the OVERTAKE score" in zoo_row["what"]
+
+
+def test_perf_device_rows_put_the_torch_core_beside_numpy(tmp_path, capsys):
+    """`perf --backend torch` (the GPU rows' code, on the CPU): each N's numpy row beside the torch
+    core in float64 and float32, and the aten operations one sync-free step dispatches."""
+    pytest.importorskip("torch")
+    out = tmp_path / "perf-gpu"
+    argv = ["perf", "--backend", "torch", "--sizes", "16", "64", "--seconds", "0.05", "--repeats", "2"]
+    assert main([*argv, "--out", str(out)]) == 0
+    report = json.loads((tmp_path / "perf-gpu.json").read_text())
+    ids = [row["id"] for row in report["figures"]]
+    assert ids == [
+        "core-16",
+        "core-torch-f64-16",
+        "core-torch-f32-16",
+        "core-64",
+        "core-torch-f64-64",
+        "core-torch-f32-64",
+        "ops-per-step",
+    ]
+    assert all(row["median"] > 0 for row in report["figures"])
+    assert report["device"]["device"] == "cpu" and report["device"]["torch"]
+    markdown = (tmp_path / "perf-gpu.md").read_text()
+    assert markdown.startswith("# Performance report on cpu") and "Device rows: torch" in markdown
+    assert "--compile: only with" in one_line_error(capsys, ["perf", "--compile"])

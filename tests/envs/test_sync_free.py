@@ -124,3 +124,27 @@ def test_static_step_keeps_every_state_buffer_and_steps_like_the_core():
     np.testing.assert_allclose(dev.x.numpy(), ref.x, atol=1e-9)
     with pytest.raises(ValueError, match="sync-free torch core"):
         StaticStep(ref, modes)
+
+
+@pytest.mark.slow  # (compiling the step takes about half a minute)
+def test_the_compiled_step_is_the_eager_step():
+    """torch.compile traces the whole step as one graph (fullgraph: no data-dependent branch) and it
+    computes what the numpy core does."""
+    from overtakezoo.envs.graph import StaticStep
+
+    dist = ScenarioDistribution(oncoming_count=2, follower_count=1, time_limit=6.0)
+    bank, batch = dist.sample(97, 3), dist.sample(64, 4)
+    ref = OvertakeCore(auto_reset=True, bank=bank)
+    dev = OvertakeCore(auto_reset=True, bank=bank, backend="torch", device="cpu", sync_free=True)
+    ref.reset(batch), dev.reset(batch)
+    modes = torch.ones(batch.num, dtype=torch.int64)
+    for _ in range(4):  # StaticStep's three warm-up steps and the compiling one
+        ref.step(np.ones(batch.num, int))
+    static = StaticStep(dev, modes, compile=True)
+    for t in range(200):
+        m = (np.arange(batch.num) + t) % 3
+        modes.copy_(torch.as_tensor(m))
+        got, want = static.step(), ref.step(m)
+        np.testing.assert_allclose(got.obs.numpy(), want.obs, atol=1e-5)
+        np.testing.assert_array_equal(got.terminated.numpy(), want.terminated)
+    np.testing.assert_array_equal(dev.outcome.numpy(), ref.outcome)
