@@ -28,17 +28,20 @@ class StaticStep:
             raise ValueError("StaticStep needs a sync-free torch core (OvertakeCore(backend='torch', sync_free=True))")
         if core.auto_reset and core.bank is None:
             raise ValueError("StaticStep: an auto-reset core must reset from a bank (OvertakeCore(bank=...))")
-        self.core, self.modes, self.graph = core, modes, None
+        self.core, self.modes = core, modes
+        self.graph: Any = None
         self.result: Any = None
         for _ in range(warmup):  # the step's Python branches settle (e.g. the first plan exists)
             self._eager()
         import torch
+
         self._fn = torch.compile(self._eager, fullgraph=True, dynamic=False) if compile else self._eager
         if compile:
             self._fn()  # (compiles now, not inside a capture)
 
     def _buffers(self) -> dict[tuple[str, str | None], Any]:
         import torch
+
         out: dict[tuple[str, str | None], Any] = {}
         for name, value in vars(self.core).items():
             if isinstance(value, torch.Tensor):
@@ -64,13 +67,14 @@ class StaticStep:
     def capture(self) -> None:
         """Record one step in a CUDA graph (the core must be on a CUDA device)."""
         import torch
+
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(stream):
             self._fn()  # (a step on the side stream before capture, as torch's docs advise)
         torch.cuda.current_stream().wait_stream(stream)
-        self.graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(self.graph):
+        graph = self.graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
             self._fn()
 
     def step(self) -> Any:
