@@ -299,6 +299,16 @@ class OvertakeCore:
         self._bank_next = xp.zeros((), xp.int)  # the next entry to start (a device scalar: never read on the host)
         self.bank_row = xp.full(batch.num, -1, xp.int)  # each road's bank entry (-1: the reset batch's own)
 
+    def reset_from_bank(self, num_roads: int) -> Any:
+        """Start ``num_roads`` roads on the bank's first entries (cycling) and go on from the entry
+        after them; returns the first observation (an auto-reset core with a ``bank`` only)."""
+        if self.bank is None:
+            raise ValueError("reset_from_bank: the core has no bank (OvertakeCore(bank=...))")
+        obs = self.reset(self.bank.take(np.arange(num_roads) % self.bank.num))
+        self._bank_next = self._bank_next + num_roads % self.bank.num
+        self.bank_row = self.xp.asarray(np.arange(num_roads) % self.bank.num, self.xp.int)
+        return obs
+
     def _restart_from_bank(self, ended: Any) -> None:
         """Start the next bank entries (in order, cycling) in the roads ``ended`` (N,) bool, by masked
         writes: no index list, no host read, so the step stays sync-free. ``self.scen`` keeps the

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from overtakezoo import zoo
+from overtakezoo.benchmark.commands._options import add_device_options, device_from_args
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.io import check_writable_dir
 
@@ -165,6 +166,10 @@ def register(subparsers: Any) -> None:
         help=f"suite evaluated at the end ('none' to skip; default: {DEFAULT_EVAL})",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_device_options(
+        p,
+        "ppo-numpy's training (rollout, advantages and update in torch; zoo/train/devppo.py) and the final evaluation",
+    )
     p.set_defaults(handler=run)
 
 
@@ -173,6 +178,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--steps must be positive")
     if args.resume and not Path(args.resume).is_file():
         raise UserError(f"--resume: no checkpoint at {args.resume}")
+    on = device_from_args(args)
+    device = (on["device"] or "cpu") if on["backend"] == "torch" else None  # None: the numpy path
+    if device is not None and args.seeds is not None:
+        raise UserError("--seeds with --device: train the seeds one by one (--seed S --out DIR)")
     out = Path(args.out or f"runs/{args.algorithm}")
     from overtakezoo.benchmark.run.training import seed_dirs, train, train_seeds
     from overtakezoo.zoo.train.contract import parse_overrides
@@ -216,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         overrides=parse_overrides(args.overrides),
         eval_suite=None if args.eval_suite.lower() == "none" else args.eval_suite,
         progress=not args.no_progress,
+        device=device,
     )
     _report(trained.card, out)
     return 0

@@ -14,8 +14,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from overtakezoo.benchmark.run.perf import Report, core_rates, windows
 from overtakezoo.envs import OVERTAKE, EnvConfig, OvertakeCore, ScenarioDistribution
 
@@ -65,7 +63,7 @@ def device_core(n: int, device: str, dtype: Any, seed: int = 0) -> tuple[Overtak
     core = OvertakeCore(
         EnvConfig(), auto_reset=True, bank=bank, backend="torch", device=device, dtype=dtype, sync_free=True
     )
-    core.reset(bank.take(np.arange(n) % bank.num))
+    core.reset_from_bank(n)
     return core, torch.full((n,), OVERTAKE, dtype=torch.int64, device=device)
 
 

@@ -71,10 +71,13 @@ def train(
     overrides: dict[str, Any] | None = None,
     eval_suite: str | None = "table1",
     progress: bool = True,
+    device: str | None = None,
 ) -> Any:
     """Train ``member`` on ``suite`` (dqn, double-dqn, ps-dqn, ppo, dagger; the trainer ppo-numpy) or
     ``dataset`` (bc, cql), then (unless ``eval_suite`` is None) evaluate it; returns the trainer's
-    ``Trained``, its card with the results. Files go into ``out`` (the module docstring)."""
+    ``Trained``, its card with the results. Files go into ``out`` (the module docstring). ``device``
+    (the torch device, from ``--device`` / ``--backend``): ppo-numpy trains there (zoo/train/devppo.py)
+    and the final evaluation runs its core there; None is the CPU's numpy path."""
     module = trainer(member)
     common: dict[str, Any] = {
         "member": member,
@@ -86,6 +89,10 @@ def train(
         "overrides": overrides,
         "progress": progress,
     }
+    if device is not None:
+        if module.__name__.rsplit(".", 1)[-1] != "fastppo":
+            raise UserError(f"--device {device}: only ppo-numpy trains on a device; {member} trains on the CPU")
+        common["device"] = device
     if module.LEARNS_FROM == "dataset":
         if not dataset:
             raise UserError(f"{member} learns from a dataset: give --dataset NAME (see `overtakezoo dataset list`)")
@@ -106,7 +113,7 @@ def train(
         from overtakezoo.zoo.train.contract import write_outputs
 
         ev = load_suite(eval_suite)
-        summary, results = evaluate(trained.decider(ev.config), ev, progress=progress)
+        summary, results = evaluate(trained.decider(ev.config), ev, progress=progress, device=device)
         trained.card["results"][ev.name] = summary
         if out is not None:
             write_outputs(out, trained)
@@ -115,10 +122,12 @@ def train(
 
 
 def evaluate(
-    decider: Any, suite: Suite, progress: bool = False, limit: int | None = None
+    decider: Any, suite: Suite, progress: bool = False, limit: int | None = None, device: str | None = None
 ) -> tuple[dict[str, Any], Any]:
-    """Run ``decider`` on ``suite`` with the benchmark runner: the card's summary and the Results."""
-    res = run_suite(suite, decider, progress=progress, limit=limit)
+    """Run ``decider`` on ``suite`` with the benchmark runner (its core on the torch ``device`` when
+    given: the same results): the card's summary and the Results."""
+    on = {"backend": "torch", "device": device} if device else {}
+    res = run_suite(suite, decider, progress=progress, limit=limit, **on)
     summary = outcome_summary(
         np.asarray(res.per["outcome"]), np.asarray(res.per["crash_lane"]), np.asarray(res.per["completion_time"], float)
     )

@@ -75,3 +75,10 @@ def test_cuda_without_a_gpu_says_so(capsys):
         core_backend("cuda")
     err = one_line_error(capsys, ["eval", "--suite", "table1", "--decider", "fuzzy", "--device", "cuda"])
     assert "no CUDA device" in err
+
+
+def test_only_ppo_numpy_trains_on_a_device(tmp_path, capsys):
+    argv = ["train", "dqn", "--backend", "torch", "--steps", "10", "--eval-suite", "none", "--out", str(tmp_path / "r")]
+    assert "only ppo-numpy trains on a device" in one_line_error(capsys, argv)
+    argv = ["train", "ppo-numpy", "--backend", "torch", "--seeds", "0,1", "--out", str(tmp_path / "s")]
+    assert "--seeds with --device" in one_line_error(capsys, argv)

@@ -13,10 +13,13 @@ scale linearly with speed).
 
 The layout is the observation's (``observation_layout``): mode one-hot, blocked flags, lateral
 offsets and presence flags pass through unchanged, so the action mask reads features as it reads
-observations. Numpy only: the same function serves training (torch) and inference (numpy).
+observations. The same function serves training and inference: numpy arrays in, float64 numpy out;
+a torch tensor (the device trainer's observations, zoo/train/devppo.py) stays a tensor on its device.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -27,18 +30,23 @@ FEATURES_VERSION = "speed-relative-v1"
 HORIZON_S = 10.0  # distances in units of 10 s at the speed limit: table1's 60 m sight is ~1.4
 
 
-def speed_relative(obs: np.ndarray, config: EnvConfig) -> np.ndarray:
+def speed_relative(obs: Any, config: EnvConfig) -> Any:
     """(N, D) observations -> (N, D) float64 features (see the module docstring)."""
-    obs = np.asarray(obs, np.float64)
+    if type(obs).__module__.startswith("torch"):  # a tensor: computed on its device, in its dtype
+        out = obs.clone()
+        limit = (obs[:, observation_layout(config)["ego"].start + 4] * config.observation.speed_scale).clamp(min=1e-3)
+        log = type(limit).log
+    else:
+        out = np.array(obs, np.float64)
+        limit = np.maximum(out[:, observation_layout(config)["ego"].start + 4] * config.observation.speed_scale, 1e-3)
+        log = np.log
     oc, lay = config.observation, observation_layout(config)
-    out = obs.copy()
-    ego = lay["ego"].start
-    limit = np.maximum(obs[:, ego + 4] * oc.speed_scale, 1e-3)  # m/s; > 0 for any valid scenario
+    ego = lay["ego"].start  # (limit: the speed limit in m/s; > 0 for any valid scenario)
     speed = oc.speed_scale / limit  # observation speed unit -> fraction of the limit
     dist = oc.position_scale / (limit * HORIZON_S)  # observation distance unit -> horizons
     out[:, ego + 0] *= speed
     out[:, ego + 3] *= dist
-    out[:, ego + 4] = np.log(limit / oc.speed_scale)
+    out[:, ego + 4] = log(limit / oc.speed_scale)
     out[:, ego + 5] *= dist
     for lane in ("ego_lane", "opposite_lane"):
         s = lay[lane]

@@ -237,12 +237,14 @@ def train(
     hyperparams: str | Path | None = None,
     overrides: dict[str, Any] | None = None,
     progress: bool = True,
+    device: str | None = None,
 ) -> Any:
     """Train on the loaded training ``suites`` (``suite_name``: the spec they came from) for ``steps``
     decisions, seed ``seed`` (default 0), hyperparameters ``hyperparams`` (default
     ``zoo/hyperparams/ppo-numpy.toml``) with ``overrides``; write ``train_log.csv``, ``ppo-numpy.npz``
     and ``ppo-numpy.json`` into ``out`` (default ``runs/ppo-numpy-seed<seed>``); return the
-    :class:`~.contract.Trained` run. No checkpoints, so no ``resume``."""
+    :class:`~.contract.Trained` run. No checkpoints, so no ``resume``. ``device`` (cuda, cuda:N, or cpu
+    for the torch path on the CPU): the same recipe in torch on that device (:mod:`.devppo`)."""
     from threadpoolctl import threadpool_limits
 
     if member != NAME:
@@ -259,6 +261,21 @@ def train(
     hp, hp_file = load_hyperparams(FastPPOHyperparams, path, overrides)
     seed = 0 if seed is None else int(seed)
     out = Path(out) if out is not None else Path("runs") / f"{NAME}-seed{seed}"
+    if device is not None:
+        from overtakezoo.zoo.train.devppo import train_on_device
+
+        with threadpool_limits(limits=1, user_api="blas"):  # (the host's selection runs: same bits)
+            return train_on_device(
+                suites,
+                hp,
+                hp_file,
+                suite_name=suite_name,
+                steps=steps,
+                seed=seed,
+                out=out,
+                progress=progress,
+                device=device,
+            )
     with threadpool_limits(limits=1, user_api="blas"):  # same bits on any core count (and faster here)
         return _train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
@@ -380,8 +397,7 @@ def _train(
                 flush=True,
             )
     wall = time.perf_counter() - t0
-    with open(out / RUN_FILES["fastppo"][0], "w", newline="") as f:
-        csv.writer(f).writerows([LOG_COLUMNS, *log_rows])
+    write_log(out, [LOG_COLUMNS, *log_rows])
     return _finish(
         best,
         hp,
@@ -398,6 +414,12 @@ def _train(
     )
 
 
+def write_log(out: Path, rows: list[list[Any]]) -> None:
+    """The run's ``train_log.csv`` (one row per iteration, under LOG_COLUMNS)."""
+    with open(out / RUN_FILES["fastppo"][0], "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+
+
 def _finish(
     best: dict[str, Any],
     hp: FastPPOHyperparams,
@@ -411,7 +433,9 @@ def _finish(
     out: Path,
     asked: int,
     cpu: dict[str, float],
+    device: str | None = None,
 ) -> Any:
+    """The model card and files of a finished run; ``device``: the run was devppo's (torch on it)."""
     from overtakezoo.zoo.members.mlp import NumpyMLP, npz_bytes, read_npz
     from overtakezoo.zoo.train.contract import Trained, model_card, reproduce, write_outputs
     from overtakezoo.zoo.train.export import npz_card
@@ -439,11 +463,27 @@ def _finish(
         steps_unit=STEPS_UNIT,
         seed=seed,
         wall_time_s=wall,
-        training={"iterations": iterations, "selection": selection, "trainer": "fastppo (numpy)", "cpu_s": cpu},
-        reproduce=reproduce(NAME, source, asked, seed),  # (model_card adds --hyperparams and --set where needed)
-        versions={"numpy": np.__version__},
+        training={
+            "iterations": iterations,
+            "selection": selection,
+            "trainer": "fastppo (numpy)" if device is None else f"devppo (torch, {device})",
+            "cpu_s": cpu,
+        },
+        # (model_card adds --hyperparams and --set where needed)
+        reproduce=reproduce(NAME, source, asked, seed) + (_device_flags(device) if device else ""),
+        versions={"numpy": np.__version__, **({"torch": _torch_version()} if device else {})},
         torch=False,
     )
     trained = Trained(npz_card(card, net, npz, NAME), npz, net)
     write_outputs(out, trained)
     return trained
+
+
+def _device_flags(device: str) -> str:
+    return f" --device {device}" + (" --backend torch" if device == "cpu" else "")
+
+
+def _torch_version() -> str:
+    import torch
+
+    return str(torch.__version__)
