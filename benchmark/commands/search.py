@@ -6,7 +6,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_decider_options, add_parser, decider_from_args
+from overtakezoo.benchmark.commands._options import (
+    add_decider_options,
+    add_device_options,
+    add_parser,
+    decider_from_args,
+    device_from_args,
+)
 from overtakezoo.envs.io import check_writable
 
 
@@ -69,6 +75,7 @@ def register(subparsers: Any) -> None:
         "distinct failures per episode (not written to the file)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_device_options(p, "each population's episodes")
     p.set_defaults(handler=run)
 
 
@@ -107,8 +114,8 @@ def run(args: Any) -> int:
 
     args.budget = check_budget(args.budget)
     check_distinct(args.distinct)
-    if not 1 <= args.batch <= 65536:
-        raise UserError(f"--batch {args.batch}: expected 1..65536")
+    if not 1 <= args.batch <= 1_048_576:  # (populations of 100k episodes are what a GPU makes cheap)
+        raise UserError(f"--batch {args.batch}: expected 1..1048576")
     if not (math.isfinite(args.ttc) and args.ttc > 0):
         raise UserError(f"--ttc {args.ttc}: expected a positive number of seconds")
     if not 0 <= args.seed < 2**63:
@@ -119,6 +126,7 @@ def run(args: Any) -> int:
         raise UserError(f"--name {args.name!r}: expected lowercase letters, digits, '.', '_' or '-' (64 at most)")
     suite = load_suite(args.suite)
     space = space_for(base_distribution(suite), args.param, f"suite {suite.name!r}")
+    core = device_from_args(args)
     decider = decider_from_args(args, suite.config)
     out = check_writable(Path(args.out))
     command = command_line(args)
@@ -133,6 +141,7 @@ def run(args: Any) -> int:
         ttc_limit=args.ttc,
         progress=not args.no_progress,
         space=space,
+        core=core,
     )
     per100 = 100.0 * found.rate
     print(
@@ -152,6 +161,7 @@ def run(args: Any) -> int:
                 ttc_limit=args.ttc,
                 progress=not args.no_progress,
                 space=space,
+                core=core,
             )
             for k in range(args.compare_random)
         ]

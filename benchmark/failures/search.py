@@ -80,12 +80,15 @@ def evaluate(
     target: str = "crash",
     ttc_limit: float = DEFAULT_TTC,
     chunk_size: int = 4096,
+    core: dict[str, Any] | None = None,
 ) -> Evaluation:
-    """Run ``scenarios`` (one batch, in chunks of ``chunk_size``) and score each."""
+    """Run ``scenarios`` (one batch, in chunks of ``chunk_size``; ``core``: the core's ``backend`` and
+    ``device``, e.g. a GPU, with the same results) and score each."""
     from overtakezoo.benchmark.run.runner import run_indices
 
     n = scenarios.num
-    per = run_indices(in_memory(suite, scenarios), decider, np.arange(n), chunk_size=chunk_size, safety=True)
+    scen = in_memory(suite, scenarios)
+    per = run_indices(scen, decider, np.arange(n), chunk_size=chunk_size, safety=True, **(core or {}))
     e = scenarios.num_avs
     shaped = {
         k: np.asarray(v).reshape(e, n)
@@ -286,6 +289,7 @@ def cma_search(
     progress: bool = True,
     space: Space | None = None,
     popsize: int | None = None,
+    core: dict[str, Any] | None = None,
 ) -> Found:
     """Search ``budget`` episodes for distinct failures of ``decider`` on ``suite`` (module docstring)."""
     budget = check_budget(budget)
@@ -315,7 +319,7 @@ def cma_search(
             take = min(len(x), budget - episodes)  # the last batch may be cut short (and not told)
             x = x[:take]
             unit = space.canonical(x)
-            ev = evaluate(suite, decider, space.build(x), target, ttc_limit)
+            ev = evaluate(suite, decider, space.build(x), target, ttc_limit, core=core)
             new = _keep_new(ev, unit, space.values(x), archive, episodes, infos, found_units, found_values)
             failures += int(ev.failed.sum())
             episodes += take
@@ -379,6 +383,7 @@ def random_search(
     ttc_limit: float = DEFAULT_TTC,
     progress: bool = True,
     space: Space | None = None,
+    core: dict[str, Any] | None = None,
 ) -> Found:
     """The baseline: ``budget`` scenarios drawn by the suite's own sampler with ``seed`` (when
     ``params`` widen the box: uniformly in it), the same evaluation and deduplication."""
@@ -400,7 +405,7 @@ def random_search(
             else:  # the suite's own draws, recorded so that failures can be deduplicated and written
                 vals = _recorded_sample(space, n, rng)
                 unit = space.units(vals)
-            ev = evaluate(suite, decider, build(space.dist, vals), target, ttc_limit)
+            ev = evaluate(suite, decider, build(space.dist, vals), target, ttc_limit, core=core)
             _keep_new(ev, unit, vals, archive, episodes, infos, found_units, found_values)
             failures += int(ev.failed.sum())
             episodes += n

@@ -31,6 +31,15 @@ def test_the_same_seed_writes_the_same_bytes(rule_fsm_failures):
     assert (rule_fsm_failures / "a.toml").read_bytes() == (rule_fsm_failures / "b.toml").read_bytes()
 
 
+def test_the_torch_core_finds_the_same_failures(rule_fsm_failures):
+    """`--backend torch` (the GPU path, on the CPU) writes the numpy search's file byte for byte."""
+    pytest.importorskip("torch")
+    out = rule_fsm_failures / "torch.toml"
+    argv = ["search", "--decider", "rule-fsm", "--suite", "table1", "--budget", "256", "--seed", "3", "--no-progress"]
+    assert main([*argv, "--backend", "torch", "--out", str(out)]) == 0
+    assert out.read_bytes() == (rule_fsm_failures / "a.toml").read_bytes()
+
+
 def test_found_failures_crash_again_in_eval(rule_fsm_failures, capsys):
     path = rule_fsm_failures / "a.toml"
     doc = tomllib.loads(path.read_text())
