@@ -37,11 +37,11 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from overtakezoo.envs.config import MODE_NAMES, EnvConfig
-from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.faces._common import as_config, check_actions, env_hold, is_suite, single_ego, suite_config
 from overtakezoo.envs.faces._compat import AutoresetMode  # gymnasium's own on 1.1+, a same-valued Enum on 1.0
 from overtakezoo.envs.faces.spaces import ego_observation_space
 from overtakezoo.envs.hold import hold
+from overtakezoo.envs.host import make_core
 from overtakezoo.envs.scenarios import ScenarioDistribution, Scenarios
 
 
@@ -58,6 +58,8 @@ class OvertakeVectorEnv(VectorEnv):
         *,
         suite: Any = None,
         hold_steps: int | None = None,
+        device: str | None = None,
+        backend: str | None = None,
         **overrides: Any,
     ) -> None:
         self._renderer = None  # first: close() runs on an instance whose __init__ raised, too
@@ -77,7 +79,9 @@ class OvertakeVectorEnv(VectorEnv):
         self.distribution = ScenarioDistribution.from_dict(self.config.scenario)
         # The core freezes a finished row; this face restarts it, after the hold that ended it
         # (SAME_STEP) or at the next step (NEXT_STEP), so no held step runs in a new episode.
-        self.core = OvertakeCore(self.config, auto_reset=False)
+        # ``device`` / ``backend`` (envs/backend.py core_backend): the torch core, e.g. on a GPU, read
+        # through HostCore, so the face's arrays stay numpy, as Gymnasium's API has them.
+        self.core = make_core(self.config, device, backend, auto_reset=False)
         # finite bounds, see envs/faces/spaces.py
         self.single_observation_space: spaces.Box = ego_observation_space(self.config)
         self.single_action_space = spaces.Discrete(len(MODE_NAMES))
@@ -192,6 +196,8 @@ def make_vec(
     *,
     suite: Any = None,
     hold_steps: int | None = None,
+    device: str | None = None,
+    backend: str | None = None,
     **overrides: Any,
 ) -> OvertakeVectorEnv:
     """``num_envs`` scenarios as one natively batched ``gymnasium.vector.VectorEnv`` (NEXT_STEP
@@ -199,5 +205,16 @@ def make_vec(
     loaded suite (its settings and distribution); ``hold_steps`` core steps per env step: an explicit
     value wins, else the zoo's 1 s (10 at dt = 0.1 s) for a suite, as
     ``gymnasium.make_vec("overtakezoo/<suite>-v<version>")`` holds, and the config's
-    ``decision_interval`` for a raw config; other keyword arguments are :class:`EnvConfig` keys."""
-    return OvertakeVectorEnv(num_envs, config, autoreset_mode, suite=suite, hold_steps=hold_steps, **overrides)
+    ``decision_interval`` for a raw config; ``device`` (cuda, cuda:N) / ``backend`` (torch) run the
+    torch core there (the same results; observations still numpy); other keyword arguments are
+    :class:`EnvConfig` keys."""
+    return OvertakeVectorEnv(
+        num_envs,
+        config,
+        autoreset_mode,
+        suite=suite,
+        hold_steps=hold_steps,
+        device=device,
+        backend=backend,
+        **overrides,
+    )

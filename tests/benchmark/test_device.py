@@ -82,3 +82,24 @@ def test_only_ppo_numpy_trains_on_a_device(tmp_path, capsys):
     assert "only ppo-numpy trains on a device" in one_line_error(capsys, argv)
     argv = ["train", "ppo-numpy", "--backend", "torch", "--seeds", "0,1", "--out", str(tmp_path / "s")]
     assert "--seeds with --device" in one_line_error(capsys, argv)
+
+
+def test_make_vec_on_the_torch_core_steps_like_numpy():
+    """The Gymnasium batch with ``backend="torch"`` (``device="cuda"`` on a GPU): numpy arrays out, the
+    same observations, ends and autoresets; rewards equal to float rounding."""
+    from overtakezoo.envs import make_vec
+
+    ref, dev = make_vec(64, suite="table1"), make_vec(64, suite="table1", backend="torch")
+    np.testing.assert_array_equal(dev.reset(seed=3)[0], ref.reset(seed=3)[0])
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(150):
+        act = rng.integers(0, 3, 64)
+        (o1, r1, te1, tr1, _), (o2, r2, te2, tr2, _) = ref.step(act), dev.step(act)
+        assert isinstance(o2, np.ndarray)
+        np.testing.assert_array_equal(o2, o1)
+        np.testing.assert_allclose(r2, r1, atol=1e-12)
+        np.testing.assert_array_equal(te2, te1)
+        np.testing.assert_array_equal(tr2, tr1)
+        ends += int(te1.sum() + tr1.sum())
+    assert ends > 64  # rows ended and restarted

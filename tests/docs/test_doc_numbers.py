@@ -21,6 +21,7 @@ DOCS = ROOT / "docs"
 GENERATED = {
     "perf.md": "overtakezoo perf --out docs/perf",
     "perf-training.md": "overtakezoo perf --only-training --out docs/perf-training",
+    "perf-torch-cpu.md": "overtakezoo perf --backend torch --compile --sizes 256 4096 --out docs/perf-torch-cpu",
     "ablation.md": "python scripts/ablation.py",
     "failure-search-ratio.md": "python scripts/failure_search_ratio.py",
     "paper-setting.md": "python scripts/paper_setting.py",
