@@ -36,6 +36,7 @@ def register(subparsers: Any) -> None:
             "overtakezoo eval --suite table1 --policy mypkg.policies:make  # factory(config) -> decider",
             "overtakezoo eval --suite table1 --decider shielded:dqn         # dqn behind the RSS shield",
             "overtakezoo eval --suite table1 --decider dqn --device cuda     # the core on a GPU",
+            "overtakezoo eval --suite table1 --decider dqn --device cuda --draw 1000000 --chunk-size 262144",
             "overtakezoo submit results/table1/dqn.shard-*-of-4.json            # merge shards",
         ],
     )
@@ -73,6 +74,16 @@ def register(subparsers: Any) -> None:
         "and merge them into one results file; needs the [ray] extra",
     )
     p.add_argument("--shards", type=int, default=4, help="with --ray: number of shards (default 4)")
+    p.add_argument(
+        "--draw",
+        type=int,
+        metavar="N",
+        help="run N fresh scenarios of the suite's distribution and settings instead of its own (e.g. a "
+        "million, on a GPU with a large --chunk-size): a measurement, not a row of the board",
+    )
+    p.add_argument(
+        "--draw-seed", type=int, metavar="S", help="with --draw: the draw's seed (default: fresh randomness, printed)"
+    )
     add_device_options(p, "the suite's simulation")
     p.set_defaults(handler=run)
 
@@ -83,6 +94,8 @@ def run(args: Any) -> int:
     from overtakezoo.envs.suites import load_suite, parse_shard, shard_bounds
 
     suite = load_suite(args.suite)
+    if args.draw is not None or args.draw_seed is not None:
+        suite = _fresh_draw(suite, args.draw, args.draw_seed)
     shard = parse_shard(args.shard)
     shard_bounds(suite.count, shard)  # validates the shard against the suite
     if args.chunk_size < 1:
@@ -148,6 +161,27 @@ def run(args: Any) -> int:
         print(f"interrupted: {args.archive} holds the {recorder.episodes} whole episodes", file=sys.stderr)
         raise
     return _report(results, suite, decider, out)
+
+
+def _fresh_draw(suite: Any, count: int | None, seed: int | None) -> Any:
+    """``suite``'s distribution and settings with ``count`` scenarios and ``seed`` (fresh when None)."""
+    from overtakezoo.benchmark.errors import UserError
+    from overtakezoo.benchmark.leaderboard.changes import fresh_seed
+    from overtakezoo.benchmark.leaderboard.fresh import fresh_suite
+
+    if count is None:
+        raise UserError("--draw-seed: only with --draw N")
+    if not 1 <= count <= 100_000_000:
+        raise UserError(f"--draw {count}: expected 1..100000000 scenarios")
+    if seed is not None and not 0 <= seed < 2**63:
+        raise UserError(f"--draw-seed {seed}: expected an integer in [0, 2^63)")
+    from overtakezoo.envs.explicit import ExplicitDistribution
+
+    if isinstance(suite.distribution, ExplicitDistribution):
+        raise UserError(f"--draw: suite {suite.name!r} lists its scenarios; it has no distribution to draw from")
+    seed = fresh_seed() if seed is None else seed
+    print(f"a fresh draw of {suite.name}: {count} scenarios, seed {seed} (not a row of the board)", file=sys.stderr)
+    return fresh_suite(suite, seed, count)
 
 
 def _report(results: Any, suite: Any, decider: Any, out: Path) -> int:

@@ -103,3 +103,23 @@ def test_make_vec_on_the_torch_core_steps_like_numpy():
         np.testing.assert_array_equal(tr2, tr1)
         ends += int(te1.sum() + tr1.sum())
     assert ends > 64  # rows ended and restarted
+
+
+def test_eval_draw_runs_fresh_scenarios_of_the_distribution(tmp_path, capsys):
+    """`eval --draw N --draw-seed S`: the suite's distribution and settings, N scenarios of seed S (what
+    a GPU makes cheap at a million); without a seed one from fresh randomness, printed."""
+    from overtakezoo.benchmark.leaderboard.fresh import fresh_suite
+
+    out = tmp_path / "draw.json"
+    argv = ["eval", "--suite", "table1", "--decider", "fuzzy", "--no-progress", "--draw", "64", "--draw-seed", "5"]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert "a fresh draw of table1: 64 scenarios, seed 5" in capsys.readouterr().err
+    data = json.loads(out.read_text())
+    assert data["suite"]["count"] == 64 and data["seed"] == 5 and data["range"] == [0, 64]
+    want = run_suite(fresh_suite(load_suite("table1"), 5, 64), load_zoo("fuzzy"), progress=False)
+    assert data["scenarios"]["outcome"] == want.per["outcome"].tolist()
+    base = ["eval", "--suite", "table1", "--decider", "fuzzy", "--out", str(tmp_path / "c.json")]
+    assert main([*base, "--draw", "3"]) == 0
+    assert "seed " in capsys.readouterr().err
+    assert "--draw-seed: only with --draw" in one_line_error(capsys, [*base, "--draw-seed", "3"])
+    assert "--draw 0" in one_line_error(capsys, [*base, "--draw", "0"])
