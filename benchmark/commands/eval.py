@@ -106,10 +106,9 @@ def run(args: Any) -> int:
     out = Path(args.out or f"results/{suite.name}/{decider.name}{suffix}.json")
     check_writable(out)
     if args.ray is not None:
-        if shard or args.archive or args.no_safety or on["backend"] != "numpy":
+        if shard or args.archive or args.no_safety or args.draw is not None:
             raise UserError(
-                "--ray runs every shard itself: it cannot be combined with --shard, --archive, --no-safety "
-                "or --device / --backend"
+                "--ray runs every shard itself: it cannot be combined with --shard, --archive, --no-safety or --draw"
             )
         from overtakezoo.benchmark.run.distributed import parse_address, run_suite_ray
 
@@ -119,7 +118,7 @@ def run(args: Any) -> int:
             if args.decider is None:
                 raise UserError("--ray with --shield takes --decider NAME (the workers load shielded:NAME)")
             spec = f"shielded:{args.decider}"
-        results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray))
+        results = run_suite_ray(suite, spec, args.shards, parse_address(args.ray), core=on)
         return _report(results, suite, decider, out)
     if not args.archive:
         results = run_suite(

@@ -20,22 +20,31 @@ from overtakezoo.benchmark.results.results import Results, merge
 from overtakezoo.envs.suites import Suite
 
 
-def _run_shard(suite_bytes: bytes, suite_path: str, decider_name: str, shard: tuple[int, int]) -> str:
+def _run_shard(
+    suite_bytes: bytes, suite_path: str, decider_name: str, shard: tuple[int, int], core: dict[str, Any] | None = None
+) -> str:
     """One shard on a Ray worker; returns the results as JSON text. ``decider_name`` is any policy
-    spec (``benchmark/run/policy.py``): a registry name, a file or package.module:factory."""
+    spec (``benchmark/run/policy.py``): a registry name, a file or package.module:factory; ``core``:
+    the core's backend and device (a GPU task's device is the GPU Ray gave it)."""
     from overtakezoo.benchmark.run.policy import load_policy
     from overtakezoo.benchmark.run.runner import run_suite
     from overtakezoo.envs.suites import parse_suite
 
     suite = parse_suite(suite_bytes, Path(suite_path))
     decider = load_policy(decider_name, suite.config)
-    return run_suite(suite, decider, shard=shard, progress=False).to_json()
+    return run_suite(suite, decider, shard=shard, progress=False, **(core or {})).to_json()
 
 
 def run_suite_ray(
-    suite: Suite, decider_name: str, shards: int, address: str | None = None, num_cpus: int | None = None
+    suite: Suite,
+    decider_name: str,
+    shards: int,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    core: dict[str, Any] | None = None,
 ) -> Results:
-    """Run ``suite`` as ``shards`` Ray tasks and merge them. ``address`` None starts a local Ray."""
+    """Run ``suite`` as ``shards`` Ray tasks and merge them. ``address`` None starts a local Ray.
+    ``core`` (``backend``, ``device``): on a CUDA device each task asks Ray for one GPU."""
     try:
         import ray
     except ImportError:
@@ -55,9 +64,10 @@ def run_suite_ray(
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise UserError(f"cannot reach Ray at {address or 'a local instance'}: {exc}") from None
     try:
-        task = ray.remote(_run_shard)
+        on_gpu = str((core or {}).get("device") or "").startswith("cuda")
+        task = ray.remote(num_gpus=1)(_run_shard) if on_gpu else ray.remote(_run_shard)
         data = suite.path.read_bytes()
-        refs = [task.remote(data, str(suite.path), decider_name, (i, shards)) for i in range(shards)]
+        refs = [task.remote(data, str(suite.path), decider_name, (i, shards), core) for i in range(shards)]
         parts = [Results.from_json(text, where=f"shard {i}") for i, text in enumerate(ray.get(refs))]
     finally:
         if started_here:
