@@ -16,17 +16,16 @@ runs there only with ``--backend torch`` (how it is tested).
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs import CRASH, FOLLOW, SUCCESS, TIMEOUT, OvertakeCore, observation_size
+from overtakezoo.envs import CRASH, FOLLOW, SUCCESS, TIMEOUT, OvertakeCore
 from overtakezoo.envs.io import check_writable_dir
 from overtakezoo.zoo.members.features import speed_relative
-from overtakezoo.zoo.train.fastppo import MLP, NAME, FastPPOHyperparams
+from overtakezoo.zoo.train.fastppo import MLP, FastPPOHyperparams, Run
 
 
 def train_on_device(
@@ -44,51 +43,30 @@ def train_on_device(
     import torch
 
     from overtakezoo.envs.mixture import split_rows
-    from overtakezoo.zoo.members.mlp import NumpyMLP
-    from overtakezoo.zoo.train.contract import TrainError, suite_source
-    from overtakezoo.zoo.train.fastppo import LOG_COLUMNS, _finish, write_log
-    from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     check_writable_dir(out)
-    p, n, repeat = hp.ppo, hp.env.num_envs, hp.env.action_repeat
-    steps = int(steps if steps is not None else hp.train.steps)
-    per_iter = n * p.num_steps_per_env
-    iterations = max(1, math.ceil(steps / per_iter))
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))  # the initial weights and the banks' order
+    run = Run(suites, hp, suite_name=suite_name, steps=steps, seed=seed)
+    p, n, repeat, dim, config = run.p, run.n, run.repeat, run.dim, run.config
     gen = torch.Generator(device=device).manual_seed(seed)  # the policy's draws and the minibatches
-    source = suite_source(suites, suite_name)
-    config = suites[0].config
-    pools = [s.scenarios() for s in suites]
-    multi = [s.name for s, q in zip(suites, pools, strict=True) if q.num_avs > 1]
-    if multi:
-        raise TrainError(f"{NAME} trains single-AV suites; {', '.join(multi)} has several AVs per road")
+    actor_init, critic_init = run.networks()  # (first from the generator: the numpy run's first weights)
+    actor, critic = _net(actor_init, device), _net(critic_init, device)
     cores = []
-    for s, pool, rows in zip(suites, pools, split_rows(n, len(pools)), strict=True):
-        bank = pool.take(rng.permutation(pool.num))
+    for s, pool, rows in zip(suites, run.pools, split_rows(n, len(run.pools)), strict=True):
+        bank = pool.take(run.rng.permutation(pool.num))
         core = OvertakeCore(
             s.config, auto_reset=True, bank=bank, backend="torch", device=device, dtype=torch.float32, sync_free=True
         )
         cores.append((core, rows))
     obs = _features(torch.cat([core.reset_from_bank(rows) for core, rows in cores]), config)
-    dim = observation_size(config)
-
-    actor_init, critic_init = MLP([dim, *p.hidden, 3], rng, 0.01), MLP([dim, *p.hidden, 1], rng, 1.0)
-    actor_init.params[-1][1] += p.overtake_bias  # the OVERTAKE logit: start near always-overtake
-    actor, critic = _net(actor_init, device), _net(critic_init, device)
     params = [*actor.parameters(), *critic.parameters()]
     opt = torch.optim.Adam(params, lr=p.learning_rate, eps=1e-8)
-    select_sets = selection_sets(suites, pools, hp.train.select_scenarios)
-    best: dict[str, Any] = {"score": -np.inf, "iteration": None, "layers": None}
 
     T = p.num_steps_per_env
     b_obs = torch.empty((T, n, dim), device=device)
     b_act = torch.empty((T, n), dtype=torch.int64, device=device)
     b_logp, b_val, b_rew, b_done = (torch.empty((T, n), device=device) for _ in range(4))
-    t0 = time.perf_counter()
-    log_rows = []
-    cpu = {"rollout": 0.0, "update": 0.0, "select": 0.0}
     clock = time.process_time
-    for it in range(iterations):
+    for it in range(run.iterations):
         counts = torch.zeros(4, dtype=torch.int64, device=device)  # episodes, successes, crashes, timeouts
         c0 = clock()
         with torch.no_grad():
@@ -100,76 +78,15 @@ def train_on_device(
                 reward, ended, obs_raw = _hold(cores, act, repeat, counts)
                 b_rew[t], b_done[t] = reward, ended.float()
                 obs = _features(obs_raw, config)
-            last = critic(obs)[:, 0]
-            adv, ret = _gae(b_rew, b_val, b_done, last, p.gamma, p.lam)
+            adv, ret = _gae(b_rew, b_val, b_done, critic(obs)[:, 0], p.gamma, p.lam)
         c1 = clock()
-        _update(
-            actor,
-            critic,
-            opt,
-            params,
-            b_obs.reshape(-1, dim),
-            b_act.reshape(-1),
-            b_logp.reshape(-1),
-            adv.reshape(-1),
-            ret.reshape(-1),
-            p,
-            gen,
-        )
-        c2 = clock()
-        cpu["rollout"] += c1 - c0
-        cpu["update"] += c2 - c1
-        score = None
-        every = hp.train.select_every
-        if it + 1 == iterations or (every and (it + 1) % every == 0 and it + 1 >= hp.train.select_from):
-            layers = _layers(actor)
-            net = NumpyMLP(layers, "tanh")
-
-            def greedy(o: np.ndarray, c: Any, net: NumpyMLP = net) -> np.ndarray:
-                return net(speed_relative(o, c)).argmax(axis=1)
-
-            score = greedy_score(greedy, select_sets, repeat)
-            if score > best["score"]:
-                best = {"score": score, "iteration": it + 1, "layers": layers}
-            cpu["select"] += clock() - c2
-        episodes, success, crash, timeout = counts.tolist()  # the iteration's one read on the host
-        eps = max(episodes, 1)
-        log_rows.append(
-            [
-                it + 1,
-                (it + 1) * per_iter,
-                f"{time.perf_counter() - t0:.2f}",
-                episodes,
-                f"{success / eps:.4f}",
-                f"{crash / eps:.4f}",
-                f"{timeout / eps:.4f}",
-                "" if score is None else f"{score:.4f}",
-            ]
-        )
-        if progress:
-            print(
-                f"{NAME} ({device}) iteration {it + 1}/{iterations}: "
-                f"success {success / eps:.2f} crash {crash / eps:.2f}"
-                + ("" if score is None else f", greedy score {score:.3f}"),
-                flush=True,
-            )
-    wall = time.perf_counter() - t0
-    write_log(out, [LOG_COLUMNS, *log_rows])
-    return _finish(
-        best,
-        hp,
-        hp_file,
-        source,
-        iterations * per_iter,
-        seed,
-        wall,
-        iterations,
-        select_sets,
-        out,
-        steps,
-        {k: round(v, 3) for k, v in cpu.items()},
-        device=device,
-    )
+        flat = (b_obs.reshape(-1, dim), b_act.reshape(-1), b_logp.reshape(-1), adv.reshape(-1), ret.reshape(-1))
+        _update(actor, critic, opt, params, *flat, p, gen)
+        run.cpu["rollout"] += c1 - c0
+        run.cpu["update"] += clock() - c1
+        score = run.select(it, lambda: _layers(actor))
+        run.log(it, counts.tolist(), score, progress, f" ({device})")  # (the iteration's one read on the host)
+    return run.finish(hp_file, out, device=device)
 
 
 def _features(obs: Any, config: Any) -> Any:

@@ -280,6 +280,109 @@ def train(
         return _train(suites, hp, hp_file, suite_name=suite_name, steps=steps, seed=seed, out=out, progress=progress)
 
 
+class Run:
+    """What the numpy trainer and the device one (:mod:`.devppo`) share: a run's plan (iterations,
+    the training pools, the first weights' generator), its model selection and its log."""
+
+    def __init__(
+        self, suites: list[Any], hp: FastPPOHyperparams, *, suite_name: str | None, steps: int | None, seed: int
+    ) -> None:
+        from overtakezoo.zoo.train.contract import suite_source
+        from overtakezoo.zoo.train.selection import selection_sets
+
+        self.hp, self.p, self.n, self.repeat = hp, hp.ppo, hp.env.num_envs, hp.env.action_repeat
+        self.asked = int(steps if steps is not None else hp.train.steps)
+        self.per_iter = self.n * self.p.num_steps_per_env
+        self.iterations = max(1, math.ceil(self.asked / self.per_iter))
+        self.seed = seed
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))  # weights, draws, minibatches
+        self.source = suite_source(suites, suite_name)
+        self.config = suites[0].config
+        self.dim = observation_size(self.config)
+        self.pools = [s.scenarios() for s in suites]
+        multi = [s.name for s, q in zip(suites, self.pools, strict=True) if q.num_avs > 1]
+        if multi:  # (waiting AVs of a multi-AV road would need their transitions dropped; rsl-rl's face has none)
+            raise TrainError(f"{NAME} trains single-AV suites; {', '.join(multi)} has several AVs per road")
+        self.select_sets = selection_sets(suites, self.pools, hp.train.select_scenarios)
+        self.best: dict[str, Any] = {"score": -np.inf, "iteration": None, "layers": None}
+        self.log_rows: list[list[Any]] = []
+        self.cpu = {"rollout": 0.0, "update": 0.0, "select": 0.0}  # process CPU seconds by phase (on the card)
+        self.t0 = time.perf_counter()
+
+    def networks(self) -> tuple[MLP, MLP]:
+        """The initial actor (its OVERTAKE logit biased: start near always-overtake) and critic."""
+        p = self.p
+        actor = MLP([self.dim, *p.hidden, 3], self.rng, 0.01)
+        actor.params[-1][1] += p.overtake_bias
+        return actor, MLP([self.dim, *p.hidden, 1], self.rng, 1.0)
+
+    def select(self, it: int, layers: Any) -> float | None:
+        """Score the greedy policy of ``layers()`` after iteration ``it`` (0-based) when selection is
+        due then, keeping the best; its score, or None when not due."""
+        from overtakezoo.zoo.members.mlp import NumpyMLP
+        from overtakezoo.zoo.train.selection import greedy_score
+
+        every, done = self.hp.train.select_every, it + 1
+        if not (done == self.iterations or (every and done % every == 0 and done >= self.hp.train.select_from)):
+            return None
+        c0 = time.process_time()
+        chosen = layers()
+        net = NumpyMLP(chosen, "tanh")
+
+        def greedy(o: np.ndarray, c: Any) -> np.ndarray:
+            return net(speed_relative(o, c)).argmax(axis=1)
+
+        score = greedy_score(greedy, self.select_sets, self.repeat)
+        if score > self.best["score"]:
+            self.best = {"score": score, "iteration": done, "layers": chosen}
+        self.cpu["select"] += time.process_time() - c0
+        return score
+
+    def log(self, it: int, counts: list[int], score: float | None, progress: bool, where: str = "") -> None:
+        """Iteration ``it``'s row of train_log.csv from its (episodes, successes, crashes, timeouts)."""
+        episodes, success, crash, timeout = (int(c) for c in counts)
+        eps = max(episodes, 1)
+        self.log_rows.append(
+            [
+                it + 1,
+                (it + 1) * self.per_iter,
+                f"{time.perf_counter() - self.t0:.2f}",
+                episodes,
+                f"{success / eps:.4f}",
+                f"{crash / eps:.4f}",
+                f"{timeout / eps:.4f}",
+                "" if score is None else f"{score:.4f}",
+            ]
+        )
+        if progress:
+            print(
+                f"{NAME}{where} iteration {it + 1}/{self.iterations}: "
+                f"success {success / eps:.2f} crash {crash / eps:.2f}"
+                + ("" if score is None else f", greedy score {score:.3f}"),
+                flush=True,
+            )
+
+    def finish(self, hp_file: str, out: Path, device: str | None = None) -> Any:
+        """Write the log, the weights and the card (_finish); the Trained run."""
+        wall = time.perf_counter() - self.t0
+        write_log(out, [LOG_COLUMNS, *self.log_rows])
+        return _finish(
+            self.best,
+            self.hp,
+            hp_file,
+            self.source,
+            self.iterations * self.per_iter,
+            self.seed,
+            wall,
+            self.iterations,
+            self.select_sets,
+            out,
+            self.asked,
+            {k: round(v, 3) for k, v in self.cpu.items()},
+            device=device,
+        )
+
+
 def _train(
     suites: list[Any],
     hp: FastPPOHyperparams,
@@ -293,40 +396,21 @@ def _train(
 ) -> Any:
     from overtakezoo.envs.hold import hold
     from overtakezoo.envs.mixture import MixedCore, split_rows
-    from overtakezoo.zoo.members.mlp import NumpyMLP
-    from overtakezoo.zoo.train.contract import suite_source
-    from overtakezoo.zoo.train.selection import greedy_score, selection_sets
 
     check_writable_dir(out)
-    p, n, repeat = hp.ppo, hp.env.num_envs, hp.env.action_repeat
-    steps = int(steps if steps is not None else hp.train.steps)
-    per_iter = n * p.num_steps_per_env
-    iterations = max(1, math.ceil(steps / per_iter))
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))  # the policy's draws and minibatches
-    source = suite_source(suites, suite_name)
-    config = suites[0].config
-    pools = [s.scenarios() for s in suites]
-    multi = [s.name for s, q in zip(suites, pools, strict=True) if q.num_avs > 1]
-    if multi:  # (waiting AVs of a multi-AV road would need their transitions dropped; rsl-rl's face has none)
-        raise TrainError(f"{NAME} trains single-AV suites; {', '.join(multi)} has several AVs per road")
+    run = Run(suites, hp, suite_name=suite_name, steps=steps, seed=seed)
+    p, n, repeat, dim, rng, config = run.p, run.n, run.repeat, run.dim, run.rng, run.config
 
     def pool_source(pool: Any) -> Any:  # rows drawn uniformly from the suite (rsl_rl.pool_source, without torch)
         return lambda k, g: pool.take(g.integers(0, pool.num, k))
 
-    core = MixedCore([s.config for s in suites], [pool_source(q) for q in pools], split_rows(n, len(pools)), seed=seed)
-    dim = observation_size(config)
-    actor = MLP([dim, *p.hidden, 3], rng, 0.01)
-    actor.params[-1][1] += p.overtake_bias  # the OVERTAKE logit: start near always-overtake
-    critic = MLP([dim, *p.hidden, 1], rng, 1.0)
-    select_sets = selection_sets(suites, pools, hp.train.select_scenarios)
-    best: dict[str, Any] = {"score": -np.inf, "iteration": None, "layers": None}
-
+    core = MixedCore(
+        [s.config for s in suites], [pool_source(q) for q in run.pools], split_rows(n, len(run.pools)), seed=seed
+    )
+    actor, critic = run.networks()
     obs = speed_relative(core.observe(), config).astype(DTYPE)
-    t0 = time.perf_counter()
-    log_rows = []
-    cpu = {"rollout": 0.0, "update": 0.0, "select": 0.0}  # process CPU seconds by phase (the card records them)
     clock = time.process_time
-    for it in range(iterations):
+    for it in range(run.iterations):
         T = p.num_steps_per_env
         b_obs, b_act = np.empty((T, n, dim), DTYPE), np.empty((T, n), np.int64)
         b_logp, b_val, b_rew, b_done = (np.empty((T, n)) for _ in range(4))
@@ -360,58 +444,10 @@ def _train(
             "ret": ret.reshape(-1).astype(DTYPE),
         }
         update(actor, critic, batch, p, rng)
-        c2 = clock()
-        cpu["rollout"] += c1 - c0
-        cpu["update"] += c2 - c1
-        score = None
-        last = it + 1 == iterations
-        every = hp.train.select_every
-        if last or (every and (it + 1) % every == 0 and it + 1 >= hp.train.select_from):
-            layers = actor.layers()
-            net = NumpyMLP(layers, "tanh")
-
-            def greedy(o: np.ndarray, c: Any, net: NumpyMLP = net) -> np.ndarray:
-                return net(speed_relative(o, c)).argmax(axis=1)
-
-            score = greedy_score(greedy, select_sets, repeat)
-            if score > best["score"]:
-                best = {"score": score, "iteration": it + 1, "layers": layers}
-            cpu["select"] += clock() - c2
-        eps = max(int(counts[0]), 1)
-        log_rows.append(
-            [
-                it + 1,
-                (it + 1) * per_iter,
-                f"{time.perf_counter() - t0:.2f}",
-                int(counts[0]),
-                f"{counts[1] / eps:.4f}",
-                f"{counts[2] / eps:.4f}",
-                f"{counts[3] / eps:.4f}",
-                "" if score is None else f"{score:.4f}",
-            ]
-        )
-        if progress:
-            print(
-                f"{NAME} iteration {it + 1}/{iterations}: success {counts[1] / eps:.2f} crash {counts[2] / eps:.2f}"
-                + ("" if score is None else f", greedy score {score:.3f}"),
-                flush=True,
-            )
-    wall = time.perf_counter() - t0
-    write_log(out, [LOG_COLUMNS, *log_rows])
-    return _finish(
-        best,
-        hp,
-        hp_file,
-        source,
-        iterations * per_iter,
-        seed,
-        wall,
-        iterations,
-        select_sets,
-        out,
-        steps,
-        {k: round(v, 3) for k, v in cpu.items()},
-    )
+        run.cpu["rollout"] += c1 - c0
+        run.cpu["update"] += clock() - c1
+        run.log(it, counts.tolist(), run.select(it, actor.layers), progress)
+    return run.finish(hp_file, out)
 
 
 def write_log(out: Path, rows: list[list[Any]]) -> None:
