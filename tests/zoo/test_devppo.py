@@ -31,11 +31,15 @@ def _train(tmp_path, name, steps, seed=0, **overrides):
     )
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+# 48 iterations: at 24 a seed's float32 training depends on the CPU's kernels enough to land
+# anywhere in 0.81-0.97 (seed 2: 0.81 on a CI machine, 0.94 on a 2-core Xeon); at 48 six seeds
+# gave 0.945-1.0 under both ATEN_CPU_CAPABILITY=default and avx2 on the Xeon. One seed runs by
+# default (26 s on 2 cores); every seed runs with -m slow.
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow), pytest.param(2, marks=pytest.mark.slow)])
 def test_learns_table1_train_on_the_torch_path(tmp_path, seed):
-    """24 iterations (48k decisions), every seed: the selected greedy policy passes most of 400
-    table1-train scenarios it was not selected on (the numpy core runs them) and crashes in few."""
-    trained = _train(tmp_path, "run", 24 * 2048, seed=seed)
+    """48 iterations (98k decisions): the selected greedy policy passes most of 400 table1-train
+    scenarios it was not selected on (the numpy core runs them) and crashes in few."""
+    trained = _train(tmp_path, "run", 48 * 2048, seed=seed)
     suite = load_training("table1-train")[0]
     held = suite.scenarios().take(np.arange(600, 1000))  # (selection scored the first 256)
     decider = trained.decider(suite.config)
@@ -47,9 +51,9 @@ def test_learns_table1_train_on_the_torch_path(tmp_path, seed):
     card = json.loads((tmp_path / "run" / "ppo-numpy.json").read_text())
     check_card(card)
     assert card["training"]["trainer"] == "devppo (torch, cpu)" and card["versions"]["torch"]
-    assert card["reproduce"].endswith(f"--steps 49152 --seed {seed} --device cpu --backend torch")
+    assert card["reproduce"].endswith(f"--steps 98304 --seed {seed} --device cpu --backend torch")
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == sorted(run_files("fastppo", "ppo-numpy"))
-    assert (tmp_path / "run" / "train_log.csv").read_text().count("\n") == 25  # header + 24 iterations
+    assert (tmp_path / "run" / "train_log.csv").read_text().count("\n") == 49  # header + 48 iterations
 
 
 def test_same_seed_same_weights(tmp_path):
