@@ -32,6 +32,9 @@ def register(subparsers: Any) -> None:
         "changed stale row is refused. The cross-play matrices (crossplay/<suite>.json) are re-run\n"
         "too: every pair of a new or changed one, max(K, 12) pairs of the others (and of every one\n"
         "with no base), all pairs without --sample; each pair's counts must equal the stored ones.\n"
+        "So are the training seeds (seeds/<member>.json): each seed re-runs with its own stored\n"
+        "weights (the shipped seed: the zoo member) on its suites, with the same rule for which\n"
+        "(seed, suite) pairs; seeds whose weights were never kept are pinned by content in the code.\n"
         "Every mode\n"
         "finds its leaderboard as `submit` does (--root).",
         [
@@ -96,6 +99,7 @@ def run(args: Any) -> int:
     if args.verify:
         from overtakezoo.benchmark.leaderboard.changes import changed_files, changed_rows, default_base
         from overtakezoo.benchmark.leaderboard.crossplay import VERIFY_PAIRS
+        from overtakezoo.benchmark.leaderboard.seed_verify import seed_files
         from overtakezoo.benchmark.leaderboard.verify import matrices, verify
 
         if args.sample is not None and args.sample < 1:
@@ -104,7 +108,8 @@ def run(args: Any) -> int:
             raise UserError(f"--jobs {args.jobs}: must be >= 1")
         base = args.base or default_base(args.root)
         changed = (
-            changed_rows(args.root, base) | {f"crossplay/{rel}" for rel in changed_files(args.root, base, "crossplay")}
+            changed_rows(args.root, base)
+            | {f"{folder}/{rel}" for folder in ("crossplay", "seeds") for rel in changed_files(args.root, base, folder)}
             if base
             else set()
         )
@@ -139,7 +144,12 @@ def run(args: Any) -> int:
             changed=changed,
             pair_sample=pairs,
         )
-        if n == 0 and args.only is not None and not matrices(args.root, args.only):
+        if (
+            n == 0
+            and args.only is not None
+            and not matrices(args.root, args.only)
+            and not seed_files(args.root, args.only)
+        ):
             raise UserError(f"--only {args.only!r}: no current row matches")
         print(f"verified {n} row(s): every re-run reproduces its recorded per-scenario results")
         return 0

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.benchmark.leaderboard.seed_verify import sources
 from overtakezoo.benchmark.leaderboard.untrusted import md
 from overtakezoo.benchmark.suite_groups import CORE
 from overtakezoo.envs import safe_json
@@ -240,6 +241,7 @@ def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
         except (ValueError, KeyError, TypeError, AssertionError) as exc:
             raise UserError(f"{path}: malformed seeds file ({type(exc).__name__}: {exc})") from None
         _anchored(path, doc)
+        sources(doc["member"], doc)  # seeds 0..n-1, each re-runnable or pinned (seed_verify.py)
         out[doc["member"]] = doc
     return out
 
@@ -303,18 +305,21 @@ def build_table(
     return table
 
 
+RERUN = {"zoo": "the zoo's weights", "stored": "stored weights", "pinned": "*pinned*"}
+
+
 def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
     """Markdown: every learned member's training seeds on ``suite`` (success, crash with Wilson CIs),
     their mean with a bootstrap CI over seeds and scenarios, and the shipped seed with its rule."""
     out = [
         f"### Learned deciders over their training seeds ({suite})",
         "",
-        "| member | seed | success [95 % CI] | crash [95 % CI] | shipped |",
-        "|---|---|---|---|---|",
+        "| member | seed | success [95 % CI] | crash [95 % CI] | shipped | re-run from |",
+        "|---|---|---|---|---|---|",
     ]
     rules = []
     for name, doc in sorted(seeds.items()):
-        cs = []
+        cs, hows = [], sources(name, doc)
         for e in doc["seeds"]:
             c = e["suites"].get(suite)
             if c is None:
@@ -323,13 +328,14 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
             out.append(
                 f"| {md(name)} | {md(e['seed'])} | {_pct(c['success_rate'])} % [{_pct(c['success_ci'][0])}, "
                 f"{_pct(c['success_ci'][1])}] | {_pct(c['crash_rate'])} % [{_pct(c['crash_ci'][0])}, "
-                f"{_pct(c['crash_ci'][1])}] | {'yes' if e['seed'] == doc['shipped_seed'] else ''} |"
+                f"{_pct(c['crash_ci'][1])}] | {'yes' if e['seed'] == doc['shipped_seed'] else ''} | "
+                f"{RERUN[hows[e['seed']]]} |"
             )
         if cs:
             s, c = mean_over_seeds(cs, "success"), mean_over_seeds(cs, "crash")
             out.append(
                 f"| **{md(name)}** | mean of {len(cs)} | {_pct(s['value'])} % [{_pct(s['lo'])}, {_pct(s['hi'])}] | "
-                f"{_pct(c['value'])} % [{_pct(c['lo'])}, {_pct(c['hi'])}] | |"
+                f"{_pct(c['value'])} % [{_pct(c['lo'])}, {_pct(c['hi'])}] | | |"
             )
         rules.append((md(name), md(doc["selection_rule"])))
     by_rule: dict[str, list[str]] = {}  # one rule for all members, or each rule with its members
@@ -344,9 +350,11 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
         "",
         "Shipped seed: " + (said if rules else "-"),
         "",
-        "Verified: the shipped seed (its weights are the zoo's, and its counts must equal the member's rows, "
-        "which `overtakezoo leaderboard --verify` re-runs). The other seeds' counts are as `overtakezoo seeds` "
-        "measured them; their weights are not stored yet, so they cannot be re-run.",
+        "Verified: `overtakezoo leaderboard --verify` re-runs every seed on its suites from the weights named in "
+        "the last column (the zoo member's for the shipped seed; `seeds/weights/` for stored ones) and requires "
+        "its counts exactly. *pinned*: seeds measured before every seed's weights were kept; nothing can re-run "
+        "them, so each is pinned by content in `benchmark/leaderboard/seed_verify.py` (an edit is refused) "
+        "until the member is retrained with `overtakezoo seeds`.",
         "",
     ]
     return "\n".join(out)

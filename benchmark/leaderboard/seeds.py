@@ -143,6 +143,31 @@ def evaluate_run(algo: str, run: Path, suites: dict[str, Suite]) -> dict[str, An
     return entry
 
 
+def store_weights(algo: str, run: Path, seed: int, root: Path) -> dict[str, str]:
+    """Copy a run's weights (exported to numpy when a torch trainer wrote them) with their model card
+    to ``<root>/seeds/weights/<algo>-seed<seed>.npz`` + ``.json``; the seeds entry's ``weights``."""
+    import hashlib
+    import tempfile
+
+    from overtakezoo.benchmark.leaderboard.seed_verify import weights_rel
+
+    rel = weights_rel(algo, seed)
+    npz = root / rel
+    npz.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=npz.parent) as tmp:
+        src = run
+        if (run / f"{algo}.pt").is_file():
+            from overtakezoo.zoo.train.export import export
+
+            export(run, tmp, algo)
+            src = Path(tmp)
+        files = {npz: (src / f"{algo}.npz").read_bytes(), npz.with_suffix(".json"): (src / f"{algo}.json").read_bytes()}
+    for path, content in files.items():
+        atomic_write_bytes(path, content)
+    sha = {p: hashlib.sha256(c).hexdigest() for p, c in files.items()}
+    return {"file": rel, "npz_sha256": sha[npz], "card_sha256": sha[npz.with_suffix(".json")]}
+
+
 def choose(seeds: list[dict[str, Any]], train_splits: list[str]) -> dict[str, Any]:
     """The seed to ship by the selection rule: the median by mean training-split success."""
 
@@ -186,6 +211,8 @@ def run_seeds(
     seeds = [evaluate_run(algo, run, todo) for run in runs]
     if not write:
         return None
+    for entry, run in zip(seeds, runs, strict=True):  # every seed's weights, so verify can re-run it
+        entry["weights"] = store_weights(algo, run, entry["seed"], Path(root))
     chosen = choose(seeds, train_splits)
     doc = {
         "member": algo,

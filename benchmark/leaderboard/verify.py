@@ -38,6 +38,11 @@ For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
    current suite, config and simulator, its ``deciders`` block the zoo's own, and its pairs re-run
    (all of a new or changed matrix, ``sample`` of the others) must give its counts exactly.
 
+8. **Training seeds are rows too** (:mod:`.seed_verify`): each seed of ``seeds/<member>.json`` re-runs
+   with its own stored weights (the shipped one: the zoo member) and must give its counts exactly (all
+   (seed, suite) pairs of a new or changed file, ``pair_sample`` of the others); seeds whose weights
+   were never kept are pinned by content in the code.
+
 A failure is one line naming the row (and the scenario and step where a policy misbehaved).
 """
 
@@ -69,6 +74,7 @@ from overtakezoo.benchmark.leaderboard.rows import (
     stored_files,
     suite_mismatch,
 )
+from overtakezoo.benchmark.leaderboard.seed_verify import SAMPLE_PAIRS, verify_seeds
 from overtakezoo.benchmark.run.determinism import check_deterministic, check_onnx_ops, probe_observations
 from overtakezoo.envs.model.outcomes import OUTCOME_NAMES
 from overtakezoo.envs.suites import Suite, load_suite, suite_names
@@ -224,6 +230,7 @@ def verify(
     else:
         n = sum(_log_all(verify_suite(*a), log) for a in args)
     verify_crossplay(root, pair_sample, seed, only, jobs, changed or set(), log)
+    verify_seeds(root, None if pair_sample is None else SAMPLE_PAIRS, seed, only, changed or set(), log)
     return n
 
 

@@ -239,10 +239,8 @@ def test_hostile_crossplay_seeds_and_reference_strings_are_escaped(root):
         )
     )
     seeds = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
-    seeds.update(selection_rule="[l] `c` *e* <b>x</b> t.png")  # the member is the file's name (checked)
-    for e in seeds["seeds"]:
-        if e["seed"] != seeds["shipped_seed"]:
-            e["seed"] = "*e* <img onerror=x> t.png"
+    # the member is the file's name (checked) and the seeds' entries are re-run or pinned: the rule is free text
+    seeds.update(selection_rule="[l] `c` *e* <b>x</b> t.png")
     (root / "seeds").mkdir()
     (root / "seeds" / "dqn.json").write_text(json.dumps(seeds))
     paper = json.loads((root / "reference" / "paper.json").read_text())
@@ -287,10 +285,9 @@ def test_a_seeds_file_whose_shipped_seed_differs_from_its_verified_row_is_refuse
     rows, hashes = {"dqn": {"dense": row.summary}}, {"dense": row.suite["hash"]}
     assert len(build_table(rows, load_seeds(REPO_LEADERBOARDS), hashes)["dqn"]["dense"]) == 3  # honest: 3 seeds
 
-    def claim_all(doc):
-        for e in doc["seeds"]:
-            c = e["suites"]["dense"]
-            c.update(success=c["n"], crash=0)
+    def claim_all(doc):  # (the other seeds are pinned by content: an edit there is refused at load)
+        c = next(e for e in doc["seeds"] if e["seed"] == doc["shipped_seed"])["suites"]["dense"]
+        c.update(success=c["n"], crash=0)
 
     forged = load_seeds(_seeds_root(tmp_path, "dqn", claim_all))
     with pytest.raises(UserError, match="shipped seed 0 on dense"):
@@ -302,7 +299,7 @@ def test_a_suite_added_to_the_score_never_drops_a_members_seeds_silently(tmp_pat
     dense added to the scoring suites: the headline would fall from dqn's 3 seeds to one run (before:
     "regenerated", dqn's score from one run); generation refuses with one line naming the file and
     the suite instead."""
-    from overtakezoo.benchmark.leaderboard import generate
+    from overtakezoo.benchmark.leaderboard import generate, seed_verify
 
     root = tmp_path / "lb"
     for suite in ("table1", "dense"):
@@ -311,6 +308,8 @@ def test_a_suite_added_to_the_score_never_drops_a_members_seeds_silently(tmp_pat
     doc = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
     for entry in doc["seeds"]:
         del entry["suites"]["dense"]  # (as for a suite that joins the score after the seeds were evaluated)
+    # (this board's own pins: the repo's pin the entries as they are, dense included)
+    monkeypatch.setitem(seed_verify.PINNED, "dqn", frozenset(seed_verify.entry_sha256(e) for e in doc["seeds"]))
     (root / "seeds").mkdir()
     (root / "seeds" / "dqn.json").write_text(json.dumps(doc))
     monkeypatch.setattr(generate, "CORE", ("table1",))

@@ -16,9 +16,9 @@ from overtakezoo.benchmark.leaderboard import headline
 
 @pytest.fixture
 def runs(tmp_path):
-    """Two runs of dqn (the shipped weights under seeds 0 and 1), as `overtakezoo train` leaves them."""
+    """Three runs of dqn (the shipped weights under seeds 0, 1 and 2), as `overtakezoo train` leaves them."""
     out = []
-    for seed in (0, 1):
+    for seed in (0, 1, 2):
         run = tmp_path / f"dqn-s{seed}"
         run.mkdir()
         shutil.copy(PRETRAINED / "dqn.npz", run / "dqn.npz")
@@ -39,8 +39,8 @@ def test_the_command_writes_a_seeds_file_the_headline_accepts_and_ships_the_chos
     text = path.read_text()
     doc = json.loads(text)
     assert text == json.dumps(doc, indent=1, sort_keys=True) + "\n"  # the format the board keeps
-    assert doc["member"] == "dqn" and doc["train_suite"] == str(split) and doc["shipped_seed"] in (0, 1)
-    assert [e["seed"] for e in doc["seeds"]] == [0, 1]
+    assert doc["member"] == "dqn" and doc["train_suite"] == str(split) and doc["shipped_seed"] in (0, 1, 2)
+    assert [e["seed"] for e in doc["seeds"]] == [0, 1, 2]
     for entry in doc["seeds"]:
         assert set(entry["suites"]) == {"tiny-train", "tiny"} and entry["suites"]["tiny"]["n"] == 6
         assert (tmp_path / entry["run"] / "seed-eval.json").is_file()  # each run's evaluations, cached
@@ -57,7 +57,7 @@ def test_the_command_writes_a_seeds_file_the_headline_accepts_and_ships_the_chos
     assert main([*argv, "--ship", "--pretrained", str(shipped)]) == 0
     assert path.read_text() == text
     card = json.loads((shipped / "dqn.json").read_text())
-    assert card["selection_rule"] == doc["selection_rule"] and set(card["seed_results"]) == {"0", "1"}
+    assert card["selection_rule"] == doc["selection_rule"] and set(card["seed_results"]) == {"0", "1", "2"}
     assert card["results"]["tiny"]["count"] == 6
     assert (shipped / "dqn.npz").read_bytes() == (PRETRAINED / "dqn.npz").read_bytes()
 
