@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser
+from overtakezoo.benchmark.commands._options import add_device_options, add_parser, device_from_args
 
 
 def register(subparsers: Any) -> None:
@@ -18,13 +18,15 @@ def register(subparsers: Any) -> None:
         "counts to <root>/crossplay/<suite>.json and regenerates the leaderboard, which turns them into\n"
         "crossplay-<suite>.md (joint success and AV-AV crash matrices with 95 % Wilson intervals) and\n"
         "crossplay-<suite>.png (heatmaps). With --check nothing is written: the matrix is measured again\n"
-        "and the exit status is 1 when it differs from the stored one.",
+        "and the exit status is 1 when it differs from the stored one. --device cuda runs the pairs on a GPU\n"
+        "(the same counts).",
         [
             "overtakezoo crossplay --suite duel --jobs 2",
             "overtakezoo crossplay --suite duel --limit 50 --deciders rule-fsm,fuzzy,dqn --root /tmp/lb",
             "overtakezoo crossplay --suite platoon --jobs 2",
             "overtakezoo crossplay --suite platoon --jobs 2 --changed-only   # after retraining a member",
             "overtakezoo crossplay --suite duel --check --jobs 2",
+            "overtakezoo crossplay --suite duel --device cuda     # the pairs on a GPU",
         ],
     )
     p.add_argument("--suite", default="duel", help="a multi-AV suite: duel, platoon, mixed-traffic (default: duel)")
@@ -41,6 +43,7 @@ def register(subparsers: Any) -> None:
         "version or weights differ from the stored matrix; copy the rest (every pair is deterministic)",
     )
     p.add_argument("--root", default="leaderboards", help="leaderboard folder (default: leaderboards)")
+    add_device_options(p, "the pairs' simulation")
     p.set_defaults(handler=run)
 
 
@@ -54,6 +57,7 @@ def run(args: Any) -> int:
 
     if args.jobs < 1:
         raise UserError(f"--jobs {args.jobs}: must be >= 1")
+    on = device_from_args(args)  # (a missing GPU is refused before anything runs)
     suite = load_suite(args.suite)
     names = None
     if args.deciders is not None:
@@ -73,7 +77,9 @@ def run(args: Any) -> int:
         stored = crossplay.load(path)
         if names is None:
             names = [d["name"] for d in stored["deciders"]]
-        doc = crossplay.measure(suite, names, stored["scenarios"] if args.limit is None else args.limit, args.jobs)
+        doc = crossplay.measure(
+            suite, names, stored["scenarios"] if args.limit is None else args.limit, args.jobs, **on
+        )
         if crossplay.to_bytes(doc) != path.read_bytes():
             print(
                 f"stale: {path} differs from a re-run: run `overtakezoo crossplay --suite {suite.name}`",
@@ -86,7 +92,7 @@ def run(args: Any) -> int:
         raise UserError("--changed-only and --check: a check re-runs every pair")
     stored = crossplay.load(path) if args.changed_only and path.is_file() else None
     doc = crossplay.measure(
-        suite, names, crossplay.DEFAULT_SCENARIOS if args.limit is None else args.limit, args.jobs, stored
+        suite, names, crossplay.DEFAULT_SCENARIOS if args.limit is None else args.limit, args.jobs, stored, **on
     )
     atomic_write_bytes(path, crossplay.to_bytes(doc))
     changed = write(args.root)

@@ -6,7 +6,13 @@ import fnmatch
 import sys
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser, leaderboard_root, root_help
+from overtakezoo.benchmark.commands._options import (
+    add_device_options,
+    add_parser,
+    device_from_args,
+    leaderboard_root,
+    root_help,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -35,6 +41,8 @@ def register(subparsers: Any) -> None:
         "So are the training seeds (seeds/<member>.json): each seed re-runs with its own stored\n"
         "weights (the shipped seed: the zoo member) on its suites, with the same rule for which\n"
         "(seed, suite) pairs; seeds whose weights were never kept are pinned by content in the code.\n"
+        "--device cuda re-runs the rows, cross-play matrices and training seeds on a GPU (float64: the\n"
+        "same per-scenario results as the CPU).\n"
         "Every mode\n"
         "finds its leaderboard as `submit` does (--root).",
         [
@@ -43,6 +51,7 @@ def register(subparsers: Any) -> None:
             "overtakezoo leaderboard --verify --sample 1     # CI: changed rows in full, 1 scenario of the rest",
             "overtakezoo leaderboard --verify --sample 20 --seed 1 --base HEAD  # 20 of every committed row",
             "overtakezoo leaderboard --verify --only 'table1/my-*'    # every scenario of some rows",
+            "overtakezoo leaderboard --verify --device cuda           # the re-runs on a GPU",
             "overtakezoo leaderboard --root /tmp/lb",
         ],
     )
@@ -83,6 +92,7 @@ def register(subparsers: Any) -> None:
         "matrices, as crossplay/SUITE) matching this glob, e.g. 'table1/*', '*/my-policy' or 'crossplay/duel'",
     )
     p.add_argument("--root", metavar="PATH", default=None, help=root_help())
+    add_device_options(p, "the simulation of --verify's re-runs")
     p.set_defaults(handler=run)
 
 
@@ -92,8 +102,12 @@ def run(args: Any) -> int:
     from overtakezoo.benchmark.leaderboard.generate import stale_files, write
     from overtakezoo.benchmark.leaderboard.untrusted import check_tree
 
-    if not args.verify and any(v is not None for v in (args.sample, args.only, args.seed, args.base)):
-        raise UserError("--sample, --seed, --base and --only go with --verify")
+    default_core = args.device.strip().lower() == "cpu" and args.backend in (None, "numpy")
+    if not args.verify and (
+        any(v is not None for v in (args.sample, args.only, args.seed, args.base)) or not default_core
+    ):
+        raise UserError("--sample, --seed, --base, --only, --device and --backend go with --verify")
+    on = device_from_args(args) if args.verify else {}  # (a missing GPU is refused before anything runs)
     args.root = leaderboard_root(args.root)
     check_tree(args.root)  # every mode reads the root: no symlink or FIFO a PR planted is followed
     if args.verify:
@@ -143,6 +157,7 @@ def run(args: Any) -> int:
             jobs=args.jobs,
             changed=changed,
             pair_sample=pairs,
+            **on,
         )
         if (
             n == 0

@@ -7,7 +7,13 @@ import shlex
 import sys
 from typing import Any
 
-from overtakezoo.benchmark.commands._options import add_parser, leaderboard_root, root_help
+from overtakezoo.benchmark.commands._options import (
+    add_device_options,
+    add_parser,
+    device_from_args,
+    leaderboard_root,
+    root_help,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -21,7 +27,9 @@ def register(subparsers: Any) -> None:
         "a built-in zoo member (filed under its own name; its version and weights must be the zoo's\n"
         "current ones), or your policy file (--policy, stored once by sha256 in\n"
         "leaderboards/submissions/artifacts/) under a name of your own (--name; built-in names are\n"
-        "reserved). An existing row is replaced only with --replace. Then run\n"
+        "reserved). An existing row is replaced only with --replace. A policy file is re-run on every\n"
+        "scenario, and every row's policy on a fresh draw of the suite, on the core --device picks (the\n"
+        "same per-scenario results on a GPU). Then run\n"
         "`overtakezoo leaderboard --verify --only SUITE/NAME` and `overtakezoo leaderboard`.",
         [
             "overtakezoo submit results/table1/rule-fsm.json",
@@ -29,6 +37,7 @@ def register(subparsers: Any) -> None:
             "overtakezoo submit results/table1/mine.json --policy runs/dqn/dqn.pt --name my-dqn  # + dqn.json",
             "overtakezoo submit results/table1/dqn.shard-0-of-2.json results/table1/dqn.shard-1-of-2.json",
             "overtakezoo submit --replace --root /tmp/lb results.json",
+            "overtakezoo submit results/table1/mine.json --policy mine.onnx --name mine --device cuda  # on a GPU",
         ],
     )
     p.add_argument("results", nargs="+", help="a results file, or every shard of one run")
@@ -42,6 +51,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--replace", action="store_true", help="replace an existing row of the same name")
     p.add_argument("--root", metavar="PATH", default=None, help=root_help(new_ok=True))
+    add_device_options(p, "submit's simulation (the re-run of a policy file, the fresh draw)")
     p.set_defaults(handler=run)
 
 
@@ -49,6 +59,7 @@ def run(args: Any) -> int:
     from overtakezoo.benchmark.leaderboard.submission import submit
     from overtakezoo.benchmark.results.results import Results, merge
 
+    on = device_from_args(args)  # (a missing GPU is refused before anything runs)
     root = leaderboard_root(args.root, new_ok=True)
     parts = [Results.load(p) for p in args.results]
     results = parts[0] if len(parts) == 1 else merge(parts)
@@ -61,6 +72,7 @@ def run(args: Any) -> int:
         replace=args.replace,
         source=" + ".join(args.results),
         report=lambda line: print(line, file=sys.stderr),
+        **on,
     )  # the hold
     if new:
         print(f"started a new leaderboard in {root}")

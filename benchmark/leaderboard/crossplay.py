@@ -82,23 +82,25 @@ def _counts(summary: dict[str, Any]) -> dict[str, list[int]]:
     return {key: counts[key] for key, _ in MEASURES}
 
 
-def _run_group(args: tuple[str, list[tuple[str, str]], int]) -> list[dict[str, Any]]:
+def _run_group(args: tuple[str, list[tuple[str, str]], int, str | None, str | None]) -> list[dict[str, Any]]:
     """Pairs run as one batch: each pair's :class:`~.pairing.Pairing` drives its own block of roads (a
     copy of the suite's first ``scenarios``), stacked as verify stacks rows (:class:`.batching.Stacked`).
     Roads never interact and every decider sees the rows it would see alone, so each pair's counts
-    are those of its own run (``tests/benchmark/test_crossplay_verify.py`` holds them to a pair run alone)."""
+    are those of its own run (``tests/benchmark/test_crossplay_verify.py`` holds them to a pair run alone).
+    The last two entries of ``args`` are the core's ``device`` and ``backend`` (None: the numpy core)."""
     from overtakezoo.benchmark.leaderboard.batching import Stacked
     from overtakezoo.benchmark.results.results import round_per_scenario, summary_of
     from overtakezoo.benchmark.run.runner import run_scenarios
     from overtakezoo.envs.scenarios import Scenarios
 
-    where, pairs, scenarios = args
+    where, pairs, scenarios, device, backend = args
     suite = load_suite(where)
     e = suite.num_avs
     base = suite.scenarios().take(np.arange(scenarios))
     stacked = Stacked([(_pairing(suite, a, b), scenarios) for a, b in pairs], e)
     batch = Scenarios.concat([base] * len(pairs))
-    per = run_scenarios(suite, stacked, batch, np.tile(np.arange(scenarios), len(pairs)), batch.num, safety=False)
+    roads = np.tile(np.arange(scenarios), len(pairs))
+    per = run_scenarios(suite, stacked, batch, roads, batch.num, safety=False, device=device, backend=backend)
     out = []
     for i, (a, b) in enumerate(pairs):
         mine = {k: v.reshape(e, -1)[:, i * scenarios : (i + 1) * scenarios].reshape(-1) for k, v in per.items()}
@@ -135,11 +137,17 @@ def labels(suite: Suite, names: list[str]) -> list[dict[str, Any]]:
 
 
 def run_pairs(
-    suite: Suite, wanted: list[tuple[str, str]], scenarios: int, jobs: int = 1
+    suite: Suite,
+    wanted: list[tuple[str, str]],
+    scenarios: int,
+    jobs: int = 1,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> dict[tuple[str, str], dict]:
     """Each ordered pair of ``wanted`` run on the suite's first ``scenarios`` roads, as ``{(a, b): pair}``:
     pairs that hold their decisions equally long share a batch of up to :data:`BATCH_ROADS` roads
-    (:func:`_run_group`); ``jobs`` > 1 runs the batches in that many worker processes."""
+    (:func:`_run_group`); ``jobs`` > 1 runs the batches in that many worker processes. ``device`` /
+    ``backend`` pick the core (the runner's keywords; None: the numpy core, the same counts)."""
     where = suite.name if suite.builtin else str(suite.path)
     by_hold: dict[int, list[tuple[str, str]]] = {}
     for a, b in wanted:
@@ -148,7 +156,7 @@ def run_pairs(
     if jobs > 1:  # batches small enough that every worker gets some
         per_batch = max(1, min(per_batch, -(-len(wanted) // jobs)))
     todo = [
-        (where, group[i : i + per_batch], scenarios)
+        (where, group[i : i + per_batch], scenarios, device, backend)
         for group in by_hold.values()
         for i in range(0, len(group), per_batch)
     ]
@@ -180,17 +188,21 @@ def measure(
     scenarios: int = DEFAULT_SCENARIOS,
     jobs: int = 1,
     stored: dict[str, Any] | None = None,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> dict[str, Any]:
     """Run every ordered pair of ``names`` (default: :func:`zoo_deciders`) on the suite's first
     ``scenarios`` roads; returns the data document (deterministic: no timing in it). With ``stored``
     (an earlier matrix) a pair of two unchanged deciders (:func:`reusable`) is copied, not re-run:
-    every pair is a deterministic function of the suite and the two deciders."""
+    every pair is a deterministic function of the suite and the two deciders, on either core (``device``
+    / ``backend``, :func:`run_pairs`)."""
     _check_scenarios(suite, scenarios)
     names = zoo_deciders(suite.config) if names is None else list(names)
     deciders = labels(suite, names)
     same = reusable(stored, suite, scenarios, deciders)
     old = {(p["a"], p["b"]): p for p in stored["pairs"]} if same else {}
-    new = run_pairs(suite, [(a, b) for a in names for b in names if not (a in same and b in same)], scenarios, jobs)
+    wanted = [(a, b) for a in names for b in names if not (a in same and b in same)]
+    new = run_pairs(suite, wanted, scenarios, jobs, device=device, backend=backend)
     pairs = [new.get((a, b)) or old[(a, b)] for a in names for b in names]
     return {
         "generated_by": "overtakezoo crossplay",
@@ -203,11 +215,20 @@ def measure(
     }
 
 
-def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, jobs: int = 1) -> str:
+def verify_matrix(
+    root: str | Path,
+    path: Path,
+    sample: int | None,
+    seed: int,
+    jobs: int = 1,
+    device: str | None = None,
+    backend: str | None = None,
+) -> str:
     """Re-derive a stored matrix as ``leaderboard --verify`` does: its suite, config and simulator
     are the current ones, its ``deciders`` block is the zoo's (derived), and every pair re-run
-    (``sample`` None) or ``sample`` pairs drawn from ``seed`` give exactly the stored counts.
-    Returns the report line; :class:`UserError` naming the file (and the pair) otherwise."""
+    (``sample`` None) or ``sample`` pairs drawn from ``seed`` give exactly the stored counts, on the
+    core ``device`` / ``backend`` pick (:func:`run_pairs`). Returns the report line; :class:`UserError`
+    naming the file (and the pair) otherwise."""
     from overtakezoo.envs.suites import suite_names
 
     rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
@@ -243,7 +264,7 @@ def verify_matrix(root: str | Path, path: Path, sample: int | None, seed: int, j
         rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
         pairs = [pairs[i] for i in np.sort(rng.choice(len(pairs), size=sample, replace=False))]
     stored = {(p["a"], p["b"]): p for p in doc["pairs"]}
-    got = run_pairs(suite, pairs, doc["scenarios"], jobs)
+    got = run_pairs(suite, pairs, doc["scenarios"], jobs, device=device, backend=backend)
     for a, b in pairs:
         for key, label in MEASURES:
             if stored[a, b][key] != got[a, b][key]:

@@ -157,9 +157,17 @@ def shape_error(results: Any, suite: Suite, public_seeds: set[int]) -> str | Non
     return None
 
 
-def run_fresh(suite: Suite, decider: Any, seed: int, count: int | None = None) -> np.ndarray:
-    """The outcome of every scenario (and AV, AV-major) of ``decider`` on a fresh draw of ``suite``."""
+def run_fresh(
+    suite: Suite,
+    decider: Any,
+    seed: int,
+    count: int | None = None,
+    device: str | None = None,
+    backend: str | None = None,
+) -> np.ndarray:
+    """The outcome of every scenario (and AV, AV-major) of ``decider`` on a fresh draw of ``suite``, on
+    the core ``device`` / ``backend`` pick (the runner's keywords; None: the numpy core)."""
     from overtakezoo.benchmark.run.runner import run_indices
 
     draw = fresh_suite(suite, seed, fresh_count(suite) if count is None else count)
-    return run_indices(draw, decider, np.arange(draw.count), safety=False)["outcome"]
+    return run_indices(draw, decider, np.arange(draw.count), safety=False, device=device, backend=backend)["outcome"]

@@ -150,8 +150,8 @@ def _stored_decider(root: Path, member: str, entry: dict[str, Any], config: Any)
     return boxed(art, config, rel)
 
 
-def rerun(root: Path, member: str, entry: dict[str, Any], how: str, suite: Any) -> dict[str, Any]:
-    """The seed's counts on ``suite``, re-run from its weights."""
+def rerun(root: Path, member: str, entry: dict[str, Any], how: str, suite: Any, **on: Any) -> dict[str, Any]:
+    """The seed's counts on ``suite``, re-run from its weights (``on``: the runner's device keywords)."""
     from overtakezoo.benchmark.leaderboard.seeds import evaluate
     from overtakezoo.benchmark.run.policy import load_zoo
 
@@ -160,7 +160,7 @@ def rerun(root: Path, member: str, entry: dict[str, Any], how: str, suite: Any) 
     else:
         decider = _stored_decider(root, member, entry, suite.config)
     try:
-        return evaluate(suite, decider)
+        return evaluate(suite, decider, **on)
     finally:
         close = getattr(getattr(decider, "inner", None), "close", None)
         if close is not None:
@@ -180,9 +180,11 @@ def verify_seeds(
     only: str | None,
     changed: set[str],
     log: Callable[[str], None],
+    **on: Any,
 ) -> None:
     """Re-run the seeds files (those ``only`` matches as ``seeds/<member>``): every (seed, suite) pair
-    of a file in ``changed`` (or of any file with ``sample`` None), ``sample`` pairs of the others."""
+    of a file in ``changed`` (or of any file with ``sample`` None), ``sample`` pairs of the others
+    (``on``: the runner's ``device`` / ``backend`` keywords)."""
     from overtakezoo.benchmark.leaderboard.headline import load_seeds
     from overtakezoo.envs.suites import load_suite
 
@@ -211,7 +213,7 @@ def verify_seeds(
             rng = np.random.default_rng([seed, zlib.crc32(rel.encode())])
             pairs = [pairs[i] for i in sorted(rng.choice(len(pairs), min(sample or 1, len(pairs)), replace=False))]
         for e, name, suite, recorded in pairs:
-            got = rerun(root, member, e, hows[e["seed"]], suite)
+            got = rerun(root, member, e, hows[e["seed"]], suite, **on)
             diff = [k for k in sorted(got) if got[k] != recorded.get(k)]
             if diff:
                 k = diff[0]

@@ -67,9 +67,9 @@ def counts(summary: dict) -> dict:
     }
 
 
-def multi_counts(suite, decider) -> dict:
+def multi_counts(suite, decider, **on) -> dict:
     """Per-AV and joint outcomes of ``decider`` driving every AV of the whole multi-AV ``suite``."""
-    c = run_joint_rates(suite, decider)["counts"]
+    c = run_joint_rates(suite, decider, **on)["counts"]
     n, roads = c["av_rows"], c["roads"]
     return {
         "n": n,
@@ -87,13 +87,14 @@ def multi_counts(suite, decider) -> dict:
     }
 
 
-def evaluate(suite, decider) -> dict:
-    """The counts of one suite: the runner's summary, or per-AV rates on a multi-AV suite."""
+def evaluate(suite, decider, **on) -> dict:
+    """The counts of one suite: the runner's summary, or per-AV rates on a multi-AV suite (``on``: the
+    runner's ``device`` / ``backend`` keywords)."""
     from overtakezoo.benchmark.run.runner import run_suite
 
     if suite.scenarios().num_avs > 1:
-        return multi_counts(suite, decider)
-    return counts(run_suite(suite, decider, progress=False).summary)
+        return multi_counts(suite, decider, **on)
+    return counts(run_suite(suite, decider, progress=False, **on).summary)
 
 
 def evaluate_run(algo: str, run: Path, suites: dict[str, Suite]) -> dict[str, Any]:

@@ -57,6 +57,8 @@ def submit(
     replace: bool = False,
     source: str = "results",
     report: Callable[[str], None] | None = None,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> Path:
     """File ``results`` as the row ``name`` with the policy that re-runs it; returns the row's path.
 
@@ -67,7 +69,9 @@ def submit(
     exactly, and the row's ``decider`` block is derived from it. An existing row is replaced only with
     ``replace``. The submissions directory is locked while a row is filed. Once it is filed,
     ``report`` (``submit`` prints them on stderr) gets the lines saying the hold the row is run with
-    and where it came from (:func:`~overtakezoo.benchmark.run.policy.hold_lines`)."""
+    and where it came from (:func:`~overtakezoo.benchmark.run.policy.hold_lines`). ``device`` /
+    ``backend`` pick the core of the re-run and the fresh draw (the runner's keywords; None: the numpy
+    core, whose per-scenario results the torch core in float64 gives too)."""
     root = Path(root)
     suite = _current_suite(results, source)
     said: list[str] = []  # the hold lines, reported once the row is filed
@@ -90,7 +94,7 @@ def submit(
         block = _builtin_block(results, suite, source, said)
         from overtakezoo.benchmark.run.policy import load_zoo
 
-        drawn = _fresh_block(suite, load_zoo(decider["name"], suite.config, hint=""))
+        drawn = _fresh_block(suite, load_zoo(decider["name"], suite.config, hint=""), device, backend)
     else:
         reserved_name(name, "--name")
         if decider["name"].endswith("+shield"):
@@ -104,7 +108,14 @@ def submit(
         _not_zoo_weights(art, Path(policy))  # a member's weights under a new name would rank beside the member
         meta = {**results.meta, "decider": artifact_decider(name, art)}
         drawn = _reproduces(
-            Results(meta, results.per, results.summary, results.timing), suite, art, Path(policy), source, said
+            Results(meta, results.per, results.summary, results.timing),
+            suite,
+            art,
+            Path(policy),
+            source,
+            said,
+            device,
+            backend,
         )
     with submissions_lock(root):
         check_tree(root)  # no symlink or FIFO planted under the root is written through
@@ -304,8 +315,15 @@ def _not_evaluated(policy: Path, sha: str, measured: str) -> None:
 
 
 def _reproduces(
-    results: Results, suite: Suite, art: Artifact, policy: Path, source: str, said: list[str] | None = None
-) -> None:
+    results: Results,
+    suite: Suite,
+    art: Artifact,
+    policy: Path,
+    source: str,
+    said: list[str] | None = None,
+    device: str | None = None,
+    backend: str | None = None,
+) -> dict[str, Any]:
     """Re-run the stored form on every scenario: a row whose artifact does not give its numbers is refused,
     and so is one that is not deterministic (:mod:`~overtakezoo.benchmark.run.determinism`: no random op,
     the same decisions by batch size, row order and call), whose row would fail later verifications."""
@@ -322,8 +340,8 @@ def _reproduces(
     try:
         check_deterministic(dec.inner.act, suite, who)
         with torch_single_threaded():
-            got = run_indices(suite, dec, np.arange(suite.count))
-        drawn = _fresh_block(suite, dec)
+            got = run_indices(suite, dec, np.arange(suite.count), device=device, backend=backend)
+        drawn = _fresh_block(suite, dec, device, backend)
     except RunFailure as exc:
         raise UserError(f"{source}: the stored form of --policy {policy} fails: {exc}") from None
     finally:
@@ -338,16 +356,18 @@ def _reproduces(
     return drawn
 
 
-def _fresh_block(suite: Suite, decider: Any) -> dict[str, Any]:
+def _fresh_block(suite: Suite, decider: Any, device: str | None = None, backend: str | None = None) -> dict[str, Any]:
     """The row's fresh draw (:mod:`.fresh`): ``decider`` on its suite's distribution drawn with a seed
-    from fresh randomness, so nobody knew its scenarios when the policy was made."""
+    from fresh randomness, so nobody knew its scenarios when the policy was made (on the core ``device``
+    / ``backend`` pick)."""
     from overtakezoo.benchmark.leaderboard.changes import fresh_seed
 
     seed, public = fresh_seed(), fresh.public_seeds()
     while seed in public:  # (2^-63 odds; a built-in suite's seed is no fresh draw)
         seed = fresh_seed()
     with torch_single_threaded():
-        return fresh.block(seed, fresh.fresh_count(suite), fresh.run_fresh(suite, decider, seed))
+        outcome = fresh.run_fresh(suite, decider, seed, device=device, backend=backend)
+        return fresh.block(seed, fresh.fresh_count(suite), outcome)
 
 
 def _fresh_lines(row: Results) -> list[str]:

@@ -202,13 +202,17 @@ def verify(
     changed: set[str] | None = None,
     log: Callable[[str], None] = print,
     pair_sample: int | None = None,
+    device: str | None = None,
+    backend: str | None = None,
 ) -> int:
     """Re-run every current row (``only``: rows whose ``suite/name`` matches this glob) on every
     scenario of the rows in ``changed`` and on ``sample`` scenarios of the others (all when None),
     drawn from ``seed`` (default :func:`.changes.fresh_seed`, logged); then the cross-play matrices:
     every pair of those in ``changed``, ``pair_sample`` pairs of the others (all when None); raises
     a UserError at the first row that does not reproduce (suites in name order). ``jobs`` > 1
-    verifies suites in that many worker processes. Returns the number of rows verified."""
+    verifies suites in that many worker processes. ``device`` / ``backend`` pick the core the rows and
+    matrices re-run on (:func:`~overtakezoo.benchmark.run.runner.run_suite`; None: the numpy core).
+    Returns the number of rows verified."""
     root = Path(root)
     if seed is None:
         seed = fresh_seed()
@@ -218,7 +222,7 @@ def verify(
         )
     base = root / "submissions"
     suites = sorted(p.name for p in base.iterdir() if p.is_dir() and p.name != ARTIFACTS) if base.is_dir() else []
-    args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ())) for name in suites]
+    args = [(root, name, sample, seed, only, chunk_size, frozenset(changed or ()), device, backend) for name in suites]
     if jobs > 1 and len(suites) > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
@@ -229,8 +233,9 @@ def verify(
             n = sum(_log_all(lines, log) for lines in reports)
     else:
         n = sum(_log_all(verify_suite(*a), log) for a in args)
-    verify_crossplay(root, pair_sample, seed, only, jobs, changed or set(), log)
-    verify_seeds(root, None if pair_sample is None else SAMPLE_PAIRS, seed, only, changed or set(), log)
+    verify_crossplay(root, pair_sample, seed, only, jobs, changed or set(), log, device, backend)
+    seeds_sample = None if pair_sample is None else SAMPLE_PAIRS
+    verify_seeds(root, seeds_sample, seed, only, changed or set(), log, device=device, backend=backend)
     return n
 
 
@@ -253,6 +258,8 @@ def verify_crossplay(
     jobs: int,
     changed: set[str],
     log: Callable[[str], None],
+    device: str | None = None,
+    backend: str | None = None,
 ) -> None:
     """Re-run the stored cross-play matrices (``crossplay/<suite>.json``, those ``only`` matches as
     ``crossplay/<suite>``): every pair of a matrix in ``changed`` (or with ``sample`` None), else
@@ -263,7 +270,7 @@ def verify_crossplay(
         rel = path.relative_to(root).as_posix()
         full = sample is None or rel in changed
         log(
-            crossplay.verify_matrix(root, path, None if full else sample, seed, jobs)
+            crossplay.verify_matrix(root, path, None if full else sample, seed, jobs, device, backend)
             + (" (new or changed: every pair)" if full and sample is not None else "")
         )
 
@@ -313,8 +320,11 @@ def verify_suite(
     only: str | None,
     chunk_size: int = 4096,
     changed: frozenset[str] = frozenset(),
+    device: str | None = None,
+    backend: str | None = None,
 ) -> list[str]:
-    """Verify the rows of one suite (see :func:`verify`); returns one report line per row."""
+    """Verify the rows of one suite (see :func:`verify`, also for ``device`` / ``backend``); returns one
+    report line per row."""
     suite = load_suite(suite_name) if suite_name in suite_names() else None
     lines: list[str] = []
     todo: list[tuple[Row, Plan, Any]] = []
@@ -350,7 +360,7 @@ def verify_suite(
             todo[-1] = (row, _plan(row, suite, sample, seed, row.rel in changed), policy)
         for batch in batches(todo, chunk_size):
             with torch_single_threaded():
-                _verify_batch(suite, batch, chunk_size, seed)
+                _verify_batch(suite, batch, chunk_size, seed, device, backend)
             lines += [
                 _report(row, plan, suite) + (" (new or changed: every scenario)" if row.rel in changed else "")
                 for row, plan, _ in batch
@@ -396,7 +406,9 @@ def _report(row: Row, plan: Plan, suite: Suite) -> str:
     )
 
 
-def _verify_batch(suite: Suite, batch: list, chunk_size: int, seed: int) -> None:
+def _verify_batch(
+    suite: Suite, batch: list, chunk_size: int, seed: int, device: str | None = None, backend: str | None = None
+) -> None:
     from overtakezoo.benchmark.run.runner import RunFailure, run_scenarios
     from overtakezoo.envs.scenarios import Scenarios
 
@@ -407,7 +419,15 @@ def _verify_batch(suite: Suite, batch: list, chunk_size: int, seed: int) -> None
     labels = np.concatenate([idx for _, idx, _ in pieces])
     # A stacked batch fits one chunk by construction (the runner resets deciders per chunk).
     try:
-        got = run_scenarios(suite, decider, scenarios, labels, chunk_size if len(batch) == 1 else labels.size)
+        got = run_scenarios(
+            suite,
+            decider,
+            scenarios,
+            labels,
+            chunk_size if len(batch) == 1 else labels.size,
+            device=device,
+            backend=backend,
+        )
     except RunFailure as exc:
         row = batch[exc.part or 0][0]
         raise UserError(f"{row.rel}: {exc}") from None

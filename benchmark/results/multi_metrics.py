@@ -95,15 +95,16 @@ def joint_rates(per: dict[str, np.ndarray], num_avs: int) -> dict[str, Any]:
     }
 
 
-def run_joint_rates(suite: Any, decider: Any, limit: int | None = None) -> dict[str, Any]:
+def run_joint_rates(suite: Any, decider: Any, limit: int | None = None, **on: Any) -> dict[str, Any]:
     """:func:`joint_rates` of ``decider`` (a zoo name or a loaded decider) driving every AV of
-    ``suite``'s first ``limit`` scenarios (None: all) through the benchmark runner."""
+    ``suite``'s first ``limit`` scenarios (None: all) through the benchmark runner (``on``: its
+    ``device`` / ``backend`` keywords)."""
     from overtakezoo.benchmark.run.runner import run_suite
     from overtakezoo.zoo.base import load
 
     if isinstance(decider, str):
         decider = load(decider, suite.config)
-    return joint_rates(run_suite(suite, decider, progress=False, limit=limit).per, suite.num_avs)
+    return joint_rates(run_suite(suite, decider, progress=False, limit=limit, **on).per, suite.num_avs)
 
 
 def yielded(per: dict[str, np.ndarray], num_avs: int) -> np.ndarray:

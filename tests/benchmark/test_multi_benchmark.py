@@ -264,7 +264,9 @@ def test_crossplay_changed_only_reruns_just_the_pairs_of_a_changed_decider(tmp_p
     ran = []
     real = crossplay.run_pairs
     monkeypatch.setattr(
-        crossplay, "run_pairs", lambda suite, wanted, k, jobs=1: ran.extend(wanted) or real(suite, wanted, k, jobs)
+        crossplay,
+        "run_pairs",
+        lambda suite, wanted, k, jobs=1, **on: ran.extend(wanted) or real(suite, wanted, k, jobs, **on),
     )
     doc = json.loads(full)
     doc["deciders"][[d["name"] for d in doc["deciders"]].index("fuzzy")]["weights_sha256"] = "0" * 64  # "retrained"
