@@ -16,7 +16,9 @@ def register(subparsers: Any) -> None:
         "evaluate every training seed of a learned member; write leaderboards/seeds/MEMBER.json, ship one",
         "Run every seed (one `overtakezoo train` output directory each) on the training splits of\n"
         "--train-suite and on the test suites (--suites); write the counts to SEEDS_ROOT/seeds/MEMBER.json,\n"
-        "which the leaderboard's headline reads (mean and spread over seeds). The seed to ship is the median\n"
+        "which the leaderboard's headline reads (mean and spread over seeds), and every seed's weights to\n"
+        "SEEDS_ROOT/seeds/weights/MEMBER-seedK.npz + .json, from which `leaderboard --verify` re-runs its\n"
+        "counts (a seeds file needs seeds 0..n-1, n >= 3). The seed to ship is the median\n"
         "by mean success over the training splits (ties: lower crash there, then the lower seed); the test\n"
         "suites never enter the choice. --ship publishes it into zoo/pretrained/. Multi-AV suites are run with\n"
         "every AV driven by the seed. Each run's evaluations are cached in RUN_DIR/seed-eval.json.",
