@@ -188,6 +188,7 @@ def verify_seeds(
     from overtakezoo.benchmark.leaderboard.headline import load_seeds
     from overtakezoo.envs.suites import load_suite
 
+    suites: dict[str, Any] = {}  # each suite loaded once for every file and seed
     for member, doc in load_seeds(root).items():
         rel = f"seeds/{member}.json"
         if only is not None and not fnmatch.fnmatchcase(rel.removesuffix(".json"), only):
@@ -204,7 +205,9 @@ def verify_seeds(
             if hows[e["seed"]] == "pinned":
                 continue
             for name, recorded in sorted(e["suites"].items()):
-                suite = load_suite(name)
+                if name not in suites:
+                    suites[name] = load_suite(name)
+                suite = suites[name]
                 if recorded.get("suite_sha256") != suite.hash:
                     stale += 1  # (the headline refuses a scoring suite at another hash)
                     continue

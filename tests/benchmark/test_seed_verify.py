@@ -11,7 +11,7 @@ import shutil
 
 import pytest
 
-from conftest import PRETRAINED, suite_file
+from conftest import PRETRAINED, shipped_as_runs, suite_file
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import headline
@@ -26,14 +26,7 @@ def board(tmp_path, tiny_suite):
     written by `overtakezoo seeds` on a tiny test suite and a tiny training split."""
     tiny_suite(6)
     split = suite_file(tmp_path / "suites" / "tiny-train.toml", 6, base="occluded")
-    runs = []
-    for seed in (0, 1, 2):
-        run = tmp_path / f"dqn-s{seed}"
-        run.mkdir()
-        shutil.copy(PRETRAINED / "dqn.npz", run / "dqn.npz")
-        card = json.loads((PRETRAINED / "dqn.json").read_text())
-        (run / "dqn.json").write_text(json.dumps({**card, "seed": seed}))
-        runs.append(str(run))
+    runs = [str(run) for run in shipped_as_runs(tmp_path)]
     root = tmp_path / "leaderboards"
     root.mkdir()
     argv = ["seeds", "dqn", *runs, "--suites", "tiny", "--train-suite", split.stem, "--root", str(root)]

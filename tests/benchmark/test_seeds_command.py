@@ -5,11 +5,10 @@ publishes the chosen seed with its selection in the card."""
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
 
-from conftest import PRETRAINED, last_error_line, suite_file
+from conftest import PRETRAINED, last_error_line, shipped_as_runs, suite_file
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.leaderboard import headline
 
@@ -17,15 +16,7 @@ from overtakezoo.benchmark.leaderboard import headline
 @pytest.fixture
 def runs(tmp_path):
     """Three runs of dqn (the shipped weights under seeds 0, 1 and 2), as `overtakezoo train` leaves them."""
-    out = []
-    for seed in (0, 1, 2):
-        run = tmp_path / f"dqn-s{seed}"
-        run.mkdir()
-        shutil.copy(PRETRAINED / "dqn.npz", run / "dqn.npz")
-        card = json.loads((PRETRAINED / "dqn.json").read_text())
-        (run / "dqn.json").write_text(json.dumps({**card, "seed": seed}))
-        out.append(run)
-    return out
+    return shipped_as_runs(tmp_path)
 
 
 def test_the_command_writes_a_seeds_file_the_headline_accepts_and_ships_the_chosen_seed(tmp_path, tiny_suite, runs):
