@@ -113,7 +113,7 @@ def run(args: Any) -> int:
     if args.verify:
         from overtakezoo.benchmark.leaderboard.changes import changed_files, changed_rows, default_base
         from overtakezoo.benchmark.leaderboard.crossplay import VERIFY_PAIRS
-        from overtakezoo.benchmark.leaderboard.seed_verify import seed_files
+        from overtakezoo.benchmark.leaderboard.seed_verify import SAMPLE_PAIRS, seed_files
         from overtakezoo.benchmark.leaderboard.verify import matrices, verify
 
         if args.sample is not None and args.sample < 1:
@@ -132,7 +132,8 @@ def run(args: Any) -> int:
             print(
                 "no git base to compare with (outside git, or a fresh clone of the branch under test, as CI "
                 f"runs): every row counts as changed and is verified in full; cross-play matrices: {pairs} "
-                "pairs each, drawn from the seed (all of them without --sample)"
+                f"pairs each, seeds files: {SAMPLE_PAIRS} (seed, suite) pairs each, drawn from the seed (all of "
+                "them without --sample)"
             )
             args.sample = None
         if base:
