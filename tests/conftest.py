@@ -83,15 +83,13 @@ def learned_dir(tmp_path_factory) -> Path:
 def shipped_as_runs(directory: Path, member: str = "dqn", seeds: tuple[int, ...] = (0, 1, 2)) -> list[Path]:
     """The shipped ``member``'s weights as one `overtakezoo train` output per seed (``<member>-s<seed>``),
     its card naming the seed: what `overtakezoo seeds` reads."""
-    import json
-    import shutil
+    from overtakezoo.benchmark.leaderboard.seeds import export_shipped
 
     runs = []
     for seed in seeds:
         run = directory / f"{member}-s{seed}"
-        run.mkdir()
-        shutil.copy(PRETRAINED / f"{member}.npz", run / f"{member}.npz")
-        card = json.loads((PRETRAINED / f"{member}.json").read_text())
+        export_shipped(member, run)
+        card = json.loads((run / f"{member}.json").read_text())
         (run / f"{member}.json").write_text(json.dumps({**card, "seed": seed}))
         runs.append(run)
     return runs

@@ -27,6 +27,7 @@ def register(subparsers: Any) -> None:
             "overtakezoo seeds ps-dqn runs/ps-dqn-s0 runs/ps-dqn-s1 runs/ps-dqn-s2 --ship \\\n"
             "      --train-suite core-train+multi-train --suites table1,duel --compare rule-fsm,dqn",
             "overtakezoo seeds ps-dqn --compare-only --compare dqn   # after dqn was retrained",
+            "overtakezoo seeds dqn --export-shipped runs/dqn-s0   # the shipped seed, beside retrained ones",
         ],
     )
     p.add_argument("member", help="the learned member (its run directories hold MEMBER.json + weights)")
@@ -45,6 +46,14 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="re-run only the --compare members (after one was retrained) and update the seeds file and the "
         "shipped card; the member's seeds stay",
+    )
+    p.add_argument(
+        "--export-shipped",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="write the zoo's shipped weights and card into this new run directory and stop: the shipped seed "
+        "then runs beside seeds retrained with `overtakezoo train --seed K` (decision-rate, seeds)",
     )
     p.add_argument("--root", default=None, help=root_help())
     p.add_argument(
@@ -67,6 +76,10 @@ def run(args: Any) -> int:
     from overtakezoo.benchmark.errors import UserError
     from overtakezoo.benchmark.leaderboard import seeds
 
+    if args.export_shipped is not None:
+        seed = seeds.export_shipped(args.member, args.export_shipped, args.pretrained)
+        print(f"{args.member}: the shipped seed {seed} written to {args.export_shipped}")
+        return 0
     root = leaderboard_root(args.root)
     if args.compare_only:
         if not args.compare:

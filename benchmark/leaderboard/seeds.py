@@ -169,6 +169,29 @@ def store_weights(algo: str, run: Path, seed: int, root: Path) -> dict[str, str]
     return {"file": rel, "npz_sha256": sha[npz], "card_sha256": sha[npz.with_suffix(".json")]}
 
 
+def export_shipped(algo: str, out: Path, pretrained: str | Path | None = None) -> int:
+    """Write the zoo's shipped ``algo`` (weights + card) into the new run directory ``out``, as
+    `overtakezoo train --out` would have: so the shipped seed runs beside retrained ones through
+    `decision-rate` and `seeds` (retraining the seeds whose weights were never kept). Returns its seed."""
+    from overtakezoo import zoo
+
+    learned = zoo.names("learned")
+    if algo not in learned:
+        raise UserError(f"{algo!r} is not a learned zoo member (one of {', '.join(learned)})")
+    src = _pretrained(pretrained)
+    try:
+        card = json.loads((src / f"{algo}.json").read_text())
+        card["seed"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise UserError(f"{src / algo}.json: no readable model card naming its seed ({type(exc).__name__})") from None
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UserError(f"{out} exists and is not an empty directory; give a new run directory")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / f"{algo}.npz", (src / f"{algo}.npz").read_bytes())
+    atomic_write_bytes(out / f"{algo}.json", (src / f"{algo}.json").read_bytes())
+    return card["seed"]
+
+
 def choose(seeds: list[dict[str, Any]], train_splits: list[str]) -> dict[str, Any]:
     """The seed to ship by the selection rule: the median by mean training-split success."""
 

@@ -61,3 +61,29 @@ def test_bad_seeds_calls_are_one_error_line(tmp_path, capsys):
     assert "no such run directory" in last_error_line(capsys, ["seeds", "dqn", missing, "--root", str(root)])
     err = last_error_line(capsys, ["seeds", "dqn", "--compare-only", "--compare", "ppo", "--root", str(root)])
     assert "no seeds file" in err
+
+
+def test_the_shipped_seed_exports_as_a_run_that_scores_as_the_zoo_member(tmp_path, tiny_suite, capsys):
+    """Retraining the seeds whose weights were never kept: the shipped seed, written out as a run
+    directory, is the zoo member (same weights, same deployment, same counts) under its own seed."""
+    from overtakezoo.benchmark.leaderboard import seeds
+    from overtakezoo.envs.suites import load_suite
+
+    run = tmp_path / "ppo-s2"
+    assert main(["seeds", "ppo", "--export-shipped", str(run)]) == 0
+    card = json.loads((PRETRAINED / "ppo.json").read_text())
+    assert f"shipped seed {card['seed']} written" in capsys.readouterr().out
+    suite = load_suite(tiny_suite(6))
+    entry = seeds.evaluate_run("ppo", run, {"tiny": suite})
+    assert entry["seed"] == card["seed"] and entry["weights_sha256"] == card["trained_weights_sha256"]
+    from overtakezoo.benchmark.run.policy import load_policy
+
+    assert entry["suites"]["tiny"] == {
+        "suite_version": suite.version,
+        "suite_sha256": suite.hash,
+        **seeds.evaluate(suite, load_policy("ppo", suite.config)),
+    }
+    # never over a run that is there, nor for a member without trained weights
+    assert "not an empty directory" in last_error_line(capsys, ["seeds", "ppo", "--export-shipped", str(run)])
+    err = last_error_line(capsys, ["seeds", "rule-fsm", "--export-shipped", str(tmp_path / "r")])
+    assert "not a learned zoo member" in err and not (tmp_path / "r").exists()
