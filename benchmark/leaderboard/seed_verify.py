@@ -40,12 +40,6 @@ SAMPLE_PAIRS = 2  # (seed, suite) pairs re-run per unchanged seeds file when ver
 # Per member, the sha256 of the canonical JSON (sorted keys, no spaces) of each seeds entry whose
 # weights were not kept: every seed but the shipped one of the members trained up to 2026-11-30.
 PINNED: dict[str, frozenset[str]] = {
-    "bc": frozenset(
-        {
-            "83342f7aac01845c993fc9fa70a5721a7ad543e724205216bad3c2172e8e1b2e",  # seed 0
-            "0d61cd39643fa2739462470bd103d53b01e0393e03dfae29acd931f93ab39a65",  # seed 2
-        }
-    ),
     "cql": frozenset(
         {
             "383ee38f67c674d75e2c8ca13f7bd8e225291b0e06e4bc7374d84fd6b5e8c5fb",  # seed 0
