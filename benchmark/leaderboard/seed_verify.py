@@ -40,12 +40,6 @@ SAMPLE_PAIRS = 2  # (seed, suite) pairs re-run per unchanged seeds file when ver
 # Per member, the sha256 of the canonical JSON (sorted keys, no spaces) of each seeds entry whose
 # weights were not kept: every seed but the shipped one of the members trained up to 2026-11-30.
 PINNED: dict[str, frozenset[str]] = {
-    "cql": frozenset(
-        {
-            "383ee38f67c674d75e2c8ca13f7bd8e225291b0e06e4bc7374d84fd6b5e8c5fb",  # seed 0
-            "4b8eb6f6d933b914d56834c780c0045d7df4d995cf792dd765d8e228516a9070",  # seed 1
-        }
-    ),
     "dagger": frozenset(
         {
             "31ac6b0e6ed6b681abd6666532347be008f3d35145ba7e7aeec59d66557155ec",  # seed 0
