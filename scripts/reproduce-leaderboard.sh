@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
 # Re-measure every leaderboard row: each decider on each suite, submitted, then the leaderboard
 # regenerated. Every row in leaderboards/ is what these commands produced (see the commit column).
-# Usage: scripts/reproduce-leaderboard.sh [SUITE ...]   (default: all suites)
+# Usage: scripts/reproduce-leaderboard.sh [--members A,B] [SUITE ...]   (default: every member, all suites)
+# --members re-measures only those members' rows (with their shielded rows) and what else shows them:
+# the cross-play matrices, the failure board and the decision maps (after a member ships new weights).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+only=""
+if [ "${1:-}" = --members ]; then only=",$2,"; shift 2; fi
 suites=("$@")
 # The driver populations (benchmark/suite_groups.py, DRIVERS): each a drivers-* and a mixed-drivers-* suite.
 read -ra populations <<< "$(python -c "from overtakezoo.benchmark.suite_groups import DRIVERS; print(*DRIVERS)")"
@@ -26,6 +30,7 @@ for suite in "${suites[@]}"; do
     *) run=("${deciders[@]}" "${shielded[@]}") ;;
   esac
   for decider in "${run[@]}"; do
+    [ -z "$only" ] || [[ "$only" == *",${decider%+shield},"* ]] || continue
     out="results/$suite/$decider.json"
     overtakezoo eval --suite "$suite" --decider "$decider" --out "$out" --no-progress | tail -n 1
     overtakezoo submit --replace "$out"
@@ -36,10 +41,11 @@ overtakezoo leaderboard
 # The cross-play matrices (every non-privileged member against every other: A drives the ego, B every
 # other AV; a few minutes each).
 for suite in duel platoon mixed-traffic; do
-  overtakezoo crossplay --suite "$suite" --jobs 2
+  overtakezoo crossplay --suite "$suite" --jobs 2 ${only:+--changed-only}
 done
 mkdir -p leaderboards/decision-maps
 for decider in rule-fsm dqn; do
+  [ -z "$only" ] || [[ "$only" == *",$decider,"* ]] || continue
   overtakezoo decision-map --decider "$decider" --out "leaderboards/decision-maps/$decider.png"
 done
 # The failure board (failure search of every zoo member, cross-table, failure maps; ~4 minutes).

@@ -52,12 +52,6 @@ PINNED: dict[str, frozenset[str]] = {
             "5bfa9d69aa7622eb9e8bfe67df6bc518c19a8af3bed2fef887ca5d1d1f3eaeab",  # seed 1
         }
     ),
-    "dqn": frozenset(
-        {
-            "fb7e0519c4d4af07f9b84853272b9e12b1267710f27c043c87dcb6470cc55a8b",  # seed 1
-            "d7b31ffef9829463ccd6a2d77a93df42f808220316437b146d3beb4a421c5f16",  # seed 2
-        }
-    ),
     "ppo": frozenset(
         {
             "f37ecf28079e6f833d71ceb9b8d13f396a335cf922270cc57dfbc494e31d7cc1",  # seed 0
