@@ -15,7 +15,10 @@ and ships the chosen one with it.
 
 The ``overtake_offset`` knob is chosen the same way, at the rate the cards already have: a constant
 added to the member's OVERTAKE score before the argmax (a decision threshold; ties: the offset
-nearest 0), written with its table as ``overtake_offset_selection``.
+nearest 0), written with its table as ``overtake_offset_selection``. A threshold belongs to the rate
+it was chosen at: the rate is chosen with no threshold, and choosing it takes any threshold out of
+the cards (choose it again after), so every run is scored alike, a shipped seed exported beside
+retrained ones (``overtakezoo seeds --export-shipped``) included.
 """
 
 from __future__ import annotations
@@ -41,6 +44,9 @@ KNOBS: dict[str, tuple[Callable[[str], Any], Callable[[Any], Any], Callable[[dic
 }
 
 
+THRESHOLD_KEYS = ("overtake_offset", "overtake_offset_selection")  # chosen at a rate; dropped when it is
+
+
 def split_score(suite, decider) -> float:
     """success - 2 x crash per road on the whole split, in [-2, 1]."""
     c = run_joint_rates(suite, decider)["counts"]
@@ -55,7 +61,10 @@ def score_task(task: tuple) -> tuple[int, object, float, list[tuple[str, float]]
     m, run, knob, k, train_suite = task
     suites = load_training(train_suite)
     card = read_card(run / f"{m}.json", m)
-    decider = MLPDecider(load_weights(run / f"{m}.npz", card), m, suites[0].config, {**card, knob: k})
+    deploy = {**card, knob: k}
+    if knob == "decide_every":  # (the rate is chosen with no threshold: THRESHOLD_KEYS)
+        deploy = {key: v for key, v in deploy.items() if key not in THRESHOLD_KEYS}
+    decider = MLPDecider(load_weights(run / f"{m}.npz", card), m, suites[0].config, deploy)
     scores = [(s.name, split_score(s, decider)) for s in suites]
     return card["seed"], k, round(sum(v for _, v in scores) / len(scores), 6), scores
 
@@ -112,6 +121,11 @@ def choose(
         path = run / f"{m}.json"
         card = json.loads(path.read_text())
         card.pop(knob, None)
+        if knob == "decide_every" and "overtake_offset" in card:
+            print(f"{run}: its OVERTAKE threshold was chosen at another rate; taken out (choose it again)")
+        if knob == "decide_every":
+            for key in THRESHOLD_KEYS:
+                card.pop(key, None)
         if best != unchanged(card):
             card[knob] = best
         card[f"{knob}_selection"] = selection

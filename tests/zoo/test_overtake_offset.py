@@ -119,3 +119,24 @@ def test_the_command_chooses_the_offset_on_training_splits(tmp_path, ppo_parts):
         text=True,
     )
     assert json.loads((Path(runs[0]) / "ppo.json").read_text())["overtake_offset_selection"] == sel
+
+
+def test_choosing_the_rate_takes_out_a_threshold_chosen_at_another_rate(tmp_path, ppo_parts):
+    """The shipped ppo (rate and threshold chosen) beside a run without a threshold: the rate stage scores
+    both with no threshold (the same weights score the same) and leaves neither card with one."""
+    split = tmp_path / "table1-mini-train.toml"
+    split.write_text('name = "table1-mini-train"\nversion = 1\nbase = "table1"\ncount = 20\nseed = 7\n')
+    _, card = ppo_parts
+    chosen = {**card, "overtake_offset": -1.0}  # (a threshold chosen at the card's rate)
+    runs = []
+    for seed, c in enumerate([chosen, {k: v for k, v in card.items() if not k.startswith("overtake_offset")}]):
+        run = tmp_path / f"ppo-s{seed}"
+        run.mkdir()
+        shutil.copy(PRETRAINED / "ppo.npz", run / "ppo.npz")
+        (run / "ppo.json").write_text(json.dumps({**c, "seed": seed}))
+        runs.append(str(run))
+    assert main(["decision-rate", "ppo", *runs, "--candidates", "5,1", "--train-suite", str(split)]) == 0
+    cards = [json.loads((Path(r) / "ppo.json").read_text()) for r in runs]
+    sel = cards[0]["decide_every_selection"]
+    assert sel["per_seed"]["0"] == sel["per_seed"]["1"]
+    assert not any("overtake_offset" in c or "overtake_offset_selection" in c for c in cards)
