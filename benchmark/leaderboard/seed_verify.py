@@ -52,12 +52,6 @@ PINNED: dict[str, frozenset[str]] = {
             "5bfa9d69aa7622eb9e8bfe67df6bc518c19a8af3bed2fef887ca5d1d1f3eaeab",  # seed 1
         }
     ),
-    "ppo": frozenset(
-        {
-            "f37ecf28079e6f833d71ceb9b8d13f396a335cf922270cc57dfbc494e31d7cc1",  # seed 0
-            "0674d7b4162fc4bb8d4f44d9cc6d75e55f170e07c4aed5c4a8031196da8515cc",  # seed 1
-        }
-    ),
     "ps-dqn": frozenset(
         {
             "e927f9e5721e37ae77d03138ebe773d3516c984c462b7e4fc3b1a60747a3d140",  # seed 0
