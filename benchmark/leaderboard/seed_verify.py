@@ -46,12 +46,6 @@ PINNED: dict[str, frozenset[str]] = {
             "548d9ce1c0c95ceca48de93cabdc6b63996598e58721fecca16c71fde56b9de6",  # seed 1
         }
     ),
-    "double-dqn": frozenset(
-        {
-            "12e15a4e01b4c306dc4c529fff1c3745e96908b6f6683107cef14775c976de9a",  # seed 0
-            "5bfa9d69aa7622eb9e8bfe67df6bc518c19a8af3bed2fef887ca5d1d1f3eaeab",  # seed 1
-        }
-    ),
     "ps-dqn": frozenset(
         {
             "e927f9e5721e37ae77d03138ebe773d3516c984c462b7e4fc3b1a60747a3d140",  # seed 0
