@@ -285,12 +285,13 @@ def test_a_seeds_file_whose_shipped_seed_differs_from_its_verified_row_is_refuse
     rows, hashes = {"dqn": {"dense": row.summary}}, {"dense": row.suite["hash"]}
     assert len(build_table(rows, load_seeds(REPO_LEADERBOARDS), hashes)["dqn"]["dense"]) == 3  # honest: 3 seeds
 
-    def claim_all(doc):  # (the other seeds are pinned by content: an edit there is refused at load)
+    def claim_all(doc):  # (the other seeds' counts are re-run from their stored weights by verify)
         c = next(e for e in doc["seeds"] if e["seed"] == doc["shipped_seed"])["suites"]["dense"]
         c.update(success=c["n"], crash=0)
 
+    shipped = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())["shipped_seed"]
     forged = load_seeds(_seeds_root(tmp_path, "dqn", claim_all))
-    with pytest.raises(UserError, match="shipped seed 0 on dense"):
+    with pytest.raises(UserError, match=f"shipped seed {shipped} on dense"):
         build_table(rows, forged, hashes)
 
 

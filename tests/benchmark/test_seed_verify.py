@@ -15,7 +15,7 @@ from conftest import PRETRAINED, shipped_as_runs, suite_file
 from overtakezoo.benchmark.cli import main
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import headline
-from overtakezoo.benchmark.leaderboard.seed_verify import PINNED, entry_sha256, verify_seeds
+from overtakezoo.benchmark.leaderboard.seed_verify import PINNED, SAMPLE_PAIRS, entry_sha256, verify_seeds
 
 BOARD_SEEDS = PRETRAINED.parents[1] / "leaderboards" / "seeds"
 
@@ -158,7 +158,7 @@ def test_verify_re_runs_the_shipped_boards_seeds_from_the_cli(capsys):
     argv = ["leaderboard", "--verify", "--sample", "1", "--seed", "3", "--base", "HEAD", "--root", root]
     assert main([*argv, "--only", "seeds/dqn"]) == 0
     out = capsys.readouterr().out
-    assert "verified seeds/dqn.json: 1 (seed, suite) pair(s) re-run\n" in out
+    assert f"verified seeds/dqn.json: {SAMPLE_PAIRS} (seed, suite) pair(s) re-run\n" in out
     assert "seeds/ppo.json" not in out
     assert main([*argv, "--only", "seeds/nobody"]) == 2
     assert "no current row matches" in capsys.readouterr().err
