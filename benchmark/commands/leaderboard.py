@@ -40,7 +40,7 @@ def register(subparsers: Any) -> None:
         "with no base), all pairs without --sample; each pair's counts must equal the stored ones.\n"
         "So are the training seeds (seeds/<member>.json): each seed re-runs with its own stored\n"
         "weights (the shipped seed: the zoo member) on its suites, with the same rule for which\n"
-        "(seed, suite) pairs; seeds whose weights were never kept are pinned by content in the code.\n"
+        "(seed, suite) pairs; a seed with no weights to re-run is refused.\n"
         "--device cuda re-runs the rows, cross-play matrices and training seeds on a GPU (float64: the\n"
         "same per-scenario results as the CPU).\n"
         "Every mode\n"

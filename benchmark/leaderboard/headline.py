@@ -241,7 +241,7 @@ def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
         except (ValueError, KeyError, TypeError, AssertionError) as exc:
             raise UserError(f"{path}: malformed seeds file ({type(exc).__name__}: {exc})") from None
         _anchored(path, doc)
-        sources(doc["member"], doc)  # seeds 0..n-1, each re-runnable or pinned (seed_verify.py)
+        sources(doc["member"], doc)  # seeds 0..n-1, each re-runnable (seed_verify.py)
         out[doc["member"]] = doc
     return out
 
@@ -305,7 +305,7 @@ def build_table(
     return table
 
 
-RERUN = {"zoo": "the zoo's weights", "stored": "stored weights", "pinned": "*pinned*"}
+RERUN = {"zoo": "the zoo's weights", "stored": "stored weights"}
 
 
 def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
@@ -352,9 +352,7 @@ def seed_lines(seeds: dict[str, dict[str, Any]], suite: str = "table1") -> str:
         "",
         "Verified: `overtakezoo leaderboard --verify` re-runs every seed on its suites from the weights named in "
         "the last column (the zoo member's for the shipped seed; `seeds/weights/` for stored ones) and requires "
-        "its counts exactly. *pinned*: seeds measured before every seed's weights were kept; nothing can re-run "
-        "them, so each is pinned by content in `benchmark/leaderboard/seed_verify.py` (an edit is refused) "
-        "until the member is retrained with `overtakezoo seeds`.",
+        "its counts exactly; a seed with neither is refused.",
         "",
     ]
     return "\n".join(out)

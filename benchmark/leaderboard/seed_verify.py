@@ -8,12 +8,11 @@ the recorded counts exactly. Where a seed's weights come from:
   a regular file, the card naming the member and the seed, the npz's sha256 the card's; it runs in
   the sandbox like any stored artifact (:func:`overtakezoo.benchmark.run.policy.boxed`);
 - **the zoo's**: the shipped seed without stored weights is the zoo member itself (its weights'
-  sha256 is checked when the file loads, :func:`.headline.load_seeds`);
-- **pinned**: seeds measured before every seed's weights were kept (the members trained up to
-  2026-11-30 kept only the shipped seed's). Their weights are gone, so nothing can re-run them; each
-  such entry is pinned here by the sha256 of its content, so a pull request cannot edit one (or add
-  one) without editing this module, where a reviewer sees it. The pages say which seeds these are.
-  Retraining a member with ``overtakezoo seeds`` stores every seed and retires its pins.
+  sha256 is checked when the file loads, :func:`.headline.load_seeds`).
+
+A seed with neither is refused: nothing could re-run its counts. (The members trained up to
+2026-11-30 kept only the shipped seed's weights; their other seeds were retrained and stored on
+2026-12-06/07, see docs/zoo.md, so no seed's counts are taken on trust.)
 
 Which (seed, suite) pairs re-run: all of them for a seeds file new or changed against the git base
 (or whose stored weights changed), ``sample`` pairs of each other file drawn from ``seed``
@@ -24,7 +23,6 @@ from __future__ import annotations
 
 import fnmatch
 import hashlib
-import json
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -37,28 +35,6 @@ from overtakezoo.benchmark.errors import UserError
 WEIGHTS = Path("seeds") / "weights"  # under the leaderboard root
 SAMPLE_PAIRS = 2  # (seed, suite) pairs re-run per unchanged seeds file when verify samples (a few s each)
 
-# Per member, the sha256 of the canonical JSON (sorted keys, no spaces) of each seeds entry whose
-# weights were not kept: every seed but the shipped one of the members trained up to 2026-11-30.
-PINNED: dict[str, frozenset[str]] = {
-    "dagger": frozenset(
-        {
-            "31ac6b0e6ed6b681abd6666532347be008f3d35145ba7e7aeec59d66557155ec",  # seed 0
-            "548d9ce1c0c95ceca48de93cabdc6b63996598e58721fecca16c71fde56b9de6",  # seed 1
-        }
-    ),
-    "ps-dqn": frozenset(
-        {
-            "e927f9e5721e37ae77d03138ebe773d3516c984c462b7e4fc3b1a60747a3d140",  # seed 0
-            "921ad70f011411141d01777880a454fa100d272800068b44467d52c1f3efb35c",  # seed 2
-        }
-    ),
-}
-
-
-def entry_sha256(entry: dict[str, Any]) -> str:
-    """The sha256 of a seeds entry's canonical JSON (what :data:`PINNED` holds)."""
-    return hashlib.sha256(json.dumps(entry, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
 
 def weights_rel(member: str, seed: int) -> str:
     """Where ``overtakezoo seeds`` stores a seed's weights, relative to the leaderboard root."""
@@ -66,13 +42,11 @@ def weights_rel(member: str, seed: int) -> str:
 
 
 def source(member: str, entry: dict[str, Any], shipped_seed: Any) -> str:
-    """How a seed re-runs: ``stored``, ``zoo`` (the shipped seed, the zoo member) or ``pinned``."""
+    """How a seed re-runs: ``stored`` or ``zoo`` (the shipped seed, the zoo member)."""
     if "weights" in entry:
         return "stored"
     if entry.get("seed") == shipped_seed:
         return "zoo"
-    if entry_sha256(entry) in PINNED.get(member, ()):
-        return "pinned"
     raise UserError(
         f"seeds/{member}.json: seed {entry.get('seed')!r} has no stored weights (seeds/weights/), so "
         "nothing can re-run its counts: evaluate it with `overtakezoo seeds`, which stores every seed's weights"
@@ -81,15 +55,11 @@ def source(member: str, entry: dict[str, Any], shipped_seed: Any) -> str:
 
 def sources(member: str, doc: dict[str, Any]) -> dict[int, str]:
     """Each seed's :func:`source`, once the file holds seeds 0..n-1 (n >= 3: a member is reported over
-    several seeds, none dropped) and, while any seed is pinned, every pinned seed of the member."""
+    several seeds, none dropped)."""
     seeds = [e.get("seed") for e in doc["seeds"]]
     if len(seeds) < 3 or seeds != list(range(len(seeds))):
         raise UserError(f"seeds/{member}.json: seeds {seeds}: a member reports its seeds 0..n-1, at least 3")
-    hows = {e["seed"]: source(member, e, doc["shipped_seed"]) for e in doc["seeds"]}
-    kept = {entry_sha256(e) for e in doc["seeds"]}
-    if "pinned" in hows.values() and not PINNED.get(member, frozenset()) <= kept:
-        raise UserError(f"seeds/{member}.json: a pinned seed is missing (every training seed is reported)")
-    return hows
+    return {e["seed"]: source(member, e, doc["shipped_seed"]) for e in doc["seeds"]}
 
 
 def _stored_decider(root: Path, member: str, entry: dict[str, Any], config: Any) -> Any:
@@ -172,8 +142,6 @@ def verify_seeds(
         )
         pairs, stale = [], 0
         for e in doc["seeds"]:
-            if hows[e["seed"]] == "pinned":
-                continue
             for name, recorded in sorted(e["suites"].items()):
                 if name not in suites:
                     suites[name] = load_suite(name)
@@ -193,10 +161,8 @@ def verify_seeds(
                 raise UserError(
                     f"{rel}: seed {e['seed']} on {name}: {k} re-runs as {got[k]!r}, the file says {recorded.get(k)!r}"
                 )
-        pinned = sorted(s for s, h in hows.items() if h == "pinned")
         log(
             f"verified {rel}: {len(pairs)} (seed, suite) pair(s) re-run"
             + (" (new or changed: every pair)" if full and sample is not None else "")
-            + (f"; seeds {', '.join(map(str, pinned))} pinned (weights not kept)" if pinned else "")
             + (f"; {stale} pair(s) at an older suite hash not re-run" if stale else "")
         )

@@ -40,8 +40,8 @@ For each row (``submissions/<suite>/<name>.json``, see :mod:`.submission`):
 
 8. **Training seeds are rows too** (:mod:`.seed_verify`): each seed of ``seeds/<member>.json`` re-runs
    with its own stored weights (the shipped one: the zoo member) and must give its counts exactly (all
-   (seed, suite) pairs of a new or changed file, ``pair_sample`` of the others); seeds whose weights
-   were never kept are pinned by content in the code.
+   (seed, suite) pairs of a new or changed file, ``pair_sample`` of the others); a seed with no
+   weights to re-run is refused.
 
 A failure is one line naming the row (and the scenario and step where a policy misbehaved).
 """

@@ -121,9 +121,9 @@ def choose(
         path = run / f"{m}.json"
         card = json.loads(path.read_text())
         card.pop(knob, None)
-        if knob == "decide_every" and "overtake_offset" in card:
-            print(f"{run}: its OVERTAKE threshold was chosen at another rate; taken out (choose it again)")
-        if knob == "decide_every":
+        if knob == "decide_every":  # a threshold belongs to the rate it was chosen at
+            if "overtake_offset" in card:
+                print(f"{run}: its OVERTAKE threshold was chosen at another rate; taken out (choose it again)")
             for key in THRESHOLD_KEYS:
                 card.pop(key, None)
         if best != unchanged(card):

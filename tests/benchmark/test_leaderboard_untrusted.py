@@ -300,7 +300,7 @@ def test_a_suite_added_to_the_score_never_drops_a_members_seeds_silently(tmp_pat
     dense added to the scoring suites: the headline would fall from dqn's 3 seeds to one run (before:
     "regenerated", dqn's score from one run); generation refuses with one line naming the file and
     the suite instead."""
-    from overtakezoo.benchmark.leaderboard import generate, seed_verify
+    from overtakezoo.benchmark.leaderboard import generate
 
     root = tmp_path / "lb"
     for suite in ("table1", "dense"):
@@ -309,8 +309,6 @@ def test_a_suite_added_to_the_score_never_drops_a_members_seeds_silently(tmp_pat
     doc = json.loads((REPO_LEADERBOARDS / "seeds" / "dqn.json").read_text())
     for entry in doc["seeds"]:
         del entry["suites"]["dense"]  # (as for a suite that joins the score after the seeds were evaluated)
-    # (this board's own pins: the repo's pin the entries as they are, dense included)
-    monkeypatch.setitem(seed_verify.PINNED, "dqn", frozenset(seed_verify.entry_sha256(e) for e in doc["seeds"]))
     (root / "seeds").mkdir()
     (root / "seeds" / "dqn.json").write_text(json.dumps(doc))
     monkeypatch.setattr(generate, "CORE", ("table1",))
