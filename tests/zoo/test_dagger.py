@@ -136,3 +136,22 @@ def test_a_frame_stack_member_reads_its_last_decisions_and_forgets_them_at_reset
     a = outcomes(d, suite, 16)
     b = outcomes(load_pretrained("dagger", suite.config, directory=tmp_path), suite, 16)
     assert np.array_equal(a, b)
+
+
+@pytest.mark.slow
+def test_on_multi_av_roads_the_joint_oracle_teaches_every_av(tmp_path):
+    """On duel-train (two AVs a road) the teacher is the joint oracle and one student drives both
+    seats: a short run succeeds jointly on most training roads, without AV-AV crashes."""
+    from overtakezoo.benchmark.run.runner import run_indices
+
+    suites = load_training("duel-train")
+    trained = dagger.train(suites, suite_name="duel-train", out=tmp_path, overrides=SHORT, progress=False)
+    check_card(trained.card)
+    per_split = trained.card["training"]["threshold_selection"]["per_split"]
+    assert list(per_split) == ["duel-train"]
+    suite = suites[0]
+    per = run_indices(suite, trained.decider(suite.config), np.arange(60))
+    joint = (np.asarray(per["outcome"]).reshape(suite.num_avs, -1) == SUCCESS).all(axis=0)
+    follow = run_indices(suite, zoo.load("always-follow", suite.config), np.arange(60))
+    assert (np.asarray(follow["outcome"]) != SUCCESS).all()
+    assert joint.mean() > 0.7, joint.mean()

@@ -50,3 +50,31 @@ def test_a_roads_plan_does_not_depend_on_the_other_roads_in_its_batch():
 def test_the_single_ego_oracle_is_refused_on_a_multi_av_suite_naming_the_joint_one():
     with pytest.raises(UserError, match="joint-oracle plans every AV of a road"):
         run_indices(load_suite("duel"), zoo.load("oracle"), np.arange(2))
+
+
+def test_plan_re_plans_the_roads_of_the_rows_asked_as_act_batch_does():
+    """``plan`` (the DAgger labeller) gives the rows asked the modes that ``act_batch`` gives them,
+    even on a road it verified (trust off), and leaves the other roads' decisions untouched."""
+    from overtakezoo.envs.core import OvertakeCore
+
+    suite = load_suite("duel")
+    sc = suite.scenarios().take(np.arange(6))
+    planned, acting = (zoo.load("joint-oracle", suite.config, trust_verified=False) for _ in range(2))
+    cores = [OvertakeCore(suite.config) for _ in range(2)]
+    obs = [c.reset(sc) for c in cores][1]
+    for o, c in zip((planned, acting), cores, strict=True):
+        o.bind(c)
+    roads = cores[0].num_roads
+    rows = np.array([1, roads + 4])  # AV 0 of road 1, AV 1 of road 4
+    others = np.isin(np.arange(cores[0].num) % roads, [1, 4], invert=True)
+    seen = set()
+    for _ in range(40):  # 4 s: the AVs pull out, so the plans change
+        before = planned.decision.copy()
+        got = planned.plan(rows)
+        every = acting.act_batch(obs)
+        np.testing.assert_array_equal(got, every[rows])
+        np.testing.assert_array_equal(planned.decision[others], before[others])
+        seen.update(every[rows].tolist())
+        cores[0].advance(every)  # both cores move on under the acting oracle's modes
+        obs = cores[1].step(every).obs
+    assert len(seen) > 1  # the test saw the plan change

@@ -45,8 +45,15 @@ class JointOracle(Decider):
     privileged = True
     joint = True  # plans every AV of a road: the runner lets it drive multi-AV suites
 
-    def __init__(self, config: EnvConfig | None = None, replan_s: float = 1.0, retreat_horizon_s: float = 8.0) -> None:
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        replan_s: float = 1.0,
+        retreat_horizon_s: float = 8.0,
+        trust_verified: bool = True,
+    ) -> None:
         super().__init__(config)
+        self.trust_verified = trust_verified  # off: a road is re-planned even where it was verified
         self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
         self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
         self.core = None
@@ -83,11 +90,22 @@ class JointOracle(Decider):
             raise ValueError(f"observation has {obs.shape[0]} rows but the bound core has {core.num}")
         if self.decision.shape[0] != core.num:
             self._size(core.num, core.num_avs)
-        open_road = ~core.done.reshape(core.num_avs, -1).all(axis=0) & ~self.verified
+        open_road = ~core.done.reshape(core.num_avs, -1).all(axis=0) & ~(self.verified & self.trust_verified)
         roads = np.flatnonzero(open_road)
         if roads.size:
             self._replan(roads)
         return self.decision.copy()
+
+    def plan(self, rows: np.ndarray) -> np.ndarray:
+        """Re-plan the roads of AV rows ``rows`` of the bound core now (whatever was verified) and
+        return those rows' decisions: the joint oracle as a labeller of states another decider drove
+        to (``train dagger`` on multi-AV suites). Rows are AV-major: row ``e * num_roads + road``."""
+        rows = np.asarray(rows, np.int64)
+        roads = np.unique(rows % self.core.num_roads)
+        live = ~self.core.done.reshape(self.core.num_avs, -1).all(axis=0)
+        if roads.size and live[roads].any():
+            self._replan(roads[live[roads]])
+        return self.decision[rows].copy()
 
     def _replan(self, roads: np.ndarray) -> None:
         core, e = self.core, self.core.num_avs

@@ -7,6 +7,12 @@ simulator state, the student only the observation. Reads top to bottom: the hype
 (``zoo/hyperparams/dagger.toml``), the student's acting, the rollouts that the oracle labels, the
 fit, the choice of the decision threshold, the outputs.
 
+On training splits with several automated vehicles per road (``duel-train``, ``platoon-train``,
+``mixed-traffic-train``) the teacher is the joint oracle
+(:class:`overtakezoo.zoo.members.joint_oracle.JointOracle`), which plans every AV of a road together;
+each AV row is a state labelled with its own mode of the road's best joint plan, and one student
+drives every seat (parameter sharing, as ``ps-dqn``).
+
 Each iteration ``i``:
 
 1. **Roll out** ``episodes`` training scenarios per training split (drawn from the split's own
@@ -56,6 +62,7 @@ from overtakezoo.envs.core import OvertakeCore
 from overtakezoo.envs.hold import hold, hold_steps
 from overtakezoo.envs.io import check_writable_dir
 from overtakezoo.zoo.members.features import speed_relative
+from overtakezoo.zoo.members.joint_oracle import JointOracle
 from overtakezoo.zoo.members.learned import action_mask, masked_argmax
 from overtakezoo.zoo.members.oracle import Oracle
 from overtakezoo.zoo.train.bc import cross_entropy_step
@@ -136,6 +143,16 @@ def student_modes(
 
 
 # ----------------------------------------------------------------------------- rollouts the oracle labels
+def teacher(core: OvertakeCore, config: Any, hp: DAggerHyperparams, trust_verified: bool) -> Oracle | JointOracle:
+    """The privileged teacher bound to ``core``: the oracle on single-AV roads; on roads with several
+    AVs the joint oracle, which plans every AV of a road together (each AV row is labelled with its
+    own mode of the road's best joint plan, so one student learns every seat: parameter sharing)."""
+    kind = JointOracle if core.num_avs > 1 else Oracle
+    oracle = kind(config, replan_s=hp.action_repeat * config.dt, trust_verified=trust_verified)
+    oracle.bind(core)
+    return oracle
+
+
 def rollout(
     suite: Any, scenarios: Any, net: nn.Module | None, beta: float, hp: DAggerHyperparams, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,8 +163,7 @@ def rollout(
     core = OvertakeCore(config)
     obs = core.reset(scenarios)
     # The oracle alone may trust its verified overtakes (it drives them); a student may leave them.
-    oracle = Oracle(config, replan_s=hp.action_repeat * config.dt, trust_verified=net is None)
-    oracle.bind(core)
+    oracle = teacher(core, config, hp, trust_verified=net is None)
     steps = hold_steps(config.decision_interval, hp.action_repeat)
     xs, ys = [], []
     history = History(core.num, hp.frame_stack, config)
@@ -194,7 +210,9 @@ def fit(
 def select_offset(net: nn.Module, suites: list[Any], hp: DAggerHyperparams) -> tuple[float, dict[str, Any]]:
     """The OVERTAKE logit offset with the best OvertakeZoo score on the first ``select_scenarios``
     of every training split (every offset on a copy of those scenarios, one batch per split); ties
-    go to the offset nearest 0. Returns it with every offset's per-split success and crash rates."""
+    go to the offset nearest 0. On multi-AV splits a road counts as the board counts it: a success
+    when every AV of it succeeds, a crash when any crashes. Returns it with every offset's per-split
+    success and crash rates."""
     offsets = np.asarray(hp.offsets, np.float64)
     k = len(offsets)
     table: dict[str, Any] = {}
@@ -203,16 +221,17 @@ def select_offset(net: nn.Module, suites: list[Any], hp: DAggerHyperparams) -> t
         config = suite.config
         n = min(hp.select_scenarios, suite.count)
         sc = suite.scenarios().take(np.tile(np.arange(n), k))  # row j * n + i: scenario i, offset j
-        row_offset = np.repeat(offsets, n)
         core = OvertakeCore(config)
         obs = core.reset(sc)
+        row_offset = np.tile(np.repeat(offsets, n), core.num_avs)  # AV-major rows: e * roads + road
         steps = hold_steps(config.decision_interval, hp.action_repeat)
         history = History(core.num, hp.frame_stack, config)
         while not core.done.all():
             x = history.push(obs)
             obs = hold(core, student_modes(net, x, obs, config, row_offset, hp.action_mask), steps).obs
-        outcome = np.asarray(core.outcome).reshape(k, n)
-        succ, crash = (outcome == SUCCESS).mean(1), (outcome == CRASH).mean(1)
+        outcome = np.asarray(core.outcome).reshape(core.num_avs, k, n)
+        succ = (outcome == SUCCESS).all(axis=0).mean(1)
+        crash = (outcome == CRASH).any(axis=0).mean(1)
         scores += (succ - 2 * crash) / len(suites)
         table[suite.name] = {"success_rate": succ.tolist(), "crash_rate": crash.tolist()}
     best = max(range(k), key=lambda j: (round(float(scores[j]), 12), -abs(offsets[j])))
@@ -309,8 +328,6 @@ def train(
         raise TrainError(f"train/dagger.py trains dagger, not {member!r}")
     if resume:
         raise TrainError("dagger keeps no checkpoint (it trains in minutes): run it again without --resume")
-    if any(s.num_avs > 1 for s in suites):
-        raise TrainError("dagger trains on single-AV suites (the oracle drives one ego per road)")
     out_dir = check_writable_dir(out) if out else None
     hp, hp_file = load_hyperparams(DAggerHyperparams, hyperparams or hyperparams_file(member), overrides)
     hp = dataclasses.replace(
