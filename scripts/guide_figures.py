@@ -1,6 +1,7 @@
 """Measure what the training guides quote and write it to docs/guides/figures.json.
 
-Each guide's example runs as its slow test runs it, and the policy it trained is evaluated on table1.
+Each guide's example runs as its slow test runs it, and the policy it trained is evaluated on table1
+(the multi-agent guide's on duel).
 
     python scripts/guide_figures.py                    # every guide, cheapest first (about 20-30 min on 2 cores)
     python scripts/guide_figures.py --only sb3         # one guide, merged into the existing file
@@ -9,7 +10,8 @@ Per guide (docs/guides/<guide>.md, its slow test tests/docs/test_guide_<guide>.p
 the example's command as the test writes it (same flags, seed 0, ``OMP_NUM_THREADS=1``, in a fresh
 folder), its training time (wall and CPU) and decisions (or gradient steps) per second, then
 ``overtakezoo eval --suite table1`` on the file it wrote: success, crash and timeout rates with their
-95 % intervals, and the same on table1-train, the split the settings were checked on. Extras: sb3's
+95 % intervals, and the same on table1-train, the split the settings were checked on (torchrl's
+multi-agent guide: duel and duel-train, with the joint rates per road). Extras: sb3's
 torch-thread comparison (a short run at 1, 2 and 8 threads) and the env's own decisions per second;
 d3rlpy's run happens in a venv of its own (d3rlpy pins gymnasium 1.0, as test_d3rlpy.py builds it,
 or ``--venv``) and also trains the slow test's 300 steps. Each guide's entry names its date, the
@@ -35,12 +37,13 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 OUT = ROOT / "docs" / "guides" / "figures.json"
-GUIDES = ("cleanrl", "rsl-rl", "sb3", "d3rlpy")  # cheapest first
+GUIDES = ("cleanrl", "rsl-rl", "sb3", "d3rlpy", "torchrl")  # cheapest first
 NEEDS = {  # modules each guide's example imports in this interpreter, and the extra that installs them
     "cleanrl": (("torch", "onnx", "onnxruntime"), ".[train,onnx]"),
     "rsl-rl": (("torch", "rsl_rl", "onnx", "onnxruntime"), ".[train,onnx]"),
     "sb3": (("torch", "stable_baselines3"), ".[sb3]"),
     "d3rlpy": ((), "a venv with .[data,onnx,d3rlpy] (built here, or --venv)"),
+    "torchrl": (("torch", "torchrl", "onnx", "onnxruntime"), ".[torchrl]"),
 }
 SB3_THREADS = (1, 2, 8)  # the thread comparison's settings
 SB3_THREAD_STEPS = 6000
@@ -94,6 +97,10 @@ def evaluate(guide: str, python: Path, policy: Path, suite: str, cwd: Path, env:
         s = summary[key]
         rates[key] = s["value"]
         rates[key.replace("_rate", "_ci")] = [s["lo"], s["hi"]]
+    for key in ("all_succeed", "any_crash", "av_crash"):  # multi-AV suites: per road (roads in joint_n)
+        if key in summary.get("joint", {}):
+            s = summary["joint"][key]
+            rates[f"joint_{key}"], rates[f"joint_{key}_ci"], rates["joint_n"] = s["value"], [s["lo"], s["hi"]], s["n"]
     return {**rates, "n": summary["success_rate"]["n"], "eval_wall_s": done["wall_s"]}
 
 
@@ -162,6 +169,24 @@ def guide_rsl_rl(work: Path) -> dict[str, Any]:
         "policy_sha256": sha256(policy),
         "table1": evaluate("rsl-rl", Path(sys.executable), policy, "table1", folder, child_env()),
         "table1_train": evaluate("rsl-rl", Path(sys.executable), policy, "table1-train", folder, child_env()),
+    }
+
+
+def guide_torchrl(work: Path) -> dict[str, Any]:
+    """The multi-agent guide: trained on duel-train, so evaluated on duel (joint success per road)."""
+    command = [sys.executable, str(EXAMPLES / "torchrl_marl.py"), "--seed", "0", "--out", "runs/torchrl"]
+    script = run("torchrl", command, work, child_env())
+    folder = work / "runs" / "torchrl"
+    train = json.loads((folder / "train.json").read_text())
+    policy = folder / "policy.onnx"
+    return {
+        "command": "python examples/torchrl_marl.py --seed 0 --out runs/torchrl",
+        "frames": train["frames"],
+        "updates": train["updates"],
+        **train_figures(train["train_wall_s"], None, train["decisions"], script),
+        "policy_sha256": sha256(policy),
+        "duel": evaluate("torchrl", Path(sys.executable), policy, "duel", folder, child_env()),
+        "duel_train": evaluate("torchrl", Path(sys.executable), policy, "duel-train", folder, child_env()),
     }
 
 
@@ -301,6 +326,8 @@ def measure(guide: str, work: Path, venv: Path | None) -> dict[str, Any]:
         figures = guide_rsl_rl(folder)
     elif guide == "sb3":
         figures = guide_sb3(folder)
+    elif guide == "torchrl":
+        figures = guide_torchrl(folder)
     else:
         figures = guide_d3rlpy(folder, venv)
     if guide != "d3rlpy":
@@ -348,10 +375,11 @@ def main(argv: list[str] | None = None) -> int:
                 machine={k: v for k, v in machine().items() if k in ("cpu", "cores", "os", "python")},
             )
             atomic_write_json(args.out, doc)
-            table1 = figures.get("table1") or figures["runs"][0]["table1"]
+            suite = "duel" if "duel" in figures else "table1"
+            rates = figures.get(suite) or figures["runs"][0]["table1"]
             print(
-                f"{guide}: {figures['wall_min']} min; table1 success {table1['success_rate']:.3f}, "
-                f"crash {table1['crash_rate']:.3f}; wrote {args.out}",
+                f"{guide}: {figures['wall_min']} min; {suite} success {rates['success_rate']:.3f}, "
+                f"crash {rates['crash_rate']:.3f}; wrote {args.out}",
                 file=sys.stderr,
                 flush=True,
             )

@@ -13,7 +13,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ROOT / "docs" / "guides" / "figures.json"
 SCRIPT = ROOT / "scripts" / "guide_figures.py"
-PAGES = ("sb3.md", "cleanrl.md", "rsl-rl.md", "offline-rl.md")
+PAGES = ("sb3.md", "cleanrl.md", "rsl-rl.md", "offline-rl.md", "torchrl.md")
 QUOTED = re.compile(r"\{\{\s*docs/guides/figures\.json\s+guides/([\w-]+)/")
 
 
@@ -25,11 +25,17 @@ def test_the_figures_file_names_its_command_date_and_machine():
     for name, guide in doc["guides"].items():
         assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d", guide["date"]), name
         assert guide["machine"]["cpu"] and guide["machine"]["cores"] >= 1, name
-        table1s = [guide["table1"]] if "table1" in guide else [run["table1"] for run in guide["runs"]]
-        for table1 in table1s:
-            assert table1["n"] == 3000, name
-            rates = [table1[k] for k in ("success_rate", "crash_rate", "timeout_rate")]
-            assert all(0 <= r <= 1 for r in rates) and sum(rates) <= 1 + 1e-9, (name, table1)
+        if "duel" in guide:  # the multi-agent guide: both AVs of duel's 1000 roads
+            evals = [(guide["duel"], 2000)]
+            assert guide["duel"]["joint_n"] == 1000, name
+            assert 0 <= guide["duel"]["joint_all_succeed"] <= guide["duel"]["success_rate"] <= 1, name
+        else:
+            table1s = [guide["table1"]] if "table1" in guide else [run["table1"] for run in guide["runs"]]
+            evals = [(table1, 3000) for table1 in table1s]
+        for rates_of, n in evals:
+            assert rates_of["n"] == n, name
+            rates = [rates_of[k] for k in ("success_rate", "crash_rate", "timeout_rate")]
+            assert all(0 <= r <= 1 for r in rates) and sum(rates) <= 1 + 1e-9, (name, rates_of)
 
 
 def test_every_guide_the_pages_quote_is_in_the_file_and_each_page_names_the_command():
