@@ -68,13 +68,14 @@ def test_plan_re_plans_the_roads_of_the_rows_asked_as_act_batch_does():
     rows = np.array([1, roads + 4])  # AV 0 of road 1, AV 1 of road 4
     others = np.isin(np.arange(cores[0].num) % roads, [1, 4], invert=True)
     seen = set()
-    for _ in range(40):  # 4 s: the AVs pull out, so the plans change
+    for _ in range(8):  # re-planned each second for 8 s: the AVs pull out, so the plans change
         before = planned.decision.copy()
         got = planned.plan(rows)
         every = acting.act_batch(obs)
         np.testing.assert_array_equal(got, every[rows])
         np.testing.assert_array_equal(planned.decision[others], before[others])
         seen.update(every[rows].tolist())
-        cores[0].advance(every)  # both cores move on under the acting oracle's modes
-        obs = cores[1].step(every).obs
+        for _ in range(acting.action_repeat):  # both cores move on under the acting oracle's modes
+            cores[0].advance(every)
+            obs = cores[1].step(every).obs
     assert len(seen) > 1  # the test saw the plan change
