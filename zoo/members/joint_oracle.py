@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_size
+from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.core import CRASH, RUNNING, SUCCESS
-from overtakezoo.zoo.base import Decider, ObservationError, register
+from overtakezoo.zoo.base import register
+from overtakezoo.zoo.members.oracle import LookAhead
 
 CRASH_WEIGHT = 2.0  # the leaderboard's K: a crash counts twice a success
 
@@ -36,60 +37,30 @@ def joint_plans(num_avs: int) -> np.ndarray:
     return ((plan >> np.arange(num_avs)[None, :]) & 1).astype(bool)
 
 
-class JointOracle(Decider):
+class JointOracle(LookAhead):
     """Privileged joint look-ahead: plans every AV of a road together by simulating each joint plan
     of overtake / retreat on clones of the live road (an upper bound; never train on it)."""
 
     name = "joint-oracle"
     version = "1"
-    privileged = True
     joint = True  # plans every AV of a road: the runner lets it drive multi-AV suites
 
-    def __init__(
-        self,
-        config: EnvConfig | None = None,
-        replan_s: float = 1.0,
-        retreat_horizon_s: float = 8.0,
-        trust_verified: bool = True,
-    ) -> None:
-        super().__init__(config)
-        self.trust_verified = trust_verified  # off: a road is re-planned even where it was verified
-        self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
-        self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
-        self.core = None
-        self.sim_steps = 0  # road copies x steps simulated (cost accounting)
-        self._size(0, 1)
-
-    def _size(self, rows: int, num_avs: int) -> None:
+    def _size(self, rows: int) -> None:
+        num_avs = 1 if self.core is None else self.core.num_avs
         self.decision = np.full(rows, FOLLOW, np.int64)
-        self.verified = np.zeros(rows // max(1, num_avs), bool)  # per road
-
-    def bind(self, core) -> None:
-        if core.obs_size != observation_size(self.config):
-            raise ObservationError(
-                f"{self.name}: the bound core's observations have {core.obs_size} features, "
-                f"expected {observation_size(self.config)} (observation_size of the joint oracle's config)"
-            )
-        self.core = core
-        self._size(core.num, core.num_avs)
+        self.verified = np.zeros(rows // num_avs, bool)  # per road
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         core = self.core
         if mask is None or core is None or self.decision.shape[0] != len(mask):
-            self._size(self.decision.shape[0] if mask is None else len(mask), 1 if core is None else core.num_avs)
+            self._size(self.decision.shape[0] if mask is None else len(mask))
             return
         mask = np.asarray(mask, bool)
         self.decision[mask] = FOLLOW
         self.verified[mask.reshape(core.num_avs, -1).any(axis=0)] = False
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        core = self.core
-        if core is None:
-            raise RuntimeError("the joint oracle is privileged: call bind(core) after core.reset")
-        if obs.shape[0] != core.num:
-            raise ValueError(f"observation has {obs.shape[0]} rows but the bound core has {core.num}")
-        if self.decision.shape[0] != core.num:
-            self._size(core.num, core.num_avs)
+        core = self._bound(obs)
         open_road = ~core.done.reshape(core.num_avs, -1).all(axis=0) & ~(self.verified & self.trust_verified)
         roads = np.flatnonzero(open_road)
         if roads.size:

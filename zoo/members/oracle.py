@@ -45,14 +45,13 @@ def simulate(core, rows: np.ndarray, cand: np.ndarray, retreat_steps: int) -> tu
     return sim.outcome.copy(), sim.t.copy()
 
 
-class Oracle(Decider):
-    """Privileged look-ahead oracle: overtakes when a simulation of the real future shows that
-    overtaking now ends in success, follows otherwise (an upper bound; never train on it)."""
+class LookAhead(Decider):
+    """What the privileged look-ahead members share (``oracle``, ``joint-oracle``): they re-plan every
+    ``replan_s`` seconds on clones of the core they are bound to, check a retreat for
+    ``retreat_horizon_s`` seconds, and skip rows (roads) whose plan a simulation already verified
+    while ``trust_verified``. Subclasses size their state in ``_size`` and plan in ``act_batch``."""
 
-    name = "oracle"
-    version = "1"
     privileged = True
-    row_state = ("decision", "verified")
 
     def __init__(
         self,
@@ -64,25 +63,48 @@ class Oracle(Decider):
         super().__init__(config)
         self.action_repeat = max(1, int(round(replan_s / self.config.dt)))  # core steps between re-plans
         self.retreat_steps = max(1, int(round(retreat_horizon_s / self.config.dt)))
-        self.trust_verified = trust_verified
+        self.trust_verified = trust_verified  # off: re-plan even what a simulation verified
         self.core = None
-        self.sim_steps = 0  # rows x steps simulated (cost accounting)
+        self.sim_steps = 0  # simulated copies x steps (cost accounting)
         self._size(0)
 
-    def _size(self, n: int) -> None:
-        self.decision = np.full(n, FOLLOW, np.int64)
-        self.verified = np.zeros(n, bool)
+    def _size(self, rows: int) -> None:
+        raise NotImplementedError
 
     def bind(self, core) -> None:
-        # The oracle reads the core, not the observation, yet takes the same input as every member:
+        # A look-ahead reads the core, not the observation, yet takes the same input as every member:
         # a core whose observations its act would refuse (another width) is refused here.
         if core.obs_size != observation_size(self.config):
             raise ObservationError(
                 f"{self.name}: the bound core's observations have {core.obs_size} features, "
-                f"expected {observation_size(self.config)} (observation_size of the oracle's config)"
+                f"expected {observation_size(self.config)} (observation_size of the {self.name}'s config)"
             )
         self.core = core
         self._size(core.num)
+
+    def _bound(self, obs: np.ndarray):
+        """The bound core, checked against the observation ``act_batch`` was given."""
+        core = self.core
+        if core is None:
+            raise RuntimeError(f"the {self.name} is privileged: call bind(core) after core.reset")
+        if obs.shape[0] != core.num:
+            raise ValueError(f"observation has {obs.shape[0]} rows but the bound core has {core.num}")
+        if self.decision.shape[0] != core.num:
+            self._size(core.num)
+        return core
+
+
+class Oracle(LookAhead):
+    """Privileged look-ahead oracle: overtakes when a simulation of the real future shows that
+    overtaking now ends in success, follows otherwise (an upper bound; never train on it)."""
+
+    name = "oracle"
+    version = "1"
+    row_state = ("decision", "verified")
+
+    def _size(self, n: int) -> None:
+        self.decision = np.full(n, FOLLOW, np.int64)
+        self.verified = np.zeros(n, bool)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         if mask is None or self.decision.shape[0] != len(mask):
@@ -93,14 +115,7 @@ class Oracle(Decider):
         self.verified[mask] = False
 
     def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        core = self.core
-        if core is None:
-            raise RuntimeError("the oracle is privileged: call bind(core) after core.reset")
-        n = obs.shape[0]
-        if n != core.num:
-            raise ValueError(f"observation has {n} rows but the bound core has {core.num}")
-        if self.decision.shape[0] != n:
-            self._size(n)
+        core = self._bound(obs)
         due = ~core.done & ~(self.verified & self.trust_verified)
         rows = np.flatnonzero(due)
         if rows.size:
