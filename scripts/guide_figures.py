@@ -104,6 +104,14 @@ def evaluate(guide: str, python: Path, policy: Path, suite: str, cwd: Path, env:
     return {**rates, "n": summary["success_rate"]["n"], "eval_wall_s": done["wall_s"]}
 
 
+def evaluations(guide: str, policy: Path, cwd: Path, suites: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """``evaluate`` on each suite with this interpreter, keyed as figures.json keys them (table1_train)."""
+    return {
+        suite.replace("-", "_"): evaluate(guide, Path(sys.executable), policy, suite, cwd, child_env())
+        for suite in suites
+    }
+
+
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -138,8 +146,7 @@ def guide_cleanrl(work: Path) -> dict[str, Any]:
         "iterations": train["decisions"] // (train["args"]["num_envs"] * train["args"]["num_steps"]),
         **train_figures(train["train_wall_s"], None, train["decisions"], script),
         "policy_sha256": sha256(policy),
-        "table1": evaluate("cleanrl", Path(sys.executable), policy, "table1", folder, child_env()),
-        "table1_train": evaluate("cleanrl", Path(sys.executable), policy, "table1-train", folder, child_env()),
+        **evaluations("cleanrl", policy, folder, ("table1", "table1-train")),
     }
 
 
@@ -167,8 +174,7 @@ def guide_rsl_rl(work: Path) -> dict[str, Any]:
         "iterations": iterations,
         **train_figures(float(lines[-1]), None, iterations * 256 * 32, script),
         "policy_sha256": sha256(policy),
-        "table1": evaluate("rsl-rl", Path(sys.executable), policy, "table1", folder, child_env()),
-        "table1_train": evaluate("rsl-rl", Path(sys.executable), policy, "table1-train", folder, child_env()),
+        **evaluations("rsl-rl", policy, folder, ("table1", "table1-train")),
     }
 
 
@@ -185,8 +191,7 @@ def guide_torchrl(work: Path) -> dict[str, Any]:
         "updates": train["updates"],
         **train_figures(train["train_wall_s"], None, train["decisions"], script),
         "policy_sha256": sha256(policy),
-        "duel": evaluate("torchrl", Path(sys.executable), policy, "duel", folder, child_env()),
-        "duel_train": evaluate("torchrl", Path(sys.executable), policy, "duel-train", folder, child_env()),
+        **evaluations("torchrl", policy, folder, ("duel", "duel-train")),
     }
 
 
@@ -220,8 +225,7 @@ def guide_sb3(work: Path) -> dict[str, Any]:
         "command": f"python examples/sb3_dqn.py --steps {steps} --seed 0 --out runs/sb3-dqn",
         **train_figures(train["train_wall_s"], train["train_cpu_s"], steps, script),
         "policy_sha256": sha256(policy),
-        "table1": evaluate("sb3", Path(sys.executable), policy, "table1", work, child_env()),
-        "table1_train": evaluate("sb3", Path(sys.executable), policy, "table1-train", work, child_env()),
+        **evaluations("sb3", policy, work, ("table1", "table1-train")),
     }
     study = []
     for threads in SB3_THREADS:
