@@ -130,6 +130,29 @@ def test_edited_per_scenario_outcome_is_refused_naming_the_scenario(root, capsys
     assert f"scenario {idx[0]}: episode_time: recorded" in err
 
 
+def test_parallel_verify_runs_every_row_once_reports_in_name_order_and_refuses_an_edited_oracle_row(tmp_path, capsys):
+    # --jobs 2 verifies each suite's privileged rows apart from its others, longest first (verify.py):
+    # every row is still verified exactly once, reported in suite order, and a failure still names it.
+    root = tmp_path / "lb"
+    for suite, name in (("table1", "oracle"), ("table1", "rule-fsm"), ("oncoming-2", "always-follow")):
+        submit(shipped(name, suite), root)
+    argv = ["leaderboard", "--root", str(root), "--verify", "--sample", "2", "--seed", "0", "--jobs", "2"]
+    assert main(argv) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("verified submissions/")]
+    assert [line.split(":")[0] for line in lines] == [
+        "verified submissions/oncoming-2/always-follow.json",
+        "verified submissions/table1/oracle.json",
+        "verified submissions/table1/rule-fsm.json",
+    ]
+    path = root / "submissions" / "table1" / "oracle.json"
+    i = int(sample_indices(3000, 2, 0, "submissions/table1/oracle.json")[0])
+    r = Results.load(path)
+    r.per["outcome"][i] = 1 if r.per["outcome"][i] != 1 else 2
+    r.summary = summarize(r.per, r.meta["seed"])
+    r.save(path)
+    assert f"submissions/table1/oracle.json: scenario {i}: outcome: recorded" in one_line_error(capsys, argv)
+
+
 # ------------------------------------------------------------------ a policy file, end to end through the CLI
 def scripted_policy(path, seed, favour):
     """A TorchScript MLP (N, D) float32 -> 3 logits with seeded weights, leaning towards mode ``favour``."""
