@@ -52,6 +52,8 @@ class LookAhead(Decider):
     while ``trust_verified``. Subclasses size their state in ``_size`` and plan in ``act_batch``."""
 
     privileged = True
+    decision: np.ndarray  # (rows,) the mode each row holds until its next re-plan
+    verified: np.ndarray  # what a simulation showed succeeds (rows, or roads for the joint oracle)
 
     def __init__(
         self,
