@@ -193,9 +193,16 @@ class ObservationConfig:
     vehicles_per_lane: int = bounded(2, 1, 16)
     position_scale: float = bounded(50.0, 0.1, 10000.0, "m")
     speed_scale: float = bounded(5.0, 0.01, 100.0, "m/s")
+    # Vehicle-to-vehicle messages (opt-in; off keeps every shipped observation and row): a block
+    # after the vehicle slots saying, per slot, whether the vehicle is an automated vehicle and
+    # whether it is overtaking or aborting (what an AV would broadcast, e.g. in ETSI's Maneuver
+    # Coordination Service, TR 103 578). Without it a decentralised AV cannot tell when another AV
+    # of its road is about to pull out until that AV has moved sideways.
+    v2v: bool = False
 
     def validate(self) -> None:
         check_ranges(self, "observation.")
+        _check_bool("observation.v2v", self.v2v)
 
 
 RENDER_MODES = (None, "rgb_array", "human")

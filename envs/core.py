@@ -472,7 +472,18 @@ class OvertakeCore:
         p = self.last_plan
         blocked = p.blocked if p is not None and p.blocked.shape[0] == self.num else None
         motion = self._motion()
-        return observe(self.cfg, motion, self.mode, blocked, self._ego, self._sc, geo, self.xp, cols)
+        view_mode = self._view_mode() if self.cfg.observation.v2v else None
+        return observe(self.cfg, motion, self.mode, blocked, self._ego, self._sc, geo, self.xp, cols, view_mode)
+
+    def _view_mode(self) -> Any:
+        """(M', B): the mode of each vehicle an AV row sees that is another AV, -1 for an NPC (the
+        v2v observation block); None on single-AV roads (no AV in view)."""
+        if self.num_avs == 1:
+            return None
+        xp, n = self.xp, self.num_roads
+        cols = xp.arange(self.num)[None, :] % n
+        av_modes = self.mode[self._other_av * n + cols]  # (E - 1, B), in the view's order (after the NPCs)
+        return xp.concatenate([xp.full((self.num_npcs, self.num), -1, xp.int), av_modes])
 
     # ----------------------------------------------------------------- step
     def step(self, modes: Any, npc_accel: Any = None) -> StepResult:

@@ -32,7 +32,7 @@ import numpy as np
 from gymnasium import spaces
 
 from overtakezoo.envs.config import EnvConfig
-from overtakezoo.envs.model.observation import EGO_FEATURES, SLOT_FEATURES, observation_size
+from overtakezoo.envs.model.observation import EGO_FEATURES, SLOT_FEATURES, V2V_FEATURES, observation_size
 from overtakezoo.envs.scenarios import ScenarioDistribution
 
 PAD = 1e-4  # in feature units: float rounding of the core's arithmetic, not a modelling margin
@@ -121,7 +121,10 @@ def ego_observation_space(cfg: EnvConfig, npc_agents: bool | None = None) -> spa
     slots = 2 * oc.vehicles_per_lane
     low += slot_low * slots
     high += slot_high * slots
-    assert len(low) == observation_size(cfg) == EGO_FEATURES + flags + slots * SLOT_FEATURES
+    if oc.v2v:  # per slot: is an AV, overtaking, aborting (flags)
+        low += [0.0] * (slots * V2V_FEATURES)
+        high += [1.0] * (slots * V2V_FEATURES)
+    assert len(low) == observation_size(cfg) == EGO_FEATURES + flags + slots * (SLOT_FEATURES + oc.v2v * V2V_FEATURES)
     return _box(low, high)
 
 

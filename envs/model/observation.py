@@ -9,7 +9,9 @@ Layout (all float32, O(1) after scaling):
 - planner (n + 1): 1 where the shared planner marks a rollout blocked (what OpenPlanner's own
   behaviour selector sees);
 - vehicles (2 lanes x k slots x 5): for each lane (ego lane, opposite lane) the k nearest perceived
-  vehicles by distance: presence flag, x, y, vx, vy relative to the ego in the ego's frame.
+  vehicles by distance: presence flag, x, y, vx, vy relative to the ego in the ego's frame;
+- v2v (2 lanes x k slots x 3, only with ``observation.v2v``): for the vehicle in the same slot, 1
+  where it is an automated vehicle, and 1 where that AV is overtaking / aborting (its broadcast).
 
 Only vehicles within sensor range (and their own reveal distance) appear; empty slots are zeros.
 """
@@ -20,14 +22,16 @@ from typing import Any
 
 import numpy as np
 
-from overtakezoo.envs.config import EnvConfig
+from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
 
 EGO_FEATURES = 6
 SLOT_FEATURES = 5
+V2V_FEATURES = 3  # is an AV, overtaking, aborting
 
 
 def observation_size(cfg: EnvConfig) -> int:
-    return EGO_FEATURES + 3 + cfg.planner.num_rollouts + 1 + 2 * cfg.observation.vehicles_per_lane * SLOT_FEATURES
+    slot = SLOT_FEATURES + (V2V_FEATURES if cfg.observation.v2v else 0)
+    return EGO_FEATURES + 3 + cfg.planner.num_rollouts + 1 + 2 * cfg.observation.vehicles_per_lane * slot
 
 
 def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
@@ -35,13 +39,17 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
     r = cfg.planner.num_rollouts + 1
     k = cfg.observation.vehicles_per_lane
     o = EGO_FEATURES
-    return {
+    end = o + 3 + r + 2 * k * SLOT_FEATURES
+    layout = {
         "ego": slice(0, o),
         "mode": slice(o, o + 3),
         "blocked": slice(o + 3, o + 3 + r),
         "ego_lane": slice(o + 3 + r, o + 3 + r + k * SLOT_FEATURES),
-        "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, o + 3 + r + 2 * k * SLOT_FEATURES),
+        "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, end),
     }
+    if cfg.observation.v2v:  # appended, so every other part stays where it is
+        layout["v2v"] = slice(end, end + 2 * k * V2V_FEATURES)
+    return layout
 
 
 def observe(
@@ -54,10 +62,13 @@ def observe(
     geo: dict,
     xp: Any,
     cols: Any = None,
+    view_mode: Any = None,
 ) -> Any:
     """The (N, D) float32 observation of the AV rows (motion ``m``, an ``AVMotion``; ``mode``; the
     planner's last ``blocked`` flags or None) from the batch-last geometry of the vehicles in their
-    ``view`` (arrays (M, N)); only the rows ``cols`` when given (auto-reset rows). Features are
+    ``view`` (arrays (M, N)); only the rows ``cols`` when given (auto-reset rows). ``view_mode``
+    (M, N): the mode of each vehicle that is an AV, -1 for an NPC (read only with
+    ``observation.v2v``; None: no AV in view). Features are
     written through a transposed view of the C-contiguous (N, D) result (it fits in cache, so this
     beats a transpose copy)."""
     oc = cfg.observation
@@ -96,6 +107,8 @@ def observe(
             rank = xp.zeros(dist.shape, xp.int)
         kept = seen & (rank < k)
         base = EGO_FEATURES + 3 + r
+        if oc.v2v and view_mode is not None:
+            _write_v2v(out, view_mode[:, sel], lanes, rank, kept, base + 2 * k * SLOT_FEATURES, k, xp)
         if xp.sync_free:  # every vehicle's features, masked, added into its slot: no data-dependent shape
             feats = _slot_features(xp.cos(psi), xp.sin(psi), dx, dy, v, v_along, lane_width, oc, xp)
             slot = base + (lanes * k + xp.minimum(rank, k - 1)) * SLOT_FEATURES  # (M, N); unkept add zeros
@@ -110,6 +123,18 @@ def observe(
             row = base + (lanes[vj, vn] * k + rank[vj, vn]) * SLOT_FEATURES
             out[row[None, :] + xp.arange(SLOT_FEATURES)[:, None], vn[None, :]] = xp.astype(feats, np.float32)
     return rows_out
+
+
+def _write_v2v(out: Any, view_mode: Any, lanes: Any, rank: Any, kept: Any, base: int, k: int, xp: Any) -> None:
+    """Each kept vehicle's v2v features (is an AV, overtaking, aborting) into its slot of the block
+    at ``base``, through the transposed view ``out`` (a scatter-add of masked values: no
+    data-dependent shape, the same on every backend)."""
+    m = kept.shape[0]
+    feats = xp.stack([view_mode >= 0, view_mode == OVERTAKE, view_mode == ABORT])  # (3, M, N)
+    slot = base + (lanes * k + xp.minimum(rank, k - 1)) * V2V_FEATURES  # (M, N); unkept add zeros
+    index = slot[None] + xp.arange(V2V_FEATURES)[:, None, None]
+    values = xp.astype(xp.where(kept[None], xp.astype(feats, np.float32), 0.0), np.float32)
+    xp.scatter_add(out, index.reshape(V2V_FEATURES * m, -1), values.reshape(V2V_FEATURES * m, -1))
 
 
 def _slot_features(c: Any, s: Any, ddx: Any, ddy: Any, vv: Any, v_along: Any, lane_width: Any, oc: Any, xp: Any) -> Any:
