@@ -279,6 +279,10 @@ class EnvConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def with_observation(self, **changes: Any) -> EnvConfig:
+        """This configuration with observation settings ``changes`` (``v2v=True``)."""
+        return dataclasses.replace(self, observation=dataclasses.replace(self.observation, **changes))
+
 
 def _check_bool(key: str, value: Any) -> None:
     why = bool_problem(value)

@@ -631,7 +631,9 @@ def check_card(card: dict[str, Any] | None, config: Any, who: str) -> None:
     """:class:`UserError` when ``card``'s observation contract is not ``config``'s."""
     if not card or config is None:
         return
-    now = card_contract(config)
+    from overtakezoo.zoo.members.learned import declared_config
+
+    now = card_contract(declared_config(card, config))  # (a card with a v2v part reads the v2v block)
     size = card.get("observation_size")
     trained = f" (trained on {card['suite']})" if card.get("suite") else ""
     if size is not None and size != now["observation_size"]:

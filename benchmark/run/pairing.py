@@ -18,6 +18,8 @@ import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
 from overtakezoo.envs.hold import hold_steps
+from overtakezoo.envs.model.observation import V2V_FEATURES
+from overtakezoo.zoo.members.learned import reads_v2v
 
 
 class Pairing:
@@ -63,8 +65,12 @@ class Pairing:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
+        road_v2v = reads_v2v(self)  # the runner turned the v2v block on for the road
         for e, d in enumerate(self.by_av):
             if self._calls % self.every[e] == 0 or self._last[e] is None:
-                self._last[e] = np.asarray(d.act(self._block(obs, e)), np.int64)
+                block = self._block(obs, e)
+                if road_v2v and not reads_v2v(d):  # the block is appended last: a decider without it reads the rest
+                    block = block[:, : block.shape[1] - 2 * d.config.observation.vehicles_per_lane * V2V_FEATURES]
+                self._last[e] = np.asarray(d.act(block), np.int64)
         self._calls += 1
         return np.concatenate(self._last)

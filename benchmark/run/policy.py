@@ -54,6 +54,7 @@ from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.run.artifacts import Artifact, check_card, read_policy_file
 from overtakezoo.benchmark.run.sandbox import BadAnswer, PolicyFailure, SandboxedPolicy, check_modes
 from overtakezoo.envs import ConfigError, EnvConfig, observation_size, safe_json
+from overtakezoo.zoo.members.learned import declared_config
 
 NUM_MODES = 3
 FACTORY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
@@ -192,6 +193,7 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
     """The decider acting ``art`` in a sandboxed child (:mod:`.sandbox`), probed on this config's
     observations; :class:`UserError` naming ``who`` when it cannot load or act. ``allow_code``: a
     TorchScript file (the user's own, for ``eval --policy`` or ``submit``'s conversion) may load."""
+    config = declared_config(art.card or art.policy_card, config)  # (the v2v block, when its card reads it)
     try:
         box = SandboxedPolicy(art.kind, art.data, config, art.box_card, who, allow_code=allow_code)
     except PolicyFailure as exc:

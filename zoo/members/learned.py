@@ -61,6 +61,26 @@ def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def declared_config(card: dict[str, Any] | None, config: EnvConfig) -> EnvConfig:
+    """``config`` with the observation the card's policy reads: the v2v block on when a model card
+    says ``"observation": {"v2v": true}`` (``overtakezoo train ... --set v2v=true``) or a policy
+    card's ``observation_layout`` has a ``v2v`` part. The runner then turns the block on for the
+    road (:func:`reads_v2v`); the suite's own settings are unchanged."""
+    card = card if isinstance(card, dict) else {}
+    observation = card.get("observation")
+    layout = card.get("observation_layout")
+    v2v = (isinstance(observation, dict) and observation.get("v2v") is True) or (
+        isinstance(layout, dict) and "v2v" in layout
+    )
+    return config.with_observation(v2v=True) if v2v and not config.observation.v2v else config
+
+
+def reads_v2v(decider: Any) -> bool:
+    """Whether ``decider`` (or any decider of a pairing, ``by_av``) reads the observation's v2v block."""
+    deciders = getattr(decider, "by_av", None) or [decider]
+    return any(bool(getattr(getattr(getattr(d, "config", None), "observation", None), "v2v", False)) for d in deciders)
+
+
 def read_card(path: str | Path, who: str) -> dict[str, Any]:
     """A model card (JSON); one-line :class:`WeightsError` when missing or unreadable."""
     path = Path(path)
@@ -141,7 +161,7 @@ class MLPDecider(Decider):
     def __init__(
         self, net: NumpyMLP, name: str, config: EnvConfig | None = None, card: dict[str, Any] | None = None
     ) -> None:
-        super().__init__(config)
+        super().__init__(declared_config(card, config or EnvConfig()))
         self.stack = int((card or {}).get("frame_stack", 1))  # decisions of input (StackedMLPDecider)
         if net.in_features != self.stack * observation_size(self.config):
             raise WeightsError(

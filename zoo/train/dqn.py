@@ -126,6 +126,9 @@ class DQNHyperparams:
     stats_window: int = param(1000, 1)  # episodes in the logged success / crash rates
     # Share of `num_envs` on the multi-AV suites of a mixture (None: rows split evenly over suites).
     multi_av_share: float | None = param(None, 0.0, 1.0)
+    # Read the observation's v2v block (envs/model/observation.py: which vehicles are AVs and whether
+    # they overtake); the card records it and every evaluation turns the block on. Off: every shipped member.
+    v2v: bool = param(False)
     # Model selection (zoo/train/selection.py): every `select_every` transitions from `select_from` on,
     # and at the end, the greedy masked policy on the first `select_scenarios` training scenarios; the
     # best success - crash is shipped (0: no selection, the last network ships). Single-AV suites only.
@@ -148,6 +151,8 @@ class Trainer:
 
     def __init__(self, algo: str, hp: DQNHyperparams, suites: list[Any], seed: int, name: str | None = None) -> None:
         self.algo, self.hp, self.suites, self.seed = algo, hp, list(suites), int(seed)
+        if hp.v2v:  # the same suites, observed with the v2v block
+            self.suites = [dataclasses.replace(s, config=s.config.with_observation(v2v=True)) for s in self.suites]
         self.train_name = name or "+".join(s.name for s in self.suites)
         # Seeding: torch for the network's initial weights, numpy for exploration and replay sampling.
         torch.manual_seed(self.seed)
@@ -533,4 +538,7 @@ def train(
         trainer.net.load_state_dict(trainer.best["net"])
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
-    return finish(card(trainer, hp_file), weights=buf.getvalue(), module=trainer.net, out=out_dir)
+    trained = card(trainer, hp_file)
+    if hp.v2v:
+        trained["observation"] = {"v2v": True}  # (zoo/members/learned.py declared_config reads it)
+    return finish(trained, weights=buf.getvalue(), module=trainer.net, out=out_dir)
