@@ -199,10 +199,16 @@ class ObservationConfig:
     # Coordination Service, TR 103 578). Without it a decentralised AV cannot tell when another AV
     # of its road is about to pull out until that AV has moved sideways.
     v2v: bool = False
+    # The share of the episode's time limit still left (opt-in, appended after the v2v block): with
+    # a timeout counted as a failure the time left is part of the task's state (Pardo et al. 2018,
+    # "Time Limits in Reinforcement Learning"); without it the same observation may call for a
+    # cautious wait early and a pass late.
+    time_left: bool = False
 
     def validate(self) -> None:
         check_ranges(self, "observation.")
         _check_bool("observation.v2v", self.v2v)
+        _check_bool("observation.time_left", self.time_left)
 
 
 RENDER_MODES = (None, "rgb_array", "human")

@@ -473,7 +473,7 @@ class OvertakeCore:
         blocked = p.blocked if p is not None and p.blocked.shape[0] == self.num else None
         motion = self._motion()
         view_mode = self._view_mode() if self.cfg.observation.v2v else None
-        return observe(self.cfg, motion, self.mode, blocked, self._ego, self._sc, geo, self.xp, cols, view_mode)
+        return observe(self.cfg, motion, self.mode, blocked, self._ego, self._sc, geo, self.xp, cols, view_mode, self.t)
 
     def _view_mode(self) -> Any:
         """(M', B): the mode of each vehicle an AV row sees that is another AV, -1 for an NPC (the

@@ -85,7 +85,11 @@ def git_commit() -> str | None:
 
 
 # (table, key) -> the value under which the setting changes nothing that was measured before it existed.
-ADDED_LATER = {("planner", "emergency_braking"): False, ("observation", "v2v"): False}
+ADDED_LATER = {
+    ("planner", "emergency_braking"): False,
+    ("observation", "v2v"): False,
+    ("observation", "time_left"): False,
+}
 
 
 def config_sha256(config: Any) -> str:

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.benchmark.errors import UserError
+from overtakezoo.envs import observation_layout
 from overtakezoo.envs.hold import hold_steps
-from overtakezoo.envs.model.observation import V2V_FEATURES
-from overtakezoo.zoo.members.learned import reads_v2v
+from overtakezoo.zoo.members.learned import read_parts
 
 
 class Pairing:
@@ -49,6 +49,9 @@ class Pairing:
         self.version = "+".join(str(d.version) for d in self.by_av)
         self._calls = 0
         self._last: list[np.ndarray | None] = [None] * len(self.by_av)
+        # The runner turns on for the road every opt-in observation part a decider reads: the others
+        # read their own parts of it (None: the whole observation).
+        self._columns = [_own_columns(d, read_parts(self)) for d in self.by_av]
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         if mask is None:
@@ -65,12 +68,23 @@ class Pairing:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
-        road_v2v = reads_v2v(self)  # the runner turned the v2v block on for the road
         for e, d in enumerate(self.by_av):
             if self._calls % self.every[e] == 0 or self._last[e] is None:
                 block = self._block(obs, e)
-                if road_v2v and not reads_v2v(d):  # the block is appended last: a decider without it reads the rest
-                    block = block[:, : block.shape[1] - 2 * d.config.observation.vehicles_per_lane * V2V_FEATURES]
+                if self._columns[e] is not None:
+                    block = block[:, self._columns[e]]
                 self._last[e] = np.asarray(d.act(block), np.int64)
         self._calls += 1
         return np.concatenate(self._last)
+
+
+def _own_columns(decider: Any, road_parts: dict[str, bool]) -> np.ndarray | None:
+    """The columns of a road observation (with the opt-in parts ``road_parts`` on) that make up
+    ``decider``'s own observation; None when they are all of them (or it names no config)."""
+    config = getattr(decider, "config", None)
+    if config is None or not road_parts:
+        return None
+    own, road = observation_layout(config), observation_layout(config.with_observation(**road_parts))
+    if own == road:
+        return None
+    return np.concatenate([np.arange(road[part].start, road[part].stop) for part in own])

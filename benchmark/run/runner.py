@@ -37,7 +37,7 @@ from overtakezoo.envs.hold import hold_steps, run_to_end
 from overtakezoo.envs.host import host_core
 from overtakezoo.envs.scenarios import EGO_LANE, NPC1_SLOT, npc1_npc2_speeds
 from overtakezoo.envs.suites import CHUNK_SIZE, Suite, shard_bounds
-from overtakezoo.zoo.members.learned import reads_v2v
+from overtakezoo.zoo.members.learned import read_parts
 
 
 def run_suite(
@@ -157,8 +157,9 @@ def _run(
         on = core_backend(device, backend)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    # The suite's settings, with the v2v block on when the decider reads it (its config says so).
-    cfg = suite.config.with_observation(v2v=True) if reads_v2v(decider) else suite.config
+    # The suite's settings, with the opt-in observation parts the decider reads on (its config says so).
+    parts = read_parts(decider)
+    cfg = suite.config.with_observation(**parts) if parts else suite.config
     held = hold_steps(cfg.decision_interval, getattr(decider, "action_repeat", 1))
     # Safety net: the core ends every row at its time limit; more steps than that means a bug.
     max_steps = int(math.ceil(float(np.max(scenarios.time_limit, initial=0.0)) / cfg.dt)) + 10

@@ -124,7 +124,11 @@ def ego_observation_space(cfg: EnvConfig, npc_agents: bool | None = None) -> spa
     if oc.v2v:  # per slot: is an AV, overtaking, aborting (flags)
         low += [0.0] * (slots * V2V_FEATURES)
         high += [1.0] * (slots * V2V_FEATURES)
-    assert len(low) == observation_size(cfg) == EGO_FEATURES + flags + slots * (SLOT_FEATURES + oc.v2v * V2V_FEATURES)
+    if oc.time_left:  # the share of the time limit left
+        low.append(0.0)
+        high.append(1.0)
+    width = EGO_FEATURES + flags + slots * (SLOT_FEATURES + oc.v2v * V2V_FEATURES) + oc.time_left
+    assert len(low) == observation_size(cfg) == width
     return _box(low, high)
 
 

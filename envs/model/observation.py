@@ -11,7 +11,8 @@ Layout (all float32, O(1) after scaling):
 - vehicles (2 lanes x k slots x 5): for each lane (ego lane, opposite lane) the k nearest perceived
   vehicles by distance: presence flag, x, y, vx, vy relative to the ego in the ego's frame;
 - v2v (2 lanes x k slots x 3, only with ``observation.v2v``): for the vehicle in the same slot, 1
-  where it is an automated vehicle, and 1 where that AV is overtaking / aborting (its broadcast).
+  where it is an automated vehicle, and 1 where that AV is overtaking / aborting (its broadcast);
+- time_left (1, only with ``observation.time_left``): the share of the time limit still left.
 
 Only vehicles within sensor range (and their own reveal distance) appear; empty slots are zeros.
 """
@@ -27,11 +28,14 @@ from overtakezoo.envs.config import ABORT, OVERTAKE, EnvConfig
 EGO_FEATURES = 6
 SLOT_FEATURES = 5
 V2V_FEATURES = 3  # is an AV, overtaking, aborting
+# The opt-in parts: each is an ObservationConfig flag that appends the layout part of its name.
+OPTIONAL_PARTS = ("v2v", "time_left")
 
 
 def observation_size(cfg: EnvConfig) -> int:
-    slot = SLOT_FEATURES + (V2V_FEATURES if cfg.observation.v2v else 0)
-    return EGO_FEATURES + 3 + cfg.planner.num_rollouts + 1 + 2 * cfg.observation.vehicles_per_lane * slot
+    oc = cfg.observation
+    slot = SLOT_FEATURES + (V2V_FEATURES if oc.v2v else 0)
+    return EGO_FEATURES + 3 + cfg.planner.num_rollouts + 1 + 2 * oc.vehicles_per_lane * slot + int(oc.time_left)
 
 
 def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
@@ -47,8 +51,11 @@ def observation_layout(cfg: EnvConfig) -> dict[str, slice]:
         "ego_lane": slice(o + 3 + r, o + 3 + r + k * SLOT_FEATURES),
         "opposite_lane": slice(o + 3 + r + k * SLOT_FEATURES, end),
     }
-    if cfg.observation.v2v:  # appended, so every other part stays where it is
+    if cfg.observation.v2v:  # the opt-in parts are appended, so every other part stays where it is
         layout["v2v"] = slice(end, end + 2 * k * V2V_FEATURES)
+        end += 2 * k * V2V_FEATURES
+    if cfg.observation.time_left:
+        layout["time_left"] = slice(end, end + 1)
     return layout
 
 
@@ -63,12 +70,14 @@ def observe(
     xp: Any,
     cols: Any = None,
     view_mode: Any = None,
+    t: Any = None,
 ) -> Any:
     """The (N, D) float32 observation of the AV rows (motion ``m``, an ``AVMotion``; ``mode``; the
     planner's last ``blocked`` flags or None) from the batch-last geometry of the vehicles in their
     ``view`` (arrays (M, N)); only the rows ``cols`` when given (auto-reset rows). ``view_mode``
     (M, N): the mode of each vehicle that is an AV, -1 for an NPC (read only with
-    ``observation.v2v``; None: no AV in view). Features are
+    ``observation.v2v``; None: no AV in view); ``t`` (N,): each row's time (read only with
+    ``observation.time_left``). Features are
     written through a transposed view of the C-contiguous (N, D) result (it fits in cache, so this
     beats a transpose copy)."""
     oc = cfg.observation
@@ -90,6 +99,9 @@ def observe(
     r = cfg.planner.num_rollouts + 1
     if blocked is not None:
         out[EGO_FEATURES + 3 : EGO_FEATURES + 3 + r] = blocked[sel].T
+    if oc.time_left:  # (the last feature)
+        limit = ego["time_limit"][sel]
+        out[-1] = xp.minimum(xp.maximum((limit - t[sel]) / limit, 0.0), 1.0)
 
     # Slot of each vehicle: its rank by distance among the perceived vehicles of its lane (ties by
     # slot index, like a stable sort), from pairwise comparisons on (M, M, N) -- no sort, no loop.

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from overtakezoo.envs import ABORT, FOLLOW, OVERTAKE, EnvConfig, observation_layout, observation_size, safe_json
+from overtakezoo.envs.model.observation import OPTIONAL_PARTS
 from overtakezoo.zoo.base import Decider, member, names, register
 from overtakezoo.zoo.members.features import FEATURES_VERSION, speed_relative
 from overtakezoo.zoo.members.mlp import NumpyMLP, read_npz
@@ -62,23 +63,27 @@ def sha256_bytes(data: bytes) -> str:
 
 
 def declared_config(card: dict[str, Any] | None, config: EnvConfig) -> EnvConfig:
-    """``config`` with the observation the card's policy reads: the v2v block on when a model card
-    says ``"observation": {"v2v": true}`` (``overtakezoo train ... --set v2v=true``) or a policy
-    card's ``observation_layout`` has a ``v2v`` part. The runner then turns the block on for the
-    road (:func:`reads_v2v`); the suite's own settings are unchanged."""
+    """``config`` with the opt-in observation parts the card's policy reads on (``OPTIONAL_PARTS``:
+    ``v2v``, ``time_left``): a model card's ``"observation": {"v2v": true}`` (``overtakezoo train
+    ... --set v2v=true``) or a part of that name in a policy card's ``observation_layout``. The runner
+    then turns them on for the road (:func:`read_parts`); the suite's own settings are unchanged."""
     card = card if isinstance(card, dict) else {}
-    observation = card.get("observation")
-    layout = card.get("observation_layout")
-    v2v = (isinstance(observation, dict) and observation.get("v2v") is True) or (
-        isinstance(layout, dict) and "v2v" in layout
-    )
-    return config.with_observation(v2v=True) if v2v and not config.observation.v2v else config
+    observation, layout = card.get("observation"), card.get("observation_layout")
+    on = {
+        part: True
+        for part in OPTIONAL_PARTS
+        if (isinstance(observation, dict) and observation.get(part) is True)
+        or (isinstance(layout, dict) and part in layout)
+    }
+    return config.with_observation(**on) if any(not getattr(config.observation, p) for p in on) else config
 
 
-def reads_v2v(decider: Any) -> bool:
-    """Whether ``decider`` (or any decider of a pairing, ``by_av``) reads the observation's v2v block."""
+def read_parts(decider: Any) -> dict[str, bool]:
+    """The opt-in observation parts ``decider`` (or any decider of a pairing, ``by_av``) reads, as
+    ``with_observation`` keywords (``{}``: none)."""
     deciders = getattr(decider, "by_av", None) or [decider]
-    return any(bool(getattr(getattr(getattr(d, "config", None), "observation", None), "v2v", False)) for d in deciders)
+    observations = [getattr(getattr(d, "config", None), "observation", None) for d in deciders]
+    return {part: True for part in OPTIONAL_PARTS if any(getattr(o, part, False) for o in observations)}
 
 
 def read_card(path: str | Path, who: str) -> dict[str, Any]:

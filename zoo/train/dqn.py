@@ -63,6 +63,7 @@ from overtakezoo.envs import CRASH, SUCCESS, observation_size
 from overtakezoo.envs.hold import hold
 from overtakezoo.envs.io import atomic_write_bytes, check_writable_dir
 from overtakezoo.envs.mixture import MixedCore, split_rows
+from overtakezoo.envs.model.observation import OPTIONAL_PARTS
 from overtakezoo.zoo.base import member as registry_member
 from overtakezoo.zoo.base import names
 from overtakezoo.zoo.members.features import speed_relative
@@ -126,15 +127,22 @@ class DQNHyperparams:
     stats_window: int = param(1000, 1)  # episodes in the logged success / crash rates
     # Share of `num_envs` on the multi-AV suites of a mixture (None: rows split evenly over suites).
     multi_av_share: float | None = param(None, 0.0, 1.0)
-    # Read the observation's v2v block (envs/model/observation.py: which vehicles are AVs and whether
-    # they overtake); the card records it and every evaluation turns the block on. Off: every shipped member.
+    # Opt-in observation parts to read (envs/model/observation.py): v2v, which vehicles are AVs and
+    # whether they overtake; time_left, the share of the time limit left. The card records them and
+    # every evaluation turns them on. Off: every shipped member.
     v2v: bool = param(False)
+    time_left: bool = param(False)
     # Model selection (zoo/train/selection.py): every `select_every` transitions from `select_from` on,
     # and at the end, the greedy masked policy on the first `select_scenarios` training scenarios; the
     # best success - crash is shipped (0: no selection, the last network ships). Single-AV suites only.
     select_every: int = param(0, 0)
     select_from: int = param(0, 0)
     select_scenarios: int = param(900, 1)
+
+
+def observed_parts(hp: DQNHyperparams) -> dict[str, bool]:
+    """The opt-in observation parts ``hp`` trains on, as ``with_observation`` keywords."""
+    return {part: True for part in OPTIONAL_PARTS if getattr(hp, part)}
 
 
 # ----------------------------------------------------------------------------- acting
@@ -151,8 +159,9 @@ class Trainer:
 
     def __init__(self, algo: str, hp: DQNHyperparams, suites: list[Any], seed: int, name: str | None = None) -> None:
         self.algo, self.hp, self.suites, self.seed = algo, hp, list(suites), int(seed)
-        if hp.v2v:  # the same suites, observed with the v2v block
-            self.suites = [dataclasses.replace(s, config=s.config.with_observation(v2v=True)) for s in self.suites]
+        if observed_parts(hp):  # the same suites, observed with the opt-in parts
+            parts = observed_parts(hp)
+            self.suites = [dataclasses.replace(s, config=s.config.with_observation(**parts)) for s in self.suites]
         self.train_name = name or "+".join(s.name for s in self.suites)
         # Seeding: torch for the network's initial weights, numpy for exploration and replay sampling.
         torch.manual_seed(self.seed)
@@ -539,6 +548,6 @@ def train(
     buf = io.BytesIO()
     torch.save(trainer.net.state_dict(), buf)
     trained = card(trainer, hp_file)
-    if hp.v2v:
-        trained["observation"] = {"v2v": True}  # (zoo/members/learned.py declared_config reads it)
+    if observed_parts(hp):
+        trained["observation"] = observed_parts(hp)  # (zoo/members/learned.py declared_config reads it)
     return finish(trained, weights=buf.getvalue(), module=trainer.net, out=out_dir)

@@ -17,7 +17,7 @@ from overtakezoo.benchmark.run.policy import load_policy
 from overtakezoo.benchmark.run.runner import run_indices
 from overtakezoo.envs import observation_layout, observation_size
 from overtakezoo.envs.suites import load_suite
-from overtakezoo.zoo.members.learned import reads_v2v
+from overtakezoo.zoo.members.learned import read_parts
 from overtakezoo.zoo.train.dqn import train
 
 torch = pytest.importorskip("torch")
@@ -51,7 +51,9 @@ def test_the_card_says_it_reads_v2v_and_the_runner_turns_the_block_on(v2v_run):
     suite = load_suite("duel")
     assert card["observation"] == {"v2v": True} and "--set v2v=true" in card["reproduce"]
     policy = load_policy(str(v2v_run / "ps-dqn.json"), suite.config)
-    assert reads_v2v(policy) and not suite.config.observation.v2v  # the suite's own settings are untouched
+    assert (
+        read_parts(policy) == {"v2v": True} and not suite.config.observation.v2v
+    )  # the suite's own settings are untouched
     plain = observation_size(suite.config)
     width = plain + 2 * suite.config.observation.vehicles_per_lane * 3
     assert card["architecture"]["obs_dim"] == width
@@ -86,3 +88,19 @@ def test_evaluated_submitted_and_verified_as_a_row(v2v_run, tiny_suite, tmp_path
     edited = {k: v for k, v in json.loads(card.read_text()).items() if k != "observation"}
     card.write_text(json.dumps(edited))
     assert main(["leaderboard", "--root", str(root), "--verify"]) == 2
+
+
+def test_partners_reading_different_parts_each_read_their_own_columns():
+    # fuzzy reads its observation by layout: given its own columns of a road with both parts on, it
+    # decides exactly as on the plain road.
+    suite = load_suite("duel")
+    plain = [zoo.load("fuzzy", suite.config) for _ in range(2)]
+    parted = [zoo.load("fuzzy", suite.config.with_observation(**{part: True})) for part in ("v2v", "time_left")]
+    pairing = Pairing(parted, suite.config.decision_interval)
+    assert read_parts(pairing) == {"v2v": True, "time_left": True}
+    idx = np.arange(10)
+    want = run_indices(suite, Pairing(plain, suite.config.decision_interval), idx)
+    got = run_indices(suite, pairing, idx)
+    assert set(got) == set(want)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)

@@ -1,13 +1,22 @@
-"""The opt-in v2v observation block: per vehicle slot, is it an AV and is that AV overtaking or
-aborting. Off (the default) the observation is what it always was; on, the block is appended and
-every other feature keeps its place and its bits, on every backend."""
+"""The opt-in observation parts: ``v2v`` (per vehicle slot, is it an AV and is that AV overtaking or
+aborting) and ``time_left`` (the share of the time limit left). Off (the default) the observation
+is what it always was; on, they are appended and every other feature keeps its place and its bits,
+on every backend."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from overtakezoo.envs import ConfigError, EnvConfig, OvertakeCore, make_scenario, observation_layout, parallel_env
+from overtakezoo.envs import (
+    ConfigError,
+    EnvConfig,
+    OvertakeCore,
+    make_scenario,
+    observation_layout,
+    observation_size,
+    parallel_env,
+)
 from overtakezoo.envs.config import ABORT, FOLLOW, OVERTAKE
 from overtakezoo.envs.suites import load_suite
 
@@ -16,6 +25,19 @@ KMH = 1 / 3.6
 
 def _with_v2v(config: EnvConfig) -> EnvConfig:
     return EnvConfig.from_dict({**config.to_dict(), "observation": {**config.to_dict()["observation"], "v2v": True}})
+
+
+def test_time_left_counts_down_to_the_limit_inside_the_space():
+    par = parallel_env("duel", observation={"time_left": True, "v2v": True})
+    obs, _ = par.reset(seed=3)
+    last = observation_layout(par.config)["time_left"]
+    assert last.stop == observation_size(par.config) and all(o[last] == 1.0 for o in obs.values())
+    limit = float(par.core.scen.time_limit[0])
+    while par.agents:
+        obs, *_ = par.step({a: FOLLOW for a in par.agents})
+        for agent, o in obs.items():
+            assert par.observation_space(agent).contains(o)
+            np.testing.assert_allclose(o[last], max(0.0, (limit - float(par.core.t[0])) / limit), atol=1e-6)
 
 
 def _v2v_slots(config, obs):
@@ -28,9 +50,10 @@ def _vehicle_slots(config, obs, lane):
 
 
 def test_off_by_default_and_checked():
-    assert "v2v" not in observation_layout(EnvConfig())
-    with pytest.raises(ConfigError, match="observation.v2v"):
-        EnvConfig.from_dict({"observation": {"v2v": "yes"}})
+    assert not {"v2v", "time_left"} & set(observation_layout(EnvConfig()))
+    for part in ("v2v", "time_left"):
+        with pytest.raises(ConfigError, match=f"observation.{part}"):
+            EnvConfig.from_dict({"observation": {part: "yes"}})
 
 
 def test_av_1_reads_that_av_0_pulls_out_and_npcs_are_not_avs():
