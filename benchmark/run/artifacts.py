@@ -633,7 +633,7 @@ def check_card(card: dict[str, Any] | None, config: Any, who: str) -> None:
         return
     from overtakezoo.zoo.members.learned import declared_config
 
-    now = card_contract(declared_config(card, config))  # (a card with a v2v part reads the v2v block)
+    now = card_contract(declared_config(card, config))  # (with the opt-in parts the card says it reads)
     size = card.get("observation_size")
     trained = f" (trained on {card['suite']})" if card.get("suite") else ""
     if size is not None and size != now["observation_size"]:

@@ -193,7 +193,7 @@ def boxed(art: Artifact, config: EnvConfig, who: str, allow_code: bool = False) 
     """The decider acting ``art`` in a sandboxed child (:mod:`.sandbox`), probed on this config's
     observations; :class:`UserError` naming ``who`` when it cannot load or act. ``allow_code``: a
     TorchScript file (the user's own, for ``eval --policy`` or ``submit``'s conversion) may load."""
-    config = declared_config(art.card or art.policy_card, config)  # (the v2v block, when its card reads it)
+    config = declared_config(art.card or art.policy_card, config)  # (with the opt-in parts its card reads)
     try:
         box = SandboxedPolicy(art.kind, art.data, config, art.box_card, who, allow_code=allow_code)
     except PolicyFailure as exc:
