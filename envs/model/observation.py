@@ -123,10 +123,7 @@ def observe(
             _write_v2v(out, view_mode[:, sel], lanes, rank, kept, base + 2 * k * SLOT_FEATURES, k, xp)
         if xp.sync_free:  # every vehicle's features, masked, added into its slot: no data-dependent shape
             feats = _slot_features(xp.cos(psi), xp.sin(psi), dx, dy, v, v_along, lane_width, oc, xp)
-            slot = base + (lanes * k + xp.minimum(rank, k - 1)) * SLOT_FEATURES  # (M, N); unkept add zeros
-            index = slot[None] + xp.arange(SLOT_FEATURES)[:, None, None]
-            values = xp.astype(xp.where(kept[None], feats, 0.0), np.float32)
-            xp.scatter_add(out, index.reshape(SLOT_FEATURES * m, -1), values.reshape(SLOT_FEATURES * m, -1))
+            _add_into_slots(out, feats, lanes, rank, kept, base, k, xp)
             return rows_out
         vj, vn = xp.nonzero2(kept)
         if len(vn):
@@ -139,14 +136,20 @@ def observe(
 
 def _write_v2v(out: Any, view_mode: Any, lanes: Any, rank: Any, kept: Any, base: int, k: int, xp: Any) -> None:
     """Each kept vehicle's v2v features (is an AV, overtaking, aborting) into its slot of the block
-    at ``base``, through the transposed view ``out`` (a scatter-add of masked values: no
-    data-dependent shape, the same on every backend)."""
-    m = kept.shape[0]
-    feats = xp.stack([view_mode >= 0, view_mode == OVERTAKE, view_mode == ABORT])  # (3, M, N)
-    slot = base + (lanes * k + xp.minimum(rank, k - 1)) * V2V_FEATURES  # (M, N); unkept add zeros
-    index = slot[None] + xp.arange(V2V_FEATURES)[:, None, None]
-    values = xp.astype(xp.where(kept[None], xp.astype(feats, np.float32), 0.0), np.float32)
-    xp.scatter_add(out, index.reshape(V2V_FEATURES * m, -1), values.reshape(V2V_FEATURES * m, -1))
+    at ``base`` (the same on every backend)."""
+    feats = xp.astype(xp.stack([view_mode >= 0, view_mode == OVERTAKE, view_mode == ABORT]), np.float32)
+    _add_into_slots(out, feats, lanes, rank, kept, base, k, xp)
+
+
+def _add_into_slots(out: Any, feats: Any, lanes: Any, rank: Any, kept: Any, base: int, k: int, xp: Any) -> None:
+    """Every vehicle's (F, M, N) features ``feats``, zeroed where not ``kept``, added into its slot
+    (lane, rank) of the F-wide slots from ``base``, through the transposed view ``out``: a
+    scatter-add with no data-dependent shape (unkept vehicles add zeros to the last slot)."""
+    f, m = feats.shape[0], kept.shape[0]
+    slot = base + (lanes * k + xp.minimum(rank, k - 1)) * f  # (M, N)
+    index = slot[None] + xp.arange(f)[:, None, None]
+    values = xp.astype(xp.where(kept[None], feats, 0.0), np.float32)
+    xp.scatter_add(out, index.reshape(f * m, -1), values.reshape(f * m, -1))
 
 
 def _slot_features(c: Any, s: Any, ddx: Any, ddy: Any, vv: Any, v_along: Any, lane_width: Any, oc: Any, xp: Any) -> Any:

@@ -75,7 +75,7 @@ def declared_config(card: dict[str, Any] | None, config: EnvConfig) -> EnvConfig
         if (isinstance(observation, dict) and observation.get(part) is True)
         or (isinstance(layout, dict) and part in layout)
     }
-    return config.with_observation(**on) if any(not getattr(config.observation, p) for p in on) else config
+    return config.with_observation(**on) if on else config
 
 
 def read_parts(decider: Any) -> dict[str, bool]:

@@ -159,8 +159,8 @@ class Trainer:
 
     def __init__(self, algo: str, hp: DQNHyperparams, suites: list[Any], seed: int, name: str | None = None) -> None:
         self.algo, self.hp, self.suites, self.seed = algo, hp, list(suites), int(seed)
-        if observed_parts(hp):  # the same suites, observed with the opt-in parts
-            parts = observed_parts(hp)
+        parts = observed_parts(hp)  # the same suites, observed with the opt-in parts
+        if parts:
             self.suites = [dataclasses.replace(s, config=s.config.with_observation(**parts)) for s in self.suites]
         self.train_name = name or "+".join(s.name for s in self.suites)
         # Seeding: torch for the network's initial weights, numpy for exploration and replay sampling.
