@@ -89,8 +89,8 @@ def download(
             f"no mirror delivered {name}; rebuilding it from the registry's recipe (suite {recipe['suite']}, "
             f"{recipe['count']} scenarios, {', '.join(p['decider'] for p in recipe['policies'])})"
         )
-        build_entry(name, entry, progress=progress)  # installed only if the content hash matches
-        say(f"  rebuilt; its content hash matches the registry's ({entry['content_sha256'][:16]}...)")
+        digest = build_entry(name, entry, progress=progress)  # installed only if the content hash matches
+        say(f"  rebuilt; its content hash matches the registry's ({digest[:16]}...)")
         return root / name
     where = "; ".join(failures) if failures else f"the registry lists no mirror for {name}"
     kept = part.stat().st_size if entry["mirrors"] and part.exists() else 0

@@ -47,13 +47,15 @@ def load_registry(path: Path | None = None) -> dict[str, dict[str, Any]]:
             and archive_ok
             and (mirrors == [] or e.get("sha256") is not None)
             and (e.get("content_sha256") is None or _is_sha(e["content_sha256"]))
+            and isinstance(e.get("rebuild_sha256", []), list)
+            and all(_is_sha(h) for h in e.get("rebuild_sha256", []))
             and isinstance(e.get("recipe", {}), dict)
             and _is_shares(e.get("outcomes", {}))
         ):
             raise UserError(
                 f"dataset registry {path}: entry {name!r} needs mirrors (list of URLs) with the "
                 "archive's size (int) and sha256 (64 hex), and optionally recipe (object) and "
-                "content_sha256 (64 hex), outcomes ({name: share in [0, 1]})"
+                "content_sha256 (64 hex), rebuild_sha256 (a list of 64 hex), outcomes ({name: share in [0, 1]})"
             )
         e["mirrors"] = mirrors
         out[name] = e

@@ -5,6 +5,7 @@ download tries the mirrors in order on a real 127.0.0.1 server, resuming from a 
 from __future__ import annotations
 
 import json
+import shutil
 import socket
 from pathlib import Path
 
@@ -128,6 +129,17 @@ def test_tampered_content_hash_or_other_versions_are_refused(published, home, ca
     assert "does not reproduce" in err and "nothing was installed" in err and err.count("\n") == 1
     datasets = home / "fresh" / "datasets" / "overtakezoo" / "t1"
     assert not datasets.exists() or list(datasets.iterdir()) == []  # no dataset, no staging left behind
+
+    # A malformed list of other CPUs' rebuild hashes is a registry error; a listed hash that the rebuild
+    # gives is accepted (the same recipe under another CPU's float kernels: store.py).
+    edit(lambda e: e.update(rebuild_sha256=["xyz"]))
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
+    assert "rebuild_sha256 (a list of 64 hex)" in capsys.readouterr().err
+    edit(lambda e: e.update(rebuild_sha256=["1" * 64, reg[MEDIUM]["content_sha256"]]))
+    assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 0
+    assert f"content hash matches the registry's ({reg[MEDIUM]['content_sha256'][:16]}" in capsys.readouterr().out
+    shutil.rmtree(home / "fresh" / "datasets")
+    edit(lambda e: e.pop("rebuild_sha256"))
 
     edit(lambda e: e.update(content_sha256=reg[MEDIUM]["content_sha256"]) or e["recipe"].update(suite_sha256="1" * 64))
     assert main(["dataset", "download", MEDIUM, "--no-progress"]) == 2
