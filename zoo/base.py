@@ -245,6 +245,7 @@ def _builtin() -> dict[str, Member]:
         "dqn": "dqn",
         "double-dqn": "dqn",
         "ps-dqn": "dqn",
+        "ps-dqn-multi": "dqn",
         "ppo": "ppo",
         "bc": "bc",
         "cql": "cql",
@@ -258,7 +259,8 @@ def _builtin() -> dict[str, Member]:
         Member("fuzzy", "rule", "fuzzy", shieldable=True),
         Member("oracle", "privileged", "oracle"),
         Member("joint-oracle", "privileged", "joint_oracle"),  # plans every AV of a multi-AV road together
-        # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing).
+        # ps-dqn: dqn whose one Q-network drove every AV of multi-AV roads in training (parameter sharing);
+        # ps-dqn-multi: the same, trained on the multi-AV roads alone (multi-train).
         *(Member(n, "learned", "learned", trainer=t, shieldable=True) for n, t in learned.items()),
     ]
     wrapped = [Member(f"{m.name}+shield", "wrapper", "shield", wraps=m.name) for m in own if m.shieldable]

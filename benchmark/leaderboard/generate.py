@@ -102,7 +102,7 @@ def generate(root: str | Path = "leaderboards") -> dict[str, bytes]:
         if population:
             driver_rows.setdefault(population[0], {})[population[1]] = live
         if name in MULTI or (population and DRIVER_FAMILIES[population[0]] in MULTI):
-            entry = _multi_suite(name, suite, live, flagged, stale, files, cross_index.get(name))
+            entry = _multi_suite(name, suite, live, flagged, stale, files, cross_index.get(name), seeds)
             (driver_index if population else multi)[name] = entry
             continue
         suite_ref = ref if ref and ref["suite"] == name else None
@@ -173,12 +173,14 @@ def _multi_suite(
     stale: list,
     files: dict[str, bytes],
     cross: dict[str, Any] | None,
+    seeds: dict[str, Any],
 ) -> dict[str, Any]:
     """A multi-agent suite's table and plot (into ``files``); returns its index entry."""
     ml = multi_leaderboard
     ranked, bounds = ml.split(live)
+    over_seeds = ml.seed_entries(seeds, suite, ranked, bounds) if suite is not None else {}
     files[f"{name}.md"] = ml.markdown(
-        name, suite, ranked, bounds, stale, _policy_cell, cross and cross["table"], flagged
+        name, suite, ranked, bounds, stale, _policy_cell, cross and cross["table"], flagged, over_seeds
     ).encode()
     if live:
         files[f"{name}.png"] = ml.plot(name, ranked, bounds)
@@ -190,6 +192,7 @@ def _multi_suite(
         "plot": f"{name}.png" if live else None,
         "entries": [ml.entry(row, _entry(row), bounds) for row in ranked],
         "upper_bounds": [ml.entry(row, _entry(row)) for row in bounds],
+        "seeds": over_seeds,
         "flagged": [{**ml.entry(row, _entry(row)), "why": fresh.flag(row.results)} for row in flagged],
         "stale": [{"file": row.rel, "reasons": [{"field": f, "measured_on": w} for f, w in why]} for row, why in stale],
     }

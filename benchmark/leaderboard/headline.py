@@ -225,6 +225,9 @@ def generalization(
 
 
 # ------------------------------------------------------------------ inputs from the leaderboard
+MULTI_COUNTS = ("roads", "all_succeed", "av_av_crash")  # a seeds file's per-road counts on a multi-AV suite
+
+
 def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
     """``seeds/<member>.json`` (written by ``overtakezoo seeds``): every training seed's outcome
     counts per suite, and the shipped seed with its selection rule."""
@@ -237,6 +240,9 @@ def load_seeds(root: Path) -> dict[str, dict[str, Any]]:
                 for c in entry["suites"].values():
                     assert all(isinstance(c[k], int) and not isinstance(c[k], bool) for k in ("n", "success", "crash"))
                     assert 0 <= c["success"] + c["crash"] <= c["n"] and c["n"] > 0
+                    if "roads" in c:  # a multi-AV suite: per-road counts too (multi.seed_section)
+                        assert all(isinstance(c[k], int) and not isinstance(c[k], bool) for k in MULTI_COUNTS)
+                        assert 0 < c["roads"] and all(0 <= c[k] <= c["roads"] for k in MULTI_COUNTS[1:])
                     assert isinstance(c["suite_sha256"], str)
         except (ValueError, KeyError, TypeError, AssertionError) as exc:
             raise UserError(f"{path}: malformed seeds file ({type(exc).__name__}: {exc})") from None

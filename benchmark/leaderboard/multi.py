@@ -14,12 +14,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from overtakezoo.benchmark.errors import UserError
 from overtakezoo.benchmark.leaderboard import fresh
+from overtakezoo.benchmark.leaderboard.headline import Counts, mean_over_seeds
 from overtakezoo.benchmark.leaderboard.plots import rate_plot
 from overtakezoo.benchmark.leaderboard.rows import Row, describe
 from overtakezoo.benchmark.leaderboard.safety_board import safety_section
 from overtakezoo.benchmark.leaderboard.untrusted import md, md_code, md_image, md_link
-from overtakezoo.benchmark.results.metrics import format_metric, render_table
+from overtakezoo.benchmark.results.metrics import format_metric, render_table, wilson
 from overtakezoo.benchmark.results.multi_metrics import JOINT, MULTI_TABLE
 
 _LABELS = {k: label for k, label, _, _ in MULTI_TABLE}
@@ -161,6 +163,7 @@ def markdown(
     policy_cell: Any,
     crossplay: str | None = None,
     flagged: list[Row] = (),
+    seeds: dict[str, Any] | None = None,
 ) -> str:
     num_avs = suite.num_avs if suite is not None else None
     out = page_header(
@@ -199,6 +202,7 @@ def markdown(
         if bounds:
             out += upper_bounds_heading(", and plan every AV of the road together")
             out += _rows_table(bounds, policy_cell, ranked=False) + [""]
+        out += seed_section(seeds or {})
         out += [
             "### Per AV index",
             "",
@@ -224,6 +228,85 @@ def markdown(
         out.append("")
     out += safety_section(shown, "## Safety (per AV, pooled)")
     return "\n".join(out + flagged_section(flagged, policy_cell) + stale_section(stale))
+
+
+def seed_entries(
+    seeds: dict[str, dict[str, Any]], suite: Any, ranked: Sequence[Row], bounds: Sequence[Row]
+) -> dict[str, Any]:
+    """Each learned member whose seeds file covers ``suite`` (every seed at its hash): every seed's joint
+    success and AV-AV crash rate (per road, Wilson CIs), their mean over seeds with a bootstrap CI over
+    seeds and roads (headline.mean_over_seeds), and the mean's gap to the best upper bound in points.
+    The shipped seed's joint success must be the member's ranked row's (as headline.build_table holds
+    the single-ego suites): a seeds file cannot claim more for it than the verified row shows."""
+    bound = max(map(_joint_success, bounds)) if bounds else None
+    rows = {row.name: row for row in ranked}
+    out = {}
+    for member, doc in sorted(seeds.items()):
+        got = [(e["seed"], e["suites"].get(suite.name)) for e in doc["seeds"]]
+        if not got or any(c is None or c.get("suite_sha256") != suite.hash or "roads" not in c for _, c in got):
+            continue
+        shipped = next((c for seed, c in got if seed == doc["shipped_seed"]), None)
+        if member in rows and shipped is not None:
+            row = rows[member].results.summary["joint"]["all_succeed"]["value"]
+            if row is None or abs(row - shipped["all_succeed"] / shipped["roads"]) > 1e-12:
+                raise UserError(
+                    f"seeds/{member}.json: shipped seed {doc['shipped_seed']} on {suite.name}: joint success "
+                    f"{shipped['all_succeed']} of {shipped['roads']} roads, its verified row {row}"
+                )
+        per_seed = [
+            {
+                "seed": seed,
+                "shipped": seed == doc["shipped_seed"],
+                "all_succeed": c["all_succeed"] / c["roads"],
+                "all_succeed_ci": list(wilson(c["all_succeed"], c["roads"])),
+                "av_crash": c["av_av_crash"] / c["roads"],
+                "av_crash_ci": list(wilson(c["av_av_crash"], c["roads"])),
+            }
+            for seed, c in got
+        ]
+        counts = [Counts(c["all_succeed"], c["av_av_crash"], c["roads"]) for _, c in got]
+        joint, crash = mean_over_seeds(counts, "success"), mean_over_seeds(counts, "crash")
+        out[member] = {
+            "per_seed": per_seed,
+            "all_succeed": {k: joint[k] for k in ("value", "lo", "hi")},
+            "av_crash": {k: crash[k] for k in ("value", "lo", "hi")},
+            "gap_to_bound_points": None if bound is None else round(100 * (bound - joint["value"]), 1),
+        }
+    return out
+
+
+def seed_section(entries: dict[str, Any]) -> list[str]:
+    """Markdown of :func:`seed_entries`: the learned members over their training seeds, in self-play."""
+    if not entries:
+        return []
+
+    def pct(v: float, ci: Sequence[float]) -> str:
+        return f"{100 * v:.1f} % [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+    gap = GAP_LABEL if any(e["gap_to_bound_points"] is not None for e in entries.values()) else None
+    head = ["member", "seed", "all AVs succeed", "AV-AV crash", *([gap] if gap else []), "shipped"]
+    out = [
+        "### Learned members over their training seeds",
+        "",
+        "Every training seed of each learned member whose seeds file covers this suite (`seeds/<member>.json`, "
+        "written by `overtakezoo seeds`; `leaderboard --verify` re-runs each seed's counts), in self-play: "
+        "per road, with Wilson intervals per seed and, for the mean over seeds, a bootstrap interval over "
+        "seeds and roads. The ranked table above holds the shipped seed.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    for member, e in entries.items():
+        for s in e["per_seed"]:
+            cells = [md(member), md(s["seed"]), pct(s["all_succeed"], s["all_succeed_ci"])]
+            cells += [pct(s["av_crash"], s["av_crash_ci"]), *([""] if gap else []), "yes" if s["shipped"] else ""]
+            out.append("| " + " | ".join(cells) + " |")
+        j, c, points = e["all_succeed"], e["av_crash"], e["gap_to_bound_points"]
+        cells = [f"**{md(member)}**", f"mean of {len(e['per_seed'])}", pct(j["value"], (j["lo"], j["hi"]))]
+        gap_cell = f"{points:.1f}" if points is not None else "-"
+        cells += [pct(c["value"], (c["lo"], c["hi"])), *([gap_cell] if gap else [])]
+        out.append("| " + " | ".join(cells + [""]) + " |")
+    return out + [""]
 
 
 def upper_bounds_heading(how: str = "") -> list[str]:

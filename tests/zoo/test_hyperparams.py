@@ -105,10 +105,15 @@ def test_bad_ppo_hyperparameters_are_one_line_naming_section_and_key(tmp_path, c
 
 
 def test_shipped_hyperparameter_files_load_and_round_trip():
-    for algo in ("dqn", "double-dqn", "ps-dqn"):
+    for algo in ("dqn", "double-dqn", "ps-dqn", "ps-dqn-multi"):
         hp, name = load_hyperparams(DQNHyperparams, hyperparams_file(algo))
         assert name == f"{algo}.toml" and hp.double == (algo == "double-dqn") and hp.hidden == (128, 128)
         assert build(DQNHyperparams, as_dict(hp), "card") == hp
+    # ps-dqn-multi is ps-dqn's recipe on other roads: the same hyperparameters, key for key.
+    assert (
+        load_hyperparams(DQNHyperparams, hyperparams_file("ps-dqn-multi"))[0]
+        == (load_hyperparams(DQNHyperparams, hyperparams_file("ps-dqn"))[0])
+    )
 
 
 def test_schema_helper_for_other_trainers():
