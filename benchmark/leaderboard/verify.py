@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import fnmatch
 import hashlib
+import math
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -500,9 +501,22 @@ def compare_check(row: Row, outcome: np.ndarray, check_seed: int) -> None:
         )
 
 
+# Per-scenario minima of a time to collision count a vehicle only while it is in the ego's path
+# (|lateral offset| < half width, envs/core.py _update_stats): a vehicle at that edge is counted in or
+# out by the last bit of its offset, and those bits depend on the CPU's float kernels (NumPy's float64
+# exp / log / power run AVX-512 kernels on an Intel Xeon, others on an AMD EPYC), so on another kind
+# of CPU a row can re-run with every outcome and every other value equal and a few of these minima
+# moved (measured: mixed-drivers-aggressive/double-dqn, recorded on a Xeon, re-run on an EPYC: 2 of
+# 1000 roads, min_ttc 0.0112 -> 0.0162 s). Each may differ in at most EDGE_SHARE of the values compared
+# (at least one); everything else must be equal.
+EDGE_KEYS = ("min_ttc", "min_headon_ttc")
+EDGE_SHARE = 0.01
+
+
 def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
-    """Raise naming the first scenario (then the first field) where a re-run differs from the row.
-    Multi-AV rows compare every AV's value (AV-major arrays, results.py)."""
+    """Raise naming the first scenario (then the first field) where a re-run differs from the row
+    (the time-to-collision minima: where more than EDGE_SHARE of them differ). Multi-AV rows compare
+    every AV's value (AV-major arrays, results.py)."""
     first: tuple[int, str, Any, Any, int] | None = None
     e = row.results.num_avs
     for key in row.results.per:  # the keys the row has (older rows have no safety arrays)
@@ -510,6 +524,8 @@ def compare(row: Row, indices: np.ndarray, got: dict[str, np.ndarray]) -> None:
         indices_av = np.tile(indices, e)
         same = (want == have) | (np.isnan(want) & np.isnan(have)) if want.dtype.kind == "f" else want == have
         bad = np.flatnonzero(~same)
+        if key in EDGE_KEYS and bad.size <= max(1, math.ceil(EDGE_SHARE * want.size)):
+            continue
         if bad.size:
             bad = bad[np.argsort(indices_av[bad], kind="stable")]  # the first scenario, then the lowest AV
         if bad.size and (first is None or indices_av[bad[0]] < first[0]):
